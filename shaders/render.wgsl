@@ -1,0 +1,29 @@
+// render: depth (z, metres) and camera-frame unit normal per ROI pixel for
+// each hypothesis, written as vec4(normal, depth) (zero = background).
+// Prefixed with raster.wgsl. CPU twin: src/kernels/raster.rs (render_cpu).
+
+@group(0) @binding(4) var<storage, read_write> images: array<vec4<f32>>;
+
+@compute @workgroup_size(256)
+fn render_main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let npix = params.width * params.height;
+    let base = wid.x * npix;
+    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
+        let p = poses[h];
+        clear_slot(base, lid);
+        storageBarrier();
+        raster_slot(p, base, lid);
+        storageBarrier();
+        for (var i = lid; i < npix; i += WG) {
+            let key = atomicLoad(&vis[base + i]);
+            let x = f32(i % params.width);
+            let y = f32(i / params.width);
+            images[h * npix + i] = resolve(p, key, x, y);
+        }
+        storageBarrier();
+    }
+}

@@ -1,0 +1,124 @@
+// score: the visual-alignment score (eq. 3-5) of each hypothesis, fused with
+// rendering so no image leaves the workgroup. Prefixed with raster.wgsl.
+//
+// Over V = {observed depth > 0} ∪ {rendered depth > 0}:
+//   a_d = 1 - min(1, |d - d̂| / tau)       (0 where only one image is valid)
+//   a_n = 1 - min(1, (1 - clamp(n·n̂, 0, 1)) / alpha)   (0 where a normal is missing)
+//   score = (mean a_d + mean a_n) / 2, 0 when V is empty.
+// Partial sums are reduced in workgroup memory; one 32-byte record per
+// hypothesis is written. CPU twin: src/kernels/score.rs (score_cpu).
+
+struct Record {
+    score: f32, mean_ad: f32, mean_an: f32, valid: u32,
+    rendered: u32, observed: u32, front: u32, behind: u32,
+}
+
+// Observed normal (xyz, zero if unknown) and depth (w, zero if invalid).
+@group(0) @binding(4) var<storage, read> observed: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> records: array<Record>;
+
+var<workgroup> s_sum: array<vec2<f32>, WG>;
+var<workgroup> s_cnt: array<vec4<u32>, WG>;
+var<workgroup> s_behind: array<u32, WG>;
+
+@compute @workgroup_size(256)
+fn score_main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let npix = params.width * params.height;
+    let base = wid.x * npix;
+    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
+        let p = poses[h];
+        clear_slot(base, lid);
+        storageBarrier();
+        raster_slot(p, base, lid);
+        storageBarrier();
+        var sum = vec2<f32>(0.0);
+        var cnt = vec4<u32>(0u); // valid, rendered, observed, front
+        var behind = 0u;
+        for (var i = lid; i < npix; i += WG) {
+            let key = atomicLoad(&vis[base + i]);
+            let obs = observed[i];
+            let has_obs = obs.w > 0.0;
+            let has_ren = key != EMPTY;
+            if (!(has_obs || has_ren)) {
+                continue;
+            }
+            cnt.x += 1u;
+            if (has_obs) {
+                cnt.z += 1u;
+            }
+            if (!has_ren) {
+                continue;
+            }
+            cnt.y += 1u;
+            if (!has_obs) {
+                continue;
+            }
+            let r = resolve(p, key, f32(i % params.width), f32(i / params.width));
+            let diff = r.w - obs.w;
+            sum.x += 1.0 - min(1.0, abs(diff) / params.tau);
+            if (dot(obs.xyz, obs.xyz) > 0.0) {
+                let c = clamp(dot(obs.xyz, r.xyz), 0.0, 1.0);
+                sum.y += 1.0 - min(1.0, (1.0 - c) / params.alpha);
+            }
+            if (diff < -params.tau) {
+                cnt.w += 1u;
+            } else if (diff > params.tau) {
+                behind += 1u;
+            }
+        }
+        s_sum[lid] = sum;
+        s_cnt[lid] = cnt;
+        s_behind[lid] = behind;
+        workgroupBarrier();
+        for (var s = WG / 2u; s > 0u; s >>= 1u) {
+            if (lid < s) {
+                s_sum[lid] += s_sum[lid + s];
+                s_cnt[lid] += s_cnt[lid + s];
+                s_behind[lid] += s_behind[lid + s];
+            }
+            workgroupBarrier();
+        }
+        if (lid == 0u) {
+            let c = s_cnt[0];
+            var rec: Record;
+            rec.valid = c.x;
+            rec.rendered = c.y;
+            rec.observed = c.z;
+            rec.front = c.w;
+            rec.behind = s_behind[0];
+            if (c.x > 0u) {
+                let inv = 1.0 / f32(c.x);
+                rec.mean_ad = s_sum[0].x * inv;
+                rec.mean_an = s_sum[0].y * inv;
+                rec.score = 0.5 * (rec.mean_ad + rec.mean_an);
+            } else {
+                rec.mean_ad = 0.0;
+                rec.mean_an = 0.0;
+                rec.score = 0.0;
+            }
+            records[h] = rec;
+        }
+        workgroupBarrier();
+    }
+}
+
+// Rasterization alone (no scoring), so `bench` can split render from reduce.
+@compute @workgroup_size(256)
+fn raster_main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let npix = params.width * params.height;
+    let base = wid.x * npix;
+    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
+        clear_slot(base, lid);
+        storageBarrier();
+        raster_slot(poses[h], base, lid);
+        storageBarrier();
+    }
+}

@@ -1,0 +1,83 @@
+//! The library's error type. Every failure a user can cause (bad files, bad
+//! numbers, no GPU) maps to a variant whose message says what is wrong and,
+//! where there is one, what to do about it.
+
+use std::path::PathBuf;
+
+/// Errors returned by the `plausible` library.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("{path}: file not found")]
+    NotFound { path: PathBuf },
+
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+
+    #[error("{path}: unsupported mesh format '{ext}' (expected .obj, .ply, .stl, .gltf or .glb)")]
+    UnsupportedFormat { path: PathBuf, ext: String },
+
+    #[error("{path}: malformed mesh: {reason}")]
+    MalformedMesh { path: PathBuf, reason: String },
+
+    #[error("{path}: mesh has no triangles")]
+    NoTriangles { path: PathBuf },
+
+    #[error("{path}: vertex {index} is not finite ({value:?})")]
+    NonFiniteVertex {
+        path: PathBuf,
+        index: usize,
+        value: [f64; 3],
+    },
+
+    #[error("{path}: face {face} refers to vertex {index}, but the mesh has only {count} vertices")]
+    IndexOutOfRange {
+        path: PathBuf,
+        face: usize,
+        index: u64,
+        count: usize,
+    },
+
+    #[error("{path}: {reason}")]
+    BadImage { path: PathBuf, reason: String },
+
+    #[error("{what}: {reason}")]
+    BadCamera { what: String, reason: String },
+
+    #[error("pose {index}: {reason}")]
+    BadPose { index: usize, reason: String },
+
+    #[error("{path}: {reason}")]
+    BadJson { path: PathBuf, reason: String },
+
+    #[error("{0}")]
+    InvalidInput(String),
+
+    #[error(
+        "no GPU adapter found{detail}. Install a Vulkan driver (on Debian/Ubuntu: \
+         `apt-get install mesa-vulkan-drivers` gives the lavapipe software adapter) \
+         or run the CPU implementation with `--device cpu`"
+    )]
+    NoAdapter { detail: String },
+
+    #[error("GPU error: {0}")]
+    Gpu(String),
+}
+
+/// Convenience alias used throughout the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// Wraps an I/O error, turning "not found" into [`Error::NotFound`].
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        let path = path.into();
+        if source.kind() == std::io::ErrorKind::NotFound {
+            Error::NotFound { path }
+        } else {
+            Error::Io { path, source }
+        }
+    }
+}

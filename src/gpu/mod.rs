@@ -1,0 +1,213 @@
+//! GPU context: adapter selection (with the user's overrides), device limits
+//! that drive batch splitting, and small helpers for buffers and readback.
+
+use std::sync::Arc;
+
+use crate::error::{Error, Result};
+
+/// How to pick the adapter.
+#[derive(Clone, Debug, Default)]
+pub struct GpuOptions {
+    /// Pick the first adapter whose name contains this (case-insensitive).
+    pub adapter: Option<String>,
+    /// Cap the limits used for batch splitting (tests use this to force
+    /// small batches); `None` uses the adapter's own limits.
+    pub limits: Option<BatchLimits>,
+}
+
+/// The limits that decide how a batch is split.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BatchLimits {
+    /// Largest storage-buffer binding in bytes.
+    pub max_storage_binding: u64,
+    /// Largest buffer in bytes.
+    pub max_buffer: u64,
+    /// Most workgroups in one dispatch dimension.
+    pub max_workgroups: u32,
+}
+
+impl BatchLimits {
+    fn from_wgpu(l: &wgpu::Limits) -> Self {
+        BatchLimits {
+            max_storage_binding: l.max_storage_buffer_binding_size as u64,
+            max_buffer: l.max_buffer_size,
+            max_workgroups: l.max_compute_workgroups_per_dimension,
+        }
+    }
+
+    /// The element-wise minimum of two sets of limits.
+    pub fn min(self, o: BatchLimits) -> BatchLimits {
+        BatchLimits {
+            max_storage_binding: self.max_storage_binding.min(o.max_storage_binding),
+            max_buffer: self.max_buffer.min(o.max_buffer),
+            max_workgroups: self.max_workgroups.min(o.max_workgroups),
+        }
+    }
+
+    /// Largest number of `elem`-byte items one storage binding can hold.
+    pub fn max_items(&self, elem: u64) -> u64 {
+        self.max_storage_binding.min(self.max_buffer) / elem
+    }
+}
+
+/// A device and queue on a chosen adapter.
+#[derive(Clone)]
+pub struct Context {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    pub limits: BatchLimits,
+    /// Pipelines are compiled once per context and kept here.
+    pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, Arc<wgpu::ComputePipeline>>>>,
+}
+
+impl std::fmt::Debug for Context {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Context({} on {:?})", self.info.name, self.info.backend)
+    }
+}
+
+impl Context {
+    /// Opens a device. Backends: `WGPU_BACKEND` when set, otherwise the
+    /// primary ones (Vulkan, Metal, DX12): probing GL on a headless server
+    /// only prints noise, so GL is used only when asked for. Power
+    /// preference: `WGPU_POWER_PREF` or the default.
+    pub fn new(opts: &GpuOptions) -> Result<Context> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = wgpu::Backends::PRIMARY;
+        let desc = desc.with_env();
+        let backends = desc.backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapter = match &opts.adapter {
+            Some(name) => {
+                let all = pollster::block_on(instance.enumerate_adapters(backends));
+                let names: Vec<String> = all.iter().map(|a| a.get_info().name).collect();
+                let needle = name.to_lowercase();
+                all.into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&needle))
+                    .ok_or_else(|| Error::NoAdapter {
+                        detail: format!(
+                            " matching '{name}' (available: {})",
+                            if names.is_empty() { "none".to_string() } else { names.join(", ") }
+                        ),
+                    })?
+            }
+            None => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
+                force_fallback_adapter: false,
+                compatible_surface: None,
+                apply_limit_buckets: false,
+            }))
+            .map_err(|e| Error::NoAdapter { detail: format!(" ({e}; backends tried: {backends:?})") })?,
+        };
+        let info = adapter.get_info();
+        let alimits = adapter.limits();
+        let mut required = wgpu::Limits::downlevel_defaults();
+        required.max_storage_buffer_binding_size = alimits.max_storage_buffer_binding_size;
+        required.max_buffer_size = alimits.max_buffer_size;
+        required.max_compute_workgroups_per_dimension = alimits.max_compute_workgroups_per_dimension;
+        required.max_compute_invocations_per_workgroup = alimits.max_compute_invocations_per_workgroup.min(256);
+        required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
+        required.max_storage_buffers_per_shader_stage = alimits.max_storage_buffers_per_shader_stage.min(8);
+        required.max_compute_workgroup_storage_size = alimits.max_compute_workgroup_storage_size.min(16384);
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("plausible"),
+            required_features: wgpu::Features::empty(),
+            required_limits: required.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| Error::Gpu(format!("could not open a device on {}: {e}", info.name)))?;
+        let mut limits = BatchLimits::from_wgpu(&required);
+        if let Some(l) = opts.limits {
+            limits = limits.min(l);
+        }
+        tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+        Ok(Context { device, queue, info, limits, cache: Default::default() })
+    }
+
+    /// A one-line description: adapter name and backend.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.backend)
+    }
+
+    /// True for software adapters (lavapipe/llvmpipe, WARP, SwiftShader).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// Compiles (once) the compute pipeline `entry` of `source`.
+    pub(crate) fn pipeline(&self, key: &'static str, source: &str, entry: &str) -> Arc<wgpu::ComputePipeline> {
+        let mut cache = self.cache.lock().unwrap();
+        if let Some(p) = cache.get(key) {
+            return p.clone();
+        }
+        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(key),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let p = Arc::new(self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(key),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        }));
+        cache.insert(key, p.clone());
+        p
+    }
+
+    /// Blocks until all submitted work is done.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
+            .map(|_| ())
+            .map_err(|e| Error::Gpu(e.to_string()))
+    }
+
+    /// Copies `size` bytes of `src` to the host and returns them.
+    pub fn read_buffer(&self, src: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(src, 0, &staging, 0, size);
+        self.queue.submit([enc.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|e| Error::Gpu(e.to_string()))?
+            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
+        let out = slice.get_mapped_range().map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?.to_vec();
+        staging.unmap();
+        Ok(out)
+    }
+}
+
+/// Reads `PLAUSIBLE_REQUIRE_GPU`: tests that need an adapter fail instead of
+/// skipping when it is `1`.
+pub fn gpu_required() -> bool {
+    std::env::var("PLAUSIBLE_REQUIRE_GPU").map(|v| v == "1").unwrap_or(false)
+}
+
+/// For tests: a context, or `None` with a printed reason (panics instead when
+/// `PLAUSIBLE_REQUIRE_GPU=1`).
+pub fn test_context() -> Option<Context> {
+    match Context::new(&GpuOptions::default()) {
+        Ok(c) => Some(c),
+        Err(e) if !gpu_required() => {
+            eprintln!("skipping GPU test: {e}");
+            None
+        }
+        Err(e) => panic!("PLAUSIBLE_REQUIRE_GPU=1 but no adapter: {e}"),
+    }
+}

@@ -1,0 +1,148 @@
+//! GPU kernels and their CPU twins.
+//!
+//! Each kernel lives in its own module with the dispatch code and a plain
+//! Rust twin that computes the same thing readably; the WGSL is in
+//! `shaders/<kernel>.wgsl`. Structs shared with WGSL are `#[repr(C)]`
+//! bytemuck types with size asserts.
+//!
+//! The visual kernels rasterize in a compute shader (see `raster`): one
+//! workgroup per hypothesis resolves visibility with `atomicMin` on a packed
+//! `(quantized depth, triangle id)` key, then recomputes exact depth and the
+//! flat face normal from the winning triangle's plane. The score kernel fuses
+//! that with the eq. 3-5 alignment and a workgroup reduction, so only one
+//! record per hypothesis leaves the GPU.
+
+pub mod raster;
+pub mod score;
+
+use bytemuck::{Pod, Zeroable};
+use glam::{DVec3, Vec3};
+
+use crate::error::{Error, Result};
+use crate::mesh::Mesh;
+use crate::pose::Pose;
+
+/// The WGSL shared by the visual kernels (bindings 0-3 and the rasterizer).
+pub const RASTER_WGSL: &str = include_str!("../../shaders/raster.wgsl");
+
+/// Most triangles a render mesh may have: triangle ids take at most 24 bits
+/// of the 32-bit visibility key, leaving at least 8 bits of depth.
+pub const MAX_TRIANGLES: usize = 1 << 24;
+
+/// Triangles closer to the camera than this (m) are not drawn.
+pub const NEAR_M: f32 = 1e-3;
+
+/// One triangle as the GPU sees it: model-space corners and its plane
+/// (`n · x = d`, unit outward normal).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuTriangle {
+    pub v0: [f32; 4],
+    pub v1: [f32; 4],
+    pub v2: [f32; 4],
+    pub plane: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<GpuTriangle>() == 64);
+
+/// A pose as three rows of `[R | t]` (metres).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct GpuPose {
+    pub rows: [[f32; 4]; 3],
+}
+const _: () = assert!(std::mem::size_of::<GpuPose>() == 48);
+
+impl From<&Pose> for GpuPose {
+    fn from(p: &Pose) -> Self {
+        let r = p.r.transpose().to_cols_array_2d(); // rows of R
+        let mut rows = [[0.0f32; 4]; 3];
+        for i in 0..3 {
+            rows[i] = [r[i][0] as f32, r[i][1] as f32, r[i][2] as f32, p.t[i] as f32];
+        }
+        GpuPose { rows }
+    }
+}
+
+impl GpuPose {
+    #[inline]
+    pub fn rotate(&self, v: Vec3) -> Vec3 {
+        let r = &self.rows;
+        Vec3::new(
+            r[0][0] * v.x + r[0][1] * v.y + r[0][2] * v.z,
+            r[1][0] * v.x + r[1][1] * v.y + r[1][2] * v.z,
+            r[2][0] * v.x + r[2][1] * v.y + r[2][2] * v.z,
+        )
+    }
+    #[inline]
+    pub fn transform(&self, v: Vec3) -> Vec3 {
+        self.rotate(v) + self.translation()
+    }
+    #[inline]
+    pub fn translation(&self) -> Vec3 {
+        Vec3::new(self.rows[0][3], self.rows[1][3], self.rows[2][3])
+    }
+}
+
+/// Uniform parameters of the visual kernels (must match `Params` in
+/// `shaders/raster.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct RasterParams {
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+    pub width: u32,
+    pub height: u32,
+    pub n_hyp: u32,
+    pub n_tri: u32,
+    pub id_bits: u32,
+    pub cull: u32,
+    pub radius: f32,
+    pub tau: f32,
+    pub alpha: f32,
+    pub near: f32,
+    pub _pad: [u32; 2],
+}
+const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
+
+/// A mesh prepared for rendering: f32 triangles with planes, its bounding
+/// radius about the model origin, and whether back faces may be culled
+/// (only for closed meshes: through an open mesh's holes you see inside).
+#[derive(Clone, Debug)]
+pub struct RenderMesh {
+    pub triangles: Vec<GpuTriangle>,
+    pub radius: f32,
+    pub cull_back_faces: bool,
+}
+
+impl RenderMesh {
+    pub fn new(mesh: &Mesh) -> Result<RenderMesh> {
+        if mesh.triangles.len() > MAX_TRIANGLES {
+            return Err(Error::InvalidInput(format!(
+                "mesh has {} triangles; at most {MAX_TRIANGLES} can be rendered (decimate it first)",
+                mesh.triangles.len()
+            )));
+        }
+        let v4 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32, 0.0];
+        let triangles = (0..mesh.triangles.len())
+            .map(|i| {
+                let [a, b, c] = mesh.corners(i);
+                let n = mesh.face_normal(i);
+                GpuTriangle { v0: v4(a), v1: v4(b), v2: v4(c), plane: [n.x as f32, n.y as f32, n.z as f32, n.dot(a) as f32] }
+            })
+            .collect();
+        let mut welded = mesh.clone();
+        welded.weld();
+        Ok(RenderMesh {
+            triangles,
+            radius: (mesh.radius_about_origin() * 1.0001) as f32,
+            cull_back_faces: welded.is_closed(),
+        })
+    }
+
+    /// Bits of the visibility key used for the triangle id.
+    pub fn id_bits(&self) -> u32 {
+        (usize::BITS - self.triangles.len().saturating_sub(1).leading_zeros()).max(1)
+    }
+}

@@ -1,0 +1,261 @@
+//! `render` kernel: depth and flat face normal per pixel for each hypothesis.
+//!
+//! The CPU twin [`render_cpu`] is a plain z-buffer rasterizer with the same
+//! coverage rule (pixel centres inside or on the edge), the same
+//! perspective-correct depth for the visibility test and the same exact
+//! plane-based depth and normal per pixel as `shaders/raster.wgsl`.
+
+use glam::Vec3;
+
+use super::{GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M, RASTER_WGSL};
+use crate::camera::Intrinsics;
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::pose::Pose;
+
+/// Depth (m, 0 = background) and unit camera-frame normal per pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderImage {
+    pub width: u32,
+    pub height: u32,
+    pub depth: Vec<f32>,
+    pub normals: Vec<Vec3>,
+}
+
+/// Rasterizes `mesh` at `pose` into a z-buffer of triangle ids (`u32::MAX`
+/// for background) and depths. `zbuf` and `ids` must hold `w * h` items;
+/// they are overwritten.
+pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) {
+    let (w, h) = (k.width as usize, k.height as usize);
+    zbuf.fill(f32::INFINITY);
+    ids.fill(u32::MAX);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let project = |v: Vec3| -> (f32, f32) { (fx * v.x / v.z + cx, fy * v.y / v.z + cy) };
+    let cross2 = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
+    let sub = |a: (f32, f32), b: (f32, f32)| (a.0 - b.0, a.1 - b.1);
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let a = pose.transform(Vec3::from_slice(&tri.v0[..3]));
+        let b = pose.transform(Vec3::from_slice(&tri.v1[..3]));
+        let c = pose.transform(Vec3::from_slice(&tri.v2[..3]));
+        if a.z.min(b.z).min(c.z) < NEAR_M {
+            continue;
+        }
+        if mesh.cull_back_faces && pose.rotate(Vec3::from_slice(&tri.plane[..3])).dot(a) >= 0.0 {
+            continue;
+        }
+        let (sa, sb, sc) = (project(a), project(b), project(c));
+        let area = cross2(sub(sb, sa), sub(sc, sa));
+        if area.abs() < 1e-12 {
+            continue;
+        }
+        let x_lo = sa.0.min(sb.0).min(sc.0).ceil().max(0.0);
+        let y_lo = sa.1.min(sb.1).min(sc.1).ceil().max(0.0);
+        let x_hi = sa.0.max(sb.0).max(sc.0).floor().min(w as f32 - 1.0);
+        let y_hi = sa.1.max(sb.1).max(sc.1).floor().min(h as f32 - 1.0);
+        if x_lo > x_hi || y_lo > y_hi {
+            continue;
+        }
+        let inv = 1.0 / area;
+        for y in y_lo as usize..=y_hi as usize {
+            for x in x_lo as usize..=x_hi as usize {
+                let q = (x as f32, y as f32);
+                let w0 = cross2(sub(sc, sb), sub(q, sb)) * inv;
+                let w1 = cross2(sub(sa, sc), sub(q, sc)) * inv;
+                let w2 = cross2(sub(sb, sa), sub(q, sa)) * inv;
+                if w0.min(w1).min(w2) < 0.0 {
+                    continue;
+                }
+                let z = 1.0 / (w0 / a.z + w1 / b.z + w2 / c.z);
+                let i = y * w + x;
+                if z < zbuf[i] {
+                    zbuf[i] = z;
+                    ids[i] = t as u32;
+                }
+            }
+        }
+    }
+}
+
+/// Exact depth and camera-facing normal at pixel `(x, y)` on triangle `tri`
+/// (the twin of `resolve` in `shaders/raster.wgsl`).
+#[inline]
+pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, k: &Intrinsics, x: f32, y: f32) -> (f32, Vec3) {
+    let n = pose.rotate(Vec3::from_slice(&tri.plane[..3]));
+    let d = tri.plane[3] + n.dot(pose.translation());
+    let ray = Vec3::new((x - k.cx as f32) / k.fx as f32, (y - k.cy as f32) / k.fy as f32, 1.0);
+    let den = n.dot(ray);
+    let r2 = Vec3::from_slice(&pose.rows[2][..3]);
+    let zs = [tri.v0, tri.v1, tri.v2].map(|v| r2.dot(Vec3::from_slice(&v[..3])) + pose.rows[2][3]);
+    let (zlo, zhi) = (zs[0].min(zs[1]).min(zs[2]), zs[0].max(zs[1]).max(zs[2]));
+    let z = if den.abs() > 1e-12 { (d / den).clamp(zlo, zhi) } else { 0.5 * (zlo + zhi) };
+    (z, if den > 0.0 { -n } else { n })
+}
+
+/// CPU twin of the `render` kernel for one pose.
+pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage {
+    let n = k.pixels();
+    let gp = GpuPose::from(pose);
+    let mut zbuf = vec![0.0; n];
+    let mut ids = vec![0; n];
+    raster_ids(mesh, &gp, k, &mut zbuf, &mut ids);
+    let mut depth = vec![0.0; n];
+    let mut normals = vec![Vec3::ZERO; n];
+    for i in 0..n {
+        if ids[i] != u32::MAX {
+            let x = (i % k.width as usize) as f32;
+            let y = (i / k.width as usize) as f32;
+            let (z, nn) = resolve(&mesh.triangles[ids[i] as usize], &gp, k, x, y);
+            depth[i] = z;
+            normals[i] = nn;
+        }
+    }
+    RenderImage { width: k.width, height: k.height, depth, normals }
+}
+
+pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: f32, alpha: f32) -> RasterParams {
+    RasterParams {
+        fx: k.fx as f32,
+        fy: k.fy as f32,
+        cx: k.cx as f32,
+        cy: k.cy as f32,
+        width: k.width,
+        height: k.height,
+        n_hyp,
+        n_tri: mesh.triangles.len() as u32,
+        id_bits: mesh.id_bits(),
+        cull: mesh.cull_back_faces as u32,
+        radius: mesh.radius,
+        tau,
+        alpha,
+        near: NEAR_M,
+        _pad: [0; 2],
+    }
+}
+
+/// GPU buffers a visual kernel needs for one mesh and image size.
+pub(crate) struct RasterBuffers {
+    pub params: wgpu::Buffer,
+    pub tris: wgpu::Buffer,
+    pub poses: wgpu::Buffer,
+    pub vis: wgpu::Buffer,
+    /// Hypotheses per dispatch.
+    pub chunk: usize,
+    /// Workgroups (visibility slots) per dispatch.
+    pub slots: u32,
+}
+
+/// Upper bound on the visibility buffer, so memory stays bounded whatever
+/// the adapter allows.
+const VIS_BUDGET_BYTES: u64 = 256 << 20;
+
+impl RasterBuffers {
+    /// Sizes the buffers so every binding fits the adapter's limits;
+    /// `per_hyp_bytes` is what each hypothesis adds to the largest output.
+    pub fn new(ctx: &Context, mesh: &RenderMesh, k: &Intrinsics, n: usize, per_hyp_bytes: u64, max_chunk: usize) -> Result<Self> {
+        use wgpu::util::DeviceExt;
+        let lim = ctx.limits;
+        let pix = k.pixels() as u64;
+        let tri_bytes = (mesh.triangles.len() * std::mem::size_of::<GpuTriangle>()) as u64;
+        if tri_bytes > lim.max_storage_binding.min(lim.max_buffer) {
+            return Err(Error::Gpu(format!(
+                "mesh needs {tri_bytes} bytes of triangles but the adapter binds at most {} bytes: decimate it",
+                lim.max_storage_binding
+            )));
+        }
+        if pix * 16 > lim.max_storage_binding.min(lim.max_buffer) {
+            return Err(Error::Gpu(format!("a {}x{} region is too large for this adapter", k.width, k.height)));
+        }
+        let chunk = (n.max(1) as u64)
+            .min(lim.max_items(std::mem::size_of::<GpuPose>() as u64))
+            .min(lim.max_items(per_hyp_bytes.max(1)))
+            .min(max_chunk.max(1) as u64)
+            .max(1) as usize;
+        let slots = (chunk as u64)
+            .min(lim.max_workgroups as u64)
+            .min((lim.max_storage_binding.min(lim.max_buffer).min(VIS_BUDGET_BYTES) / (pix * 4)).max(1))
+            .max(1) as u32;
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        let tris = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("triangles"),
+            contents: bytemuck::cast_slice(&mesh.triangles),
+            usage: storage,
+        });
+        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: std::mem::size_of::<RasterParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let poses = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("poses"),
+            size: (chunk * std::mem::size_of::<GpuPose>()) as u64,
+            usage: storage,
+            mapped_at_creation: false,
+        });
+        let vis = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("visibility"),
+            size: slots as u64 * pix * 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        Ok(RasterBuffers { params, tris, poses, vis, chunk, slots })
+    }
+
+    pub fn entries(&self) -> [wgpu::BindGroupEntry<'_>; 4] {
+        [
+            wgpu::BindGroupEntry { binding: 0, resource: self.params.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
+        ]
+    }
+}
+
+/// GPU `render` kernel: depth and normals of every pose (for tests and
+/// pictures; scoring uses the fused `score` kernel instead).
+pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Result<Vec<RenderImage>> {
+    let pix = k.pixels();
+    let bufs = RasterBuffers::new(ctx, mesh, k, poses.len(), pix as u64 * 16, usize::MAX)?;
+    let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"));
+    let pipeline = ctx.pipeline("render", &src, "render_main");
+    let images = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("images"),
+        size: (bufs.chunk * pix * 16) as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let mut entries = bufs.entries().to_vec();
+    entries.push(wgpu::BindGroupEntry { binding: 4, resource: images.as_entire_binding() });
+    let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("render"),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    });
+    let mut out = Vec::with_capacity(poses.len());
+    for chunk in poses.chunks(bufs.chunk) {
+        let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
+        let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0);
+        ctx.queue.write_buffer(&bufs.params, 0, bytemuck::bytes_of(&params));
+        ctx.queue.write_buffer(&bufs.poses, 0, bytemuck::cast_slice(&gp));
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(bufs.slots.min(chunk.len() as u32), 1, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        let bytes = ctx.read_buffer(&images, (chunk.len() * pix * 16) as u64)?;
+        let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+        for h in 0..chunk.len() {
+            let img = &px[h * pix..(h + 1) * pix];
+            out.push(RenderImage {
+                width: k.width,
+                height: k.height,
+                depth: img.iter().map(|p| p[3]).collect(),
+                normals: img.iter().map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
+            });
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,333 @@
+//! `score` kernel: the visual-alignment score (eq. 3-5) fused with rendering
+//! and reduced on the GPU to one [`ScoreRecord`] per hypothesis.
+//!
+//! The CPU twin renders with [`raster_ids`](super::raster::raster_ids) and
+//! scores with [`score_image`]: the definition, written out plainly.
+
+use std::time::{Duration, Instant};
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::raster::{raster_ids, raster_params, resolve, RasterBuffers};
+use super::{GpuPose, RenderMesh, RASTER_WGSL};
+use crate::error::Result;
+use crate::gpu::Context;
+use crate::observation::ScoreTarget;
+use crate::pose::Pose;
+
+/// Alignment tolerances of eq. 4-5.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScoreParams {
+    /// Depth tolerance τ in metres (authors' code: 0.02).
+    pub tau: f32,
+    /// Normal tolerance α on `1 - n·n̂` (authors' code: 0.7).
+    pub alpha: f32,
+}
+
+impl Default for ScoreParams {
+    fn default() -> Self {
+        ScoreParams { tau: 0.02, alpha: 0.7 }
+    }
+}
+
+/// Per-hypothesis result, as written by the GPU (32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ScoreRecord {
+    /// ½ (mean a_d + mean a_n) over V; 0 when V is empty.
+    pub score: f32,
+    pub mean_ad: f32,
+    pub mean_an: f32,
+    /// |V|: pixels valid in the observation or the rendering.
+    pub valid: u32,
+    /// Pixels where the hypothesis renders.
+    pub rendered: u32,
+    /// Pixels with observed (masked) depth.
+    pub observed: u32,
+    /// Rendered more than τ in front of the observation.
+    pub front: u32,
+    /// Rendered more than τ behind the observation.
+    pub behind: u32,
+}
+const _: () = assert!(std::mem::size_of::<ScoreRecord>() == 32);
+
+/// Accumulates eq. 3-5 over one hypothesis' pixels.
+#[derive(Default)]
+struct Acc {
+    ad: f64,
+    an: f64,
+    rec: ScoreRecord,
+}
+
+impl Acc {
+    #[inline]
+    fn pixel(&mut self, obs_d: f32, obs_n: Vec3, ren: Option<(f32, Vec3)>, p: &ScoreParams) {
+        let has_obs = obs_d > 0.0;
+        if !has_obs && ren.is_none() {
+            return;
+        }
+        self.rec.valid += 1;
+        self.rec.observed += has_obs as u32;
+        let Some((d, n)) = ren else { return };
+        self.rec.rendered += 1;
+        if !has_obs {
+            return; // valid in one image only: a_d = a_n = 0
+        }
+        let diff = d - obs_d;
+        self.ad += (1.0 - (diff.abs() / p.tau).min(1.0)) as f64;
+        if obs_n != Vec3::ZERO {
+            let c = obs_n.dot(n).clamp(0.0, 1.0);
+            self.an += (1.0 - ((1.0 - c) / p.alpha).min(1.0)) as f64;
+        }
+        if diff < -p.tau {
+            self.rec.front += 1;
+        } else if diff > p.tau {
+            self.rec.behind += 1;
+        }
+    }
+
+    fn finish(mut self) -> ScoreRecord {
+        if self.rec.valid > 0 {
+            let inv = 1.0 / self.rec.valid as f64;
+            self.rec.mean_ad = (self.ad * inv) as f32;
+            self.rec.mean_an = (self.an * inv) as f32;
+            self.rec.score = (0.5 * (self.ad + self.an) * inv) as f32;
+        }
+        self.rec
+    }
+}
+
+/// Scores one rendered depth/normal image against the target (the
+/// definition of eq. 3-5, pixel by pixel).
+pub fn score_image(target: &ScoreTarget, depth: &[f32], normals: &[Vec3], p: &ScoreParams) -> ScoreRecord {
+    let mut acc = Acc::default();
+    for i in 0..target.depth.len() {
+        let ren = (depth[i] > 0.0).then(|| (depth[i], normals[i]));
+        acc.pixel(target.depth[i], target.normals[i], ren, p);
+    }
+    acc.finish()
+}
+
+/// CPU twin of the fused `score` kernel for a batch: renders each pose into
+/// a per-thread z-buffer and scores it, in parallel over hypotheses.
+pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &ScoreParams) -> Vec<ScoreRecord> {
+    let k = &target.intrinsics;
+    let n = k.pixels();
+    poses
+        .par_iter()
+        .map_init(
+            || (vec![0.0f32; n], vec![0u32; n]),
+            |(zbuf, ids), pose| {
+                let gp = GpuPose::from(pose);
+                raster_ids(mesh, &gp, k, zbuf, ids);
+                let mut acc = Acc::default();
+                for i in 0..n {
+                    let ren = (ids[i] != u32::MAX).then(|| {
+                        let x = (i % k.width as usize) as f32;
+                        let y = (i / k.width as usize) as f32;
+                        resolve(&mesh.triangles[ids[i] as usize], &gp, k, x, y)
+                    });
+                    acc.pixel(target.depth[i], target.normals[i], ren, p);
+                }
+                acc.finish()
+            },
+        )
+        .collect()
+}
+
+/// Wall-clock time per stage of a GPU scoring run.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StageTimes {
+    /// Writing poses (and parameters) to the GPU.
+    pub upload: Duration,
+    /// The fused render + score + reduce dispatch.
+    pub compute: Duration,
+    /// Copying the records back.
+    pub readback: Duration,
+}
+
+impl std::ops::AddAssign for StageTimes {
+    fn add_assign(&mut self, o: Self) {
+        self.upload += o.upload;
+        self.compute += o.compute;
+        self.readback += o.readback;
+    }
+}
+
+/// The GPU scorer for one mesh and one observation; reuse it for many
+/// batches of poses.
+pub struct GpuScorer {
+    ctx: Context,
+    mesh: RenderMesh,
+    target_intrinsics: crate::camera::Intrinsics,
+    params: ScoreParams,
+    bufs: RasterBuffers,
+    records: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    bind: wgpu::BindGroup,
+    raster_bind: wgpu::BindGroup,
+    pipeline: std::sync::Arc<wgpu::ComputePipeline>,
+    raster_pipeline: std::sync::Arc<wgpu::ComputePipeline>,
+}
+
+/// Default most hypotheses per dispatch: keeps each submission short (the
+/// OS watchdog on desktop GPUs) and memory bounded for any N.
+pub const DEFAULT_MAX_CHUNK: usize = 4096;
+
+impl GpuScorer {
+    /// Uploads the mesh and the observation. `n_hint` sizes the buffers
+    /// (batches larger than what fits are split automatically).
+    pub fn new(ctx: &Context, mesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, n_hint: usize) -> Result<Self> {
+        Self::with_max_chunk(ctx, mesh, target, params, n_hint, DEFAULT_MAX_CHUNK)
+    }
+
+    pub fn with_max_chunk(
+        ctx: &Context,
+        mesh: &RenderMesh,
+        target: &ScoreTarget,
+        params: ScoreParams,
+        n_hint: usize,
+        max_chunk: usize,
+    ) -> Result<Self> {
+        use wgpu::util::DeviceExt;
+        let k = target.intrinsics;
+        let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, std::mem::size_of::<ScoreRecord>() as u64, max_chunk)?;
+        let obs: Vec<[f32; 4]> = target
+            .depth
+            .iter()
+            .zip(&target.normals)
+            .map(|(&d, n)| [n.x, n.y, n.z, d])
+            .collect();
+        let observed = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("observed"),
+            contents: bytemuck::cast_slice(&obs),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let rec_bytes = (bufs.chunk * std::mem::size_of::<ScoreRecord>()) as u64;
+        let records = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("records"),
+            size: rec_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("records staging"),
+            size: rec_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"));
+        let pipeline = ctx.pipeline("score", &src, "score_main");
+        let raster_pipeline = ctx.pipeline("score/raster", &src, "raster_main");
+        let mut entries = bufs.entries().to_vec();
+        entries.push(wgpu::BindGroupEntry { binding: 4, resource: observed.as_entire_binding() });
+        entries.push(wgpu::BindGroupEntry { binding: 5, resource: records.as_entire_binding() });
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("score"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        let raster_bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("score/raster"),
+            layout: &raster_pipeline.get_bind_group_layout(0),
+            entries: &bufs.entries(),
+        });
+        Ok(GpuScorer {
+            ctx: ctx.clone(),
+            mesh: mesh.clone(),
+            target_intrinsics: k,
+            params,
+            bufs,
+            records,
+            staging,
+            bind,
+            raster_bind,
+            pipeline,
+            raster_pipeline,
+        })
+    }
+
+    /// Hypotheses per dispatch.
+    pub fn chunk_size(&self) -> usize {
+        self.bufs.chunk
+    }
+
+    /// Scores `poses` (any number; split into chunks), returning records in
+    /// input order and the time spent per stage.
+    pub fn score(&self, poses: &[Pose]) -> Result<(Vec<ScoreRecord>, StageTimes)> {
+        let mut out = Vec::with_capacity(poses.len());
+        let mut times = StageTimes::default();
+        for chunk in poses.chunks(self.bufs.chunk) {
+            let (r, t) = self.run_chunk(chunk, false)?;
+            out.extend(r);
+            times += t;
+        }
+        Ok((out, times))
+    }
+
+    /// Runs rasterization alone over `poses` and returns its wall time (for
+    /// the benchmark's render/reduce split).
+    pub fn raster_only(&self, poses: &[Pose]) -> Result<Duration> {
+        let mut total = Duration::ZERO;
+        for chunk in poses.chunks(self.bufs.chunk) {
+            total += self.run_chunk(chunk, true)?.1.compute;
+        }
+        Ok(total)
+    }
+
+    fn run_chunk(&self, chunk: &[Pose], raster_only: bool) -> Result<(Vec<ScoreRecord>, StageTimes)> {
+        let ctx = &self.ctx;
+        let mut times = StageTimes::default();
+        let t0 = Instant::now();
+        let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
+        let params = raster_params(&self.mesh, &self.target_intrinsics, chunk.len() as u32, self.params.tau, self.params.alpha);
+        ctx.queue.write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&params));
+        ctx.queue.write_buffer(&self.bufs.poses, 0, bytemuck::cast_slice(&gp));
+        ctx.queue.submit([]);
+        ctx.wait()?;
+        times.upload = t0.elapsed();
+
+        let t1 = Instant::now();
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            if raster_only {
+                pass.set_pipeline(&self.raster_pipeline);
+                pass.set_bind_group(0, &self.raster_bind, &[]);
+            } else {
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.bind, &[]);
+            }
+            pass.dispatch_workgroups(self.bufs.slots.min(chunk.len() as u32), 1, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        ctx.wait()?;
+        times.compute = t1.elapsed();
+        if raster_only {
+            return Ok((Vec::new(), times));
+        }
+
+        let t2 = Instant::now();
+        let size = (chunk.len() * std::mem::size_of::<ScoreRecord>()) as u64;
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(&self.records, 0, &self.staging, 0, size);
+        ctx.queue.submit([enc.finish()]);
+        let slice = self.staging.slice(..size);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        ctx.wait()?;
+        rx.recv()
+            .map_err(|e| crate::Error::Gpu(e.to_string()))?
+            .map_err(|e| crate::Error::Gpu(format!("readback failed: {e}")))?;
+        let view = slice.get_mapped_range().map_err(|e| crate::Error::Gpu(format!("readback failed: {e}")))?;
+        let recs: Vec<ScoreRecord> = bytemuck::cast_slice(&view).to_vec();
+        drop(view);
+        self.staging.unmap();
+        times.readback = t2.elapsed();
+        Ok((recs, times))
+    }
+}

@@ -1,0 +1,242 @@
+//! Mass properties of a solid of uniform density bounded by a triangle mesh:
+//! volume, centre of mass and inertia tensor about the centre of mass.
+//!
+//! For a closed mesh they are exact integrals over the enclosed volume, from
+//! the signed tetrahedra that each triangle spans with a reference point
+//! (divergence theorem). An open mesh does not enclose a volume, so its
+//! integrals depend on the arbitrary reference point; for such meshes the
+//! properties are taken from the convex hull of the vertices instead (a
+//! documented fallback: exact for convex objects, an over-estimate of the
+//! volume of concave ones), and a warning says so.
+//!
+//! These are the properties physics uses (drop tests, stability): physics
+//! engines would otherwise derive them from the collider (a hull or a convex
+//! decomposition), which moves the centre of mass of concave objects.
+
+use glam::{DMat3, DVec3, Vec3};
+
+use super::Mesh;
+use crate::error::{Error, Result};
+
+/// Where the mass properties came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MassSource {
+    /// Integrated over the closed mesh itself.
+    ClosedMesh,
+    /// The mesh is open; integrated over the convex hull of its vertices.
+    ConvexHullFallback,
+}
+
+/// Volume, centre of mass and inertia of a uniform solid.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MassProperties {
+    /// Volume in m³ (always positive).
+    pub volume: f64,
+    /// Centre of mass in model coordinates (metres).
+    pub com: DVec3,
+    /// Inertia tensor about the centre of mass, model axes, for unit density
+    /// (kg/m³), in m⁵. Multiply by the density for kg·m².
+    pub inertia_unit_density: DMat3,
+    pub source: MassSource,
+}
+
+impl MassProperties {
+    /// Mass in kg for the given density in kg/m³.
+    pub fn mass(&self, density: f64) -> f64 {
+        self.volume * density
+    }
+
+    /// Inertia tensor about the centre of mass in kg·m² for a density in kg/m³.
+    pub fn inertia(&self, density: f64) -> DMat3 {
+        self.inertia_unit_density * density
+    }
+
+    /// Computes the mass properties of `mesh`, returning warnings about the
+    /// fallbacks used (open mesh, inverted winding).
+    ///
+    /// Errors when the solid has (numerically) zero volume: a flat or
+    /// degenerate mesh has no meaningful centre of mass or inertia.
+    pub fn of_mesh(mesh: &Mesh) -> Result<(MassProperties, Vec<String>)> {
+        let name = mesh.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "mesh".into());
+        let mut warnings = Vec::new();
+        let mut welded = mesh.clone();
+        welded.weld();
+        let (boundary, nonmanifold) = welded.edge_counts();
+        if boundary == 0 && nonmanifold == 0 {
+            let mut props = integrate(&welded.vertices, &welded.triangles);
+            if props.volume < 0.0 {
+                warnings.push(format!(
+                    "{name}: faces are wound inwards (negative volume); mass properties use the reversed orientation"
+                ));
+                props.volume = -props.volume;
+                props.inertia_unit_density = -props.inertia_unit_density;
+            }
+            check_volume(&name, &props, mesh.diagonal())?;
+            return Ok((props, warnings));
+        }
+        warnings.push(format!(
+            "{name}: mesh is not closed ({boundary} boundary, {nonmanifold} non-manifold edges), so it encloses \
+             no well-defined volume; mass properties are computed from the convex hull of its vertices \
+             (uniform density; this over-estimates the volume of concave objects and can move their centre of mass)"
+        ));
+        let (hv, ht) = convex_hull(&mesh.vertices).map_err(|reason| {
+            Error::InvalidInput(format!("{name}: cannot compute mass properties: {reason}"))
+        })?;
+        let mut props = integrate(&hv, &ht);
+        props.source = MassSource::ConvexHullFallback;
+        if props.volume < 0.0 {
+            props.volume = -props.volume;
+            props.inertia_unit_density = -props.inertia_unit_density;
+        }
+        check_volume(&name, &props, mesh.diagonal())?;
+        Ok((props, warnings))
+    }
+}
+
+/// Rejects solids whose volume is negligible against their bounding box
+/// (flat sheets, a single triangle, collapsed scans).
+fn check_volume(name: &str, props: &MassProperties, diagonal: f64) -> Result<()> {
+    let scale = diagonal.powi(3).max(f64::MIN_POSITIVE);
+    if !props.volume.is_finite() || props.volume <= 1e-9 * scale || !props.com.is_finite() {
+        return Err(Error::InvalidInput(format!(
+            "{name}: the mesh encloses (almost) zero volume ({:.3e} m³ for a {:.3} m bounding-box diagonal); \
+             stable poses need a solid object",
+            props.volume, diagonal
+        )));
+    }
+    Ok(())
+}
+
+/// Integrates volume, first and second moments over signed tetrahedra
+/// (reference point = bounding-box centre, to keep the sums well conditioned).
+/// The sign of the result follows the winding (outward CCW = positive).
+fn integrate(vertices: &[DVec3], triangles: &[[u32; 3]]) -> MassProperties {
+    let (lo, hi) = vertices
+        .iter()
+        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), v| (l.min(*v), h.max(*v)));
+    let origin = if lo.is_finite() { 0.5 * (lo + hi) } else { DVec3::ZERO };
+    let mut six_vol = 0.0;
+    let mut first = DVec3::ZERO; // ∫ x dV, times 24
+    let mut second = DMat3::ZERO; // ∫ x xᵀ dV, times 120
+    for t in triangles {
+        let a = vertices[t[0] as usize] - origin;
+        let b = vertices[t[1] as usize] - origin;
+        let c = vertices[t[2] as usize] - origin;
+        let det = a.dot(b.cross(c));
+        six_vol += det;
+        let s = a + b + c;
+        first += det * s;
+        // ∫ x xᵀ over the tetrahedron (0, a, b, c) = det/120 (s sᵀ + a aᵀ + b bᵀ + c cᵀ).
+        second += (outer(s, s) + outer(a, a) + outer(b, b) + outer(c, c)) * det;
+    }
+    let volume = six_vol / 6.0;
+    let moment = first / 24.0;
+    let cov = second * (1.0 / 120.0);
+    let com_local = if volume.abs() > 0.0 { moment / volume } else { DVec3::ZERO };
+    // Covariance about the centre of mass, then I = tr(C) 1 - C.
+    let cov_com = cov - outer(com_local, com_local) * volume;
+    let trace = cov_com.x_axis.x + cov_com.y_axis.y + cov_com.z_axis.z;
+    let inertia = DMat3::from_diagonal(DVec3::splat(trace)) - cov_com;
+    MassProperties {
+        volume,
+        com: com_local + origin,
+        inertia_unit_density: inertia,
+        source: MassSource::ClosedMesh,
+    }
+}
+
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+/// Convex hull of a point set as a closed, outward-wound triangle mesh
+/// (computed by parry in `f32`, returned in `f64`). Errors (as text) for
+/// fewer than four points or points that span no volume.
+pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u32; 3]>), String> {
+    if points.len() < 4 {
+        return Err(format!("a convex hull needs at least 4 points, got {}", points.len()));
+    }
+    // Centre before converting to f32 so precision follows the object size.
+    let (lo, hi) = points
+        .iter()
+        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), v| (l.min(*v), h.max(*v)));
+    if !lo.is_finite() || !hi.is_finite() {
+        return Err("points are not finite".into());
+    }
+    let centre = 0.5 * (lo + hi);
+    let diag = (hi - lo).length();
+    if diag <= 0.0 {
+        return Err("all points coincide".into());
+    }
+    let pts: Vec<Vec3> = points.iter().map(|p| (*p - centre).as_vec3()).collect();
+    let (hv, ht) = rapier3d::parry::transformation::try_convex_hull(&pts)
+        .map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))?;
+    if ht.len() < 4 {
+        return Err("the points span no volume (flat or degenerate hull)".into());
+    }
+    Ok((hv.iter().map(|v| v.as_dvec3() + centre).collect(), ht))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes;
+
+    #[test]
+    fn box_matches_closed_form() {
+        let half = DVec3::new(0.1, 0.2, 0.3);
+        let mut m = shapes::cuboid(half);
+        for v in &mut m.vertices {
+            *v += DVec3::new(1.0, -2.0, 0.5);
+        }
+        let (p, w) = MassProperties::of_mesh(&m).unwrap();
+        assert!(w.is_empty());
+        let (a, b, c) = (0.2, 0.4, 0.6);
+        assert!((p.volume - a * b * c).abs() < 1e-12);
+        assert!((p.com - DVec3::new(1.0, -2.0, 0.5)).length() < 1e-12);
+        let v = a * b * c;
+        let expect = DVec3::new(v * (b * b + c * c) / 12.0, v * (a * a + c * c) / 12.0, v * (a * a + b * b) / 12.0);
+        let got = DVec3::new(p.inertia_unit_density.x_axis.x, p.inertia_unit_density.y_axis.y, p.inertia_unit_density.z_axis.z);
+        assert!((got - expect).length() < 1e-12, "{got} vs {expect}");
+        assert!(p.inertia_unit_density.x_axis.y.abs() < 1e-14);
+    }
+
+    #[test]
+    fn cylinder_and_sphere_are_close_to_analytic() {
+        let (p, _) = MassProperties::of_mesh(&shapes::cylinder(0.05, 0.2, 256)).unwrap();
+        let v = std::f64::consts::PI * 0.05f64.powi(2) * 0.2;
+        assert!((p.volume / v - 1.0).abs() < 1e-3);
+        let izz = v * 0.05f64.powi(2) / 2.0;
+        assert!((p.inertia_unit_density.z_axis.z / izz - 1.0).abs() < 2e-3);
+        let (s, _) = MassProperties::of_mesh(&shapes::icosphere(1.0, 4)).unwrap();
+        assert!((s.volume / (4.0 / 3.0 * std::f64::consts::PI) - 1.0).abs() < 5e-3);
+        assert!(s.com.length() < 1e-9);
+    }
+
+    #[test]
+    fn inverted_and_open_meshes_fall_back_with_warnings() {
+        let mut m = shapes::cuboid(DVec3::splat(0.5));
+        for t in &mut m.triangles {
+            t.swap(1, 2);
+        }
+        let (p, w) = MassProperties::of_mesh(&m).unwrap();
+        assert!((p.volume - 1.0).abs() < 1e-12 && w.len() == 1);
+        assert!(p.inertia_unit_density.x_axis.x > 0.0);
+        // Remove the top face: open, so the hull fallback gives the full cube.
+        let mut open = shapes::cuboid(DVec3::splat(0.5));
+        open.triangles.drain(2..4);
+        let (p, w) = MassProperties::of_mesh(&open).unwrap();
+        assert_eq!(p.source, MassSource::ConvexHullFallback);
+        assert!((p.volume - 1.0).abs() < 1e-5, "{}", p.volume);
+        assert!(w[0].contains("not closed"));
+    }
+
+    #[test]
+    fn flat_mesh_is_an_error() {
+        let v = vec![DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::new(1.0, 1.0, 0.0)];
+        let m = Mesh { vertices: v, triangles: vec![[0, 1, 2], [1, 3, 2]], source: None };
+        let err = MassProperties::of_mesh(&m).unwrap_err().to_string();
+        assert!(err.contains("zero volume") || err.contains("no volume"), "{err}");
+    }
+}

@@ -1,0 +1,285 @@
+//! Triangle meshes: loading (OBJ, PLY, STL, glTF/GLB), validation, units and
+//! the derived quantities every kernel needs (face planes, bounds).
+//!
+//! Meshes are kept in `f64` metres on the CPU; kernels convert to `f32` when
+//! they upload. Loading never panics: malformed input becomes an
+//! [`Error`](crate::Error), recoverable defects (degenerate faces, open
+//! boundaries, a unit guess) are reported in a [`MeshReport`].
+
+mod load;
+mod ply;
+mod stl;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+
+use crate::error::{Error, Result};
+
+pub use load::load_positions;
+
+/// Units of the numbers in a mesh file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum MeshUnits {
+    /// The file is in metres.
+    Metres,
+    /// The file is in millimetres (BOP models).
+    Millimetres,
+    /// Guess from the bounding-box diagonal: above 5 m the file is taken as
+    /// millimetres (and the report says so); below 5 mm a warning is issued.
+    #[default]
+    Auto,
+}
+
+impl std::str::FromStr for MeshUnits {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "m" | "metres" | "meters" => Ok(MeshUnits::Metres),
+            "mm" | "millimetres" | "millimeters" => Ok(MeshUnits::Millimetres),
+            "auto" => Ok(MeshUnits::Auto),
+            _ => Err(format!("unknown mesh units '{s}' (expected m, mm or auto)")),
+        }
+    }
+}
+
+/// Largest plausible object diagonal in metres; anything bigger is taken as
+/// millimetres by [`MeshUnits::Auto`].
+pub const MAX_DIAGONAL_M: f64 = 5.0;
+/// Smallest plausible object diagonal in metres; smaller meshes get a warning.
+pub const MIN_DIAGONAL_M: f64 = 0.005;
+
+/// What loading found out about a mesh besides its geometry.
+#[derive(Clone, Debug, Default)]
+pub struct MeshReport {
+    /// Faces with (near) zero area that were dropped.
+    pub degenerate_faces: usize,
+    /// Edges used by exactly one face (0 for a closed mesh).
+    pub boundary_edges: usize,
+    /// Edges used by more than two faces.
+    pub nonmanifold_edges: usize,
+    /// Scale applied to the file's numbers to get metres.
+    pub scale_to_metres: f64,
+    /// Human-readable warnings (units guessed, open boundary, ...).
+    pub warnings: Vec<String>,
+}
+
+/// A triangle mesh in metres.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    pub vertices: Vec<DVec3>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Where the mesh came from, for messages and provenance.
+    pub source: Option<PathBuf>,
+}
+
+impl Mesh {
+    /// Builds a mesh from raw positions and triangles, validating them the
+    /// same way as a file (`name` is used in error messages).
+    pub fn from_raw(
+        name: impl Into<PathBuf>,
+        vertices: Vec<DVec3>,
+        triangles: Vec<[u32; 3]>,
+    ) -> Result<(Mesh, MeshReport)> {
+        let path = name.into();
+        validate_and_clean(path, vertices, triangles, MeshUnits::Metres)
+    }
+
+    /// Loads a mesh file, converts it to metres and validates it.
+    pub fn load(path: impl AsRef<Path>, units: MeshUnits) -> Result<(Mesh, MeshReport)> {
+        let path = path.as_ref();
+        let (vertices, triangles) = load_positions(path)?;
+        validate_and_clean(path.to_path_buf(), vertices, triangles, units)
+    }
+
+    /// Axis-aligned bounds `(min, max)`.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        self.vertices.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), v| (lo.min(*v), hi.max(*v)),
+        )
+    }
+
+    /// Length of the bounding-box diagonal in metres.
+    pub fn diagonal(&self) -> f64 {
+        let (lo, hi) = self.bounds();
+        (hi - lo).length()
+    }
+
+    /// Radius of the smallest origin-centred sphere holding the mesh.
+    pub fn radius_about_origin(&self) -> f64 {
+        self.vertices.iter().map(|v| v.length()).fold(0.0, f64::max)
+    }
+
+    /// Uniformly scales the mesh about the origin.
+    pub fn scale(&mut self, s: f64) {
+        for v in &mut self.vertices {
+            *v *= s;
+        }
+    }
+
+    /// Moves the bounding-box centre to the origin and scales the mesh so its
+    /// bounding-box diagonal is `diagonal` metres (used by the demo and the
+    /// benchmarks to give meshes of arbitrary units a common size).
+    pub fn normalized(mut self, diagonal: f64) -> Mesh {
+        let (lo, hi) = self.bounds();
+        let c = 0.5 * (lo + hi);
+        let s = diagonal / (hi - lo).length();
+        for v in &mut self.vertices {
+            *v = (*v - c) * s;
+        }
+        self
+    }
+
+    /// Counts edges used by one face (boundary) and by more than two faces.
+    pub fn edge_counts(&self) -> (usize, usize) {
+        let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(self.triangles.len() * 3);
+        for t in &self.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+            }
+        }
+        let boundary = edges.values().filter(|&&c| c == 1).count();
+        let nonmanifold = edges.values().filter(|&&c| c > 2).count();
+        (boundary, nonmanifold)
+    }
+
+    /// True when every edge is shared by exactly two faces.
+    pub fn is_closed(&self) -> bool {
+        self.edge_counts() == (0, 0)
+    }
+
+    /// The three corners of triangle `i`.
+    pub fn corners(&self, i: usize) -> [DVec3; 3] {
+        let t = self.triangles[i];
+        [self.vertices[t[0] as usize], self.vertices[t[1] as usize], self.vertices[t[2] as usize]]
+    }
+
+    /// Unit normal of triangle `i` (counter-clockwise winding = outward).
+    pub fn face_normal(&self, i: usize) -> DVec3 {
+        let [a, b, c] = self.corners(i);
+        (b - a).cross(c - a).normalize_or_zero()
+    }
+
+    /// Total surface area in square metres.
+    pub fn area(&self) -> f64 {
+        (0..self.triangles.len())
+            .map(|i| {
+                let [a, b, c] = self.corners(i);
+                0.5 * (b - a).cross(c - a).length()
+            })
+            .sum()
+    }
+
+    /// Merges vertices that coincide exactly (OBJ/STL files often repeat
+    /// positions per face, which hides the mesh's connectivity).
+    pub fn weld(&mut self) {
+        let mut map: HashMap<[u64; 3], u32> = HashMap::with_capacity(self.vertices.len());
+        let mut remap = Vec::with_capacity(self.vertices.len());
+        let mut out = Vec::new();
+        for v in &self.vertices {
+            let key = [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+            let id = *map.entry(key).or_insert_with(|| {
+                out.push(*v);
+                (out.len() - 1) as u32
+            });
+            remap.push(id);
+        }
+        for t in &mut self.triangles {
+            for i in t.iter_mut() {
+                *i = remap[*i as usize];
+            }
+        }
+        self.vertices = out;
+    }
+}
+
+/// Validation shared by every loader: finite vertices, indices in range, at
+/// least one non-degenerate triangle, units, and a boundary check.
+fn validate_and_clean(
+    path: PathBuf,
+    vertices: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+    units: MeshUnits,
+) -> Result<(Mesh, MeshReport)> {
+    if let Some((index, v)) = vertices.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        return Err(Error::NonFiniteVertex { path, index, value: v.to_array() });
+    }
+    for (face, t) in triangles.iter().enumerate() {
+        if let Some(&i) = t.iter().find(|&&i| i as usize >= vertices.len()) {
+            return Err(Error::IndexOutOfRange { path, face, index: i as u64, count: vertices.len() });
+        }
+    }
+    if triangles.is_empty() {
+        return Err(Error::NoTriangles { path });
+    }
+    let mut report = MeshReport { scale_to_metres: 1.0, ..Default::default() };
+    let mut mesh = Mesh { vertices, triangles, source: Some(path.clone()) };
+    let diag = mesh.diagonal();
+    match units {
+        MeshUnits::Metres => {}
+        MeshUnits::Millimetres => report.scale_to_metres = 1e-3,
+        MeshUnits::Auto => {
+            if diag > MAX_DIAGONAL_M {
+                report.scale_to_metres = 1e-3;
+                report.warnings.push(format!(
+                    "bounding-box diagonal is {diag:.1} units; above {MAX_DIAGONAL_M} m, so the mesh is \
+                     taken to be in millimetres (pass --mesh-units m to override)"
+                ));
+            } else if diag < MIN_DIAGONAL_M {
+                report.warnings.push(format!(
+                    "bounding-box diagonal is {:.2} mm; this is unusually small for an object in metres \
+                     (pass --mesh-units to state the units)",
+                    diag * 1e3
+                ));
+            }
+        }
+    }
+    if report.scale_to_metres != 1.0 {
+        mesh.scale(report.scale_to_metres);
+    }
+    // Drop faces without area: they cannot be hit and have no normal.
+    let scale = mesh.diagonal().max(f64::MIN_POSITIVE);
+    let before = mesh.triangles.len();
+    let verts = &mesh.vertices;
+    mesh.triangles.retain(|t| {
+        let (a, b, c) = (verts[t[0] as usize], verts[t[1] as usize], verts[t[2] as usize]);
+        (b - a).cross(c - a).length() > 1e-14 * scale * scale
+    });
+    report.degenerate_faces = before - mesh.triangles.len();
+    if mesh.triangles.is_empty() {
+        return Err(Error::MalformedMesh { path, reason: "every face is degenerate (zero area)".into() });
+    }
+    if report.degenerate_faces > 0 {
+        report.warnings.push(format!("dropped {} degenerate (zero-area) faces", report.degenerate_faces));
+    }
+    let mut welded = mesh.clone();
+    welded.weld();
+    let (boundary, nonmanifold) = welded.edge_counts();
+    report.boundary_edges = boundary;
+    report.nonmanifold_edges = nonmanifold;
+    if boundary > 0 {
+        report.warnings.push(format!(
+            "mesh is open ({boundary} boundary edges): both sides of every face are rendered"
+        ));
+    }
+    Ok((mesh, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn unit_cube() -> Mesh {
+        crate::shapes::cuboid(DVec3::splat(0.5))
+    }
+
+    #[test]
+    fn cube_is_closed_with_area_6() {
+        let m = unit_cube();
+        assert!(m.is_closed());
+        assert!((m.area() - 6.0).abs() < 1e-12);
+    }
+}

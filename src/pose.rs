@@ -1,0 +1,238 @@
+//! Rigid poses (model -> camera), their validation and the BOP pose JSON.
+//!
+//! BOP stores `cam_R_m2c` row-major and `cam_t_m2c` in millimetres; inside
+//! the library translations are metres. Conversion happens here, at the
+//! boundary.
+
+use std::path::Path;
+
+use glam::{DMat3, DQuat, DVec3};
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+
+/// A rigid transform mapping model coordinates to camera coordinates
+/// (`x_cam = r * x_model + t`), translation in metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    pub r: DMat3,
+    pub t: DVec3,
+}
+
+/// How far `RᵀR` may be from the identity before a rotation is rejected.
+pub const ORTHONORMAL_TOL: f64 = 1e-3;
+
+impl Pose {
+    pub const IDENTITY: Pose = Pose { r: DMat3::IDENTITY, t: DVec3::ZERO };
+
+    pub fn new(r: DMat3, t: DVec3) -> Self {
+        Pose { r, t }
+    }
+
+    /// From a row-major 3x3 rotation and a translation in metres.
+    pub fn from_row_major(r: [f64; 9], t: [f64; 3]) -> Self {
+        Pose { r: DMat3::from_cols_array(&r).transpose(), t: DVec3::from_array(t) }
+    }
+
+    /// Row-major rotation (BOP order).
+    pub fn r_row_major(&self) -> [f64; 9] {
+        self.r.transpose().to_cols_array()
+    }
+
+    pub fn transform_point(&self, p: DVec3) -> DVec3 {
+        self.r * p + self.t
+    }
+
+    pub fn inverse(&self) -> Pose {
+        let rt = self.r.transpose();
+        Pose { r: rt, t: -(rt * self.t) }
+    }
+
+    /// `self ∘ other`: apply `other` first.
+    pub fn compose(&self, other: &Pose) -> Pose {
+        Pose { r: self.r * other.r, t: self.r * other.t + self.t }
+    }
+
+    /// Largest entry of `|RᵀR - I|`.
+    pub fn orthonormality_error(&self) -> f64 {
+        let e = self.r.transpose() * self.r - DMat3::IDENTITY;
+        e.to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()))
+    }
+
+    /// Angle in radians of the relative rotation between two poses.
+    pub fn rotation_angle_to(&self, other: &Pose) -> f64 {
+        let rel = self.r.transpose() * other.r;
+        let c = ((rel.x_axis.x + rel.y_axis.y + rel.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+        c.acos()
+    }
+
+    /// Checks the pose is usable: finite, a proper rotation, in front of the
+    /// camera. With `orthonormalize`, a slightly off rotation is projected
+    /// onto SO(3) instead of rejected.
+    pub fn validated(mut self, index: usize, orthonormalize: bool) -> Result<Pose> {
+        let bad = |reason: String| Error::BadPose { index, reason };
+        if !self.r.is_finite() || !self.t.is_finite() {
+            return Err(bad("contains NaN or infinity".into()));
+        }
+        if self.r.determinant() <= 0.0 {
+            return Err(bad(format!(
+                "rotation has determinant {:.4}; a rotation matrix must have determinant +1 (is it a reflection, or column-major?)",
+                self.r.determinant()
+            )));
+        }
+        let err = self.orthonormality_error();
+        if err > ORTHONORMAL_TOL {
+            if orthonormalize {
+                self.r = orthonormalize_rotation(self.r);
+            } else {
+                return Err(bad(format!(
+                    "rotation is not orthonormal (max |RᵀR - I| = {err:.2e} > {ORTHONORMAL_TOL:.0e}); \
+                     pass --orthonormalize to project it onto the nearest rotation"
+                )));
+            }
+        } else if err > 1e-9 {
+            self.r = orthonormalize_rotation(self.r);
+        }
+        if self.t.z <= 0.0 {
+            return Err(bad(format!("translation z = {:.4} m: the object is behind the camera", self.t.z)));
+        }
+        Ok(self)
+    }
+}
+
+/// Nearest rotation to `m` (orthogonal polar factor), by Newton iteration
+/// `X <- (X + X⁻ᵀ)/2`, which converges quadratically for `det m > 0`.
+pub fn orthonormalize_rotation(m: DMat3) -> DMat3 {
+    let mut x = m;
+    for _ in 0..30 {
+        let next = (x + x.inverse().transpose()) * 0.5;
+        let d = (next - x).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        x = next;
+        if d < 1e-15 {
+            break;
+        }
+    }
+    x
+}
+
+/// Rotation by `angle` radians about the unit `axis`.
+pub fn axis_angle(axis: DVec3, angle: f64) -> DMat3 {
+    DMat3::from_quat(DQuat::from_axis_angle(axis.normalize(), angle))
+}
+
+#[derive(Deserialize)]
+struct BopPose {
+    #[serde(rename = "cam_R_m2c")]
+    cam_r_m2c: Vec<f64>,
+    cam_t_m2c: Vec<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum PoseFile {
+    List(Vec<BopPose>),
+    Object { poses: Vec<BopPose> },
+}
+
+/// Units of pose translations in a file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum PoseUnits {
+    #[default]
+    Millimetres,
+    Metres,
+}
+
+/// Reads BOP-style pose hypotheses: a JSON list of
+/// `{"cam_R_m2c": [9, row-major], "cam_t_m2c": [3, mm]}` or an object with a
+/// `"poses"` list. Every pose is validated (see [`Pose::validated`]).
+pub fn read_poses(path: &Path, units: PoseUnits, orthonormalize: bool) -> Result<Vec<Pose>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
+    let file: PoseFile = serde_json::from_str(&text).map_err(|e| {
+        bad(format!(
+            "{e}; expected a list of {{\"cam_R_m2c\": [9 numbers], \"cam_t_m2c\": [3 numbers, mm]}} \
+             or {{\"poses\": [...]}}"
+        ))
+    })?;
+    let raw = match file {
+        PoseFile::List(v) => v,
+        PoseFile::Object { poses } => poses,
+    };
+    if raw.is_empty() {
+        return Err(bad("contains no poses".into()));
+    }
+    let scale = match units {
+        PoseUnits::Millimetres => 1e-3,
+        PoseUnits::Metres => 1.0,
+    };
+    let mut out = Vec::with_capacity(raw.len());
+    for (i, p) in raw.into_iter().enumerate() {
+        if p.cam_r_m2c.len() != 9 || p.cam_t_m2c.len() != 3 {
+            return Err(Error::BadPose {
+                index: i,
+                reason: format!(
+                    "cam_R_m2c needs 9 numbers and cam_t_m2c 3 (got {} and {})",
+                    p.cam_r_m2c.len(),
+                    p.cam_t_m2c.len()
+                ),
+            });
+        }
+        let r: [f64; 9] = p.cam_r_m2c.try_into().unwrap();
+        let t = [p.cam_t_m2c[0] * scale, p.cam_t_m2c[1] * scale, p.cam_t_m2c[2] * scale];
+        out.push(Pose::from_row_major(r, t).validated(i, orthonormalize)?);
+    }
+    if units == PoseUnits::Millimetres {
+        // A camera-to-object distance under 2 cm is not a real scene: the file
+        // almost certainly holds metres where BOP expects millimetres.
+        let mut d: Vec<f64> = out.iter().map(|p| p.t.length()).collect();
+        d.sort_by(f64::total_cmp);
+        let median = d[d.len() / 2];
+        if median < 0.02 {
+            return Err(bad(format!(
+                "median camera distance is {:.1} mm: cam_t_m2c looks like metres, but BOP poses are in \
+                 millimetres (pass --pose-units m if the file really holds metres)",
+                median * 1e3
+            )));
+        }
+    }
+    Ok(out)
+}
+
+/// Writes poses in the BOP pose JSON format (translations in millimetres).
+pub fn poses_to_json(poses: &[Pose]) -> serde_json::Value {
+    serde_json::Value::Array(
+        poses
+            .iter()
+            .map(|p| {
+                serde_json::json!({
+                    "cam_R_m2c": p.r_row_major(),
+                    "cam_t_m2c": (p.t * 1e3).to_array(),
+                })
+            })
+            .collect(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn row_major_round_trip() {
+        let r = axis_angle(DVec3::new(1.0, 2.0, 3.0), 0.7);
+        let p = Pose::new(r, DVec3::new(0.1, 0.2, 0.5));
+        let q = Pose::from_row_major(p.r_row_major(), p.t.to_array());
+        assert!((p.r - q.r).abs().max_element() < 1e-15);
+        // Row-major: element [1] is R[0][1] = second column's x.
+        assert_eq!(p.r_row_major()[1], p.r.y_axis.x);
+    }
+
+    #[test]
+    fn orthonormalize_recovers_rotation() {
+        let r = axis_angle(DVec3::new(0.3, -1.0, 0.2), 1.1);
+        let noisy = r + DMat3::from_cols_array(&[0.01, 0.0, 0.003, 0.0, -0.004, 0.0, 0.002, 0.0, 0.0]);
+        let fixed = orthonormalize_rotation(noisy);
+        assert!(Pose::new(fixed, DVec3::Z).orthonormality_error() < 1e-12);
+        assert!(Pose::new(fixed, DVec3::Z).rotation_angle_to(&Pose::new(r, DVec3::Z)) < 0.02);
+    }
+}
