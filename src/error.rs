@@ -65,6 +65,9 @@ pub enum Error {
 
     #[error("GPU error: {0}")]
     Gpu(String),
+
+    #[error("database {path}: {reason}")]
+    Database { path: PathBuf, reason: String },
 }
 
 /// Convenience alias used throughout the library.

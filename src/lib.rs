@@ -13,6 +13,7 @@
 pub mod error;
 pub mod mesh;
 pub mod shapes;
+pub mod stable;
 
 pub use error::{Error, Result};
 pub mod camera;
@@ -20,3 +21,6 @@ pub mod gpu;
 pub mod kernels;
 pub mod observation;
 pub mod pose;
+pub mod hypotheses;
+pub mod synth;
+pub mod visual;

@@ -29,7 +29,7 @@ pub enum MassSource {
 }
 
 /// Volume, centre of mass and inertia of a uniform solid.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct MassProperties {
     /// Volume in m³ (always positive).
     pub volume: f64,

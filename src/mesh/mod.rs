@@ -7,6 +7,7 @@
 //! boundaries, a unit guess) are reported in a [`MeshReport`].
 
 mod load;
+pub mod mass;
 mod ply;
 mod stl;
 
@@ -173,14 +174,49 @@ impl Mesh {
             .sum()
     }
 
-    /// Merges vertices that coincide exactly (OBJ/STL files often repeat
-    /// positions per face, which hides the mesh's connectivity).
+    /// Splits every edge into `n` equal parts and every triangle into `n²`
+    /// (same surface, `n²` times the triangles): used by the benchmarks to
+    /// measure how cost grows with triangle count on one shape.
+    pub fn subdivided(&self, n: u32) -> Mesh {
+        let n = n.max(1);
+        let mut vertices = Vec::new();
+        let mut triangles = Vec::new();
+        for i in 0..self.triangles.len() {
+            let [a, b, c] = self.corners(i);
+            // Lattice point (r, s): a + (b - a) r/n + (c - a) s/n, r + s <= n.
+            let mut index = vec![vec![0u32; (n + 1) as usize]; (n + 1) as usize];
+            for r in 0..=n {
+                for s in 0..=(n - r) {
+                    index[r as usize][s as usize] = vertices.len() as u32;
+                    vertices.push(a + (b - a) * (r as f64 / n as f64) + (c - a) * (s as f64 / n as f64));
+                }
+            }
+            for r in 0..n {
+                for s in 0..(n - r) {
+                    let (p, q, t) = (index[r as usize][s as usize], index[r as usize + 1][s as usize], index[r as usize][s as usize + 1]);
+                    triangles.push([p, q, t]);
+                    if s + 1 < n - r {
+                        let u = index[r as usize + 1][s as usize + 1];
+                        triangles.push([q, u, t]);
+                    }
+                }
+            }
+        }
+        let mut m = Mesh { vertices, triangles, source: self.source.clone() };
+        m.weld();
+        m
+    }
+
+    /// Merges vertices that coincide (to 1e-9 of the bounding-box diagonal):
+    /// OBJ/STL files often repeat positions per face, which hides the mesh's
+    /// connectivity.
     pub fn weld(&mut self) {
-        let mut map: HashMap<[u64; 3], u32> = HashMap::with_capacity(self.vertices.len());
+        let q = 1e-9 * self.diagonal().max(f64::MIN_POSITIVE);
+        let mut map: HashMap<[i64; 3], u32> = HashMap::with_capacity(self.vertices.len());
         let mut remap = Vec::with_capacity(self.vertices.len());
         let mut out = Vec::new();
         for v in &self.vertices {
-            let key = [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+            let key = [(v.x / q).round() as i64, (v.y / q).round() as i64, (v.z / q).round() as i64];
             let id = *map.entry(key).or_insert_with(|| {
                 out.push(*v);
                 (out.len() - 1) as u32
@@ -281,5 +317,13 @@ mod tests {
         let m = unit_cube();
         assert!(m.is_closed());
         assert!((m.area() - 6.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn subdivision_keeps_surface() {
+        let m = unit_cube().subdivided(5);
+        assert_eq!(m.triangles.len(), 12 * 25);
+        assert!(m.is_closed());
+        assert!((m.area() - 6.0).abs() < 1e-9);
     }
 }

@@ -130,7 +130,7 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
         inertia32,
     );
     let rb = RigidBodyBuilder::dynamic()
-        .position(Pose::from_parts(Vec3::new(0.0, 0.0, z0 as f32), Quat::from_xyzw(q0.x as f32, q0.y as f32, q0.z as f32, q0.w as f32).normalize()))
+        .pose(Pose::from_parts(Vec3::new(0.0, 0.0, z0 as f32), Quat::from_xyzw(q0.x as f32, q0.y as f32, q0.z as f32, q0.w as f32).normalize()))
         .additional_mass_properties(mprops)
         .can_sleep(false);
     let collider = ColliderBuilder::new(body.shape.clone())

@@ -1,0 +1,486 @@
+//! Stable resting poses of an object on a plane, and the database that holds
+//! them (see `docs/stable-poses.md` for the user documentation).
+//!
+//! Pipeline: [`prepare`] a mesh (hash, mass properties from the mesh, the
+//! collider, the quasi-static [`analytic`] estimate), run seeded
+//! [`drop`] tests in parallel ([`run_drops`], or [`run_into_db`] which skips
+//! finished drops and commits as it goes), then [`cluster`] the settled drops
+//! modulo rotation about gravity. Every drop's randomness comes from (mesh
+//! hash, seed, drop index) and every drop runs in its own world, so results
+//! are independent of thread count, sharding and interruption.
+
+pub mod analytic;
+pub mod cluster;
+pub mod db;
+pub mod drop;
+pub mod export;
+pub mod hull;
+
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc;
+
+use glam::{DVec3, Vec3};
+use rapier3d::prelude::{Pose, SharedShape};
+
+use self::analytic::{Analytic, AnalyticParams};
+use self::cluster::{Cluster, ClusterParams};
+use self::db::{sha256_hex, Db, MeshRecord};
+use self::drop::{DropBody, DropResult, SimParams};
+use self::hull::Hull;
+use crate::error::{Error, Result};
+use crate::mesh::mass::MassProperties;
+use crate::mesh::Mesh;
+
+/// Collision shape used for the dropped object.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ColliderKind {
+    /// One convex hull, simplified (fast; exact for convex objects).
+    Hull,
+    /// Several convex parts: the mesh's connected components when it has
+    /// more than one (files that already are a convex decomposition), else
+    /// parry's VHACD decomposition of the mesh.
+    Decomposition,
+}
+
+impl std::str::FromStr for ColliderKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "hull" => Ok(ColliderKind::Hull),
+            "decomposition" | "decomp" => Ok(ColliderKind::Decomposition),
+            _ => Err(format!("unknown collider '{s}' (expected hull or decomposition)")),
+        }
+    }
+}
+
+impl ColliderKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ColliderKind::Hull => "hull",
+            ColliderKind::Decomposition => "decomposition",
+        }
+    }
+}
+
+/// Everything that determines the drops of a run. Its canonical JSON (field
+/// order as declared) is hashed into the run key of the database.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RunParams {
+    /// Number of drops (indices 0..drops).
+    pub drops: u64,
+    pub seed: u64,
+    pub collider: ColliderKind,
+    /// Vertex budget of each simplified hull (rapier jitters on hulls with
+    /// hundreds of tiny facets).
+    pub hull_max_points: usize,
+    /// Stop simplifying once every hull vertex is within this many bounding
+    /// diagonals of the simplified hull.
+    pub hull_tolerance_diag: f64,
+    pub sim: SimParams,
+}
+
+impl Default for RunParams {
+    fn default() -> Self {
+        RunParams {
+            drops: 1000,
+            seed: 0,
+            collider: ColliderKind::Hull,
+            hull_max_points: 64,
+            hull_tolerance_diag: 1e-3,
+            sim: SimParams::default(),
+        }
+    }
+}
+
+/// A subset of the drop indices: `--shard k/n` runs the drops with
+/// `index % n == k - 1`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    /// 1-based shard number.
+    pub k: u64,
+    pub n: u64,
+}
+
+impl Shard {
+    pub fn contains(&self, index: u64) -> bool {
+        index % self.n == self.k - 1
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let bad = || format!("bad shard '{s}': expected k/n with 1 <= k <= n (e.g. 3/8)");
+        let (k, n) = s.split_once('/').ok_or_else(bad)?;
+        let k: u64 = k.trim().parse().map_err(|_| bad())?;
+        let n: u64 = n.trim().parse().map_err(|_| bad())?;
+        if n == 0 || k == 0 || k > n {
+            return Err(bad());
+        }
+        Ok(Shard { k, n })
+    }
+}
+
+/// A mesh ready for drop tests.
+#[derive(Clone)]
+pub struct PreparedMesh {
+    /// Name shown to users (the source path).
+    pub name: String,
+    /// SHA-256 of the geometry in metres (see [`mesh_sha256`]).
+    pub sha256: String,
+    pub mesh: Mesh,
+    pub mass: MassProperties,
+    pub body: DropBody,
+    /// Convex parts of the collider and their total vertex count.
+    pub collider_parts: usize,
+    pub collider_points: usize,
+    pub analytic: Analytic,
+    /// Warnings to show the user (open mesh, fallbacks).
+    pub warnings: Vec<String>,
+}
+
+/// SHA-256 over the geometry in metres: vertex count, triangle count, the
+/// vertices as little-endian f64 triples, then the triangles as u32 triples.
+/// Independent of file format and path; changes when units change.
+pub fn mesh_sha256(mesh: &Mesh) -> String {
+    let mut bytes = Vec::with_capacity(16 + mesh.vertices.len() * 24 + mesh.triangles.len() * 12);
+    bytes.extend((mesh.vertices.len() as u64).to_le_bytes());
+    bytes.extend((mesh.triangles.len() as u64).to_le_bytes());
+    for v in &mesh.vertices {
+        for c in v.to_array() {
+            bytes.extend(c.to_le_bytes());
+        }
+    }
+    for t in &mesh.triangles {
+        for i in t {
+            bytes.extend(i.to_le_bytes());
+        }
+    }
+    sha256_hex(&bytes)
+}
+
+/// Computes mass properties, the collider and the analytic estimate.
+pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMesh> {
+    let sha256 = mesh_sha256(&mesh);
+    let (mass, mut warnings) = MassProperties::of_mesh(&mesh)?;
+    let diagonal = mesh.diagonal();
+    let tol = params.hull_tolerance_diag * diagonal;
+    let full = Hull::of_points(name, &mesh.vertices)?;
+    let parts: Vec<Hull> = match params.collider {
+        ColliderKind::Hull => vec![full.simplified(params.hull_max_points, tol)?],
+        ColliderKind::Decomposition => decomposition(&mesh, name, params.hull_max_points, tol, &mut warnings)?,
+    };
+    let mut shapes = Vec::new();
+    let mut support = Vec::new();
+    for p in &parts {
+        let pts: Vec<Vec3> = p.vertices.iter().map(|v| v.as_vec3()).collect();
+        let shape = SharedShape::convex_hull(&pts)
+            .ok_or_else(|| Error::InvalidInput(format!("{name}: rapier could not build a convex collider")))?;
+        shapes.push((Pose::IDENTITY, shape));
+        support.extend(p.vertices.iter().copied());
+    }
+    let shape = if shapes.len() == 1 {
+        shapes.pop().map(|s| s.1).ok_or_else(|| Error::InvalidInput(format!("{name}: empty collider")))?
+    } else {
+        SharedShape::compound(shapes)
+    };
+    let analytic = analytic::stable_poses(&full, mass.com, AnalyticParams::default())
+        .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
+    let collider_points = support.len();
+    Ok(PreparedMesh {
+        name: name.to_string(),
+        sha256,
+        mesh,
+        body: DropBody { shape, support, mass: mass.clone(), diagonal },
+        mass,
+        collider_parts: parts.len(),
+        collider_points,
+        analytic,
+        warnings,
+    })
+}
+
+/// Convex parts: connected components when there are several, else VHACD.
+fn decomposition(mesh: &Mesh, name: &str, max_points: usize, tol: f64, warnings: &mut Vec<String>) -> Result<Vec<Hull>> {
+    let mut welded = mesh.clone();
+    welded.weld();
+    let comps = components(&welded);
+    let mut parts = Vec::new();
+    if comps.len() > 1 {
+        for c in comps {
+            let pts: Vec<DVec3> = c.iter().map(|&v| welded.vertices[v as usize]).collect();
+            // Tiny or flat components (slivers) carry no volume: skip them.
+            match Hull::of_points(name, &pts) {
+                Ok(h) if h.volume() > 1e-9 * mesh.diagonal().powi(3) => parts.push(h.simplified(max_points, tol)?),
+                _ => {}
+            }
+        }
+    } else {
+        warnings.push(format!(
+            "{name}: one connected component; computing a VHACD convex decomposition (slow for large meshes)"
+        ));
+        let verts: Vec<Vec3> = welded.vertices.iter().map(|v| v.as_vec3()).collect();
+        let decomp = rapier3d::parry::transformation::vhacd::VHACD::decompose(
+            &rapier3d::parry::transformation::vhacd::VHACDParameters::default(),
+            &verts,
+            &welded.triangles,
+            true,
+        );
+        for (pts, _) in decomp.compute_exact_convex_hulls(&verts, &welded.triangles) {
+            let pts: Vec<DVec3> = pts.iter().map(|p| p.as_dvec3()).collect();
+            if let Ok(h) = Hull::of_points(name, &pts) {
+                parts.push(h.simplified(max_points, tol)?);
+            }
+        }
+    }
+    if parts.is_empty() {
+        return Err(Error::InvalidInput(format!("{name}: the convex decomposition produced no solid part")));
+    }
+    Ok(parts)
+}
+
+/// Vertex sets of the connected components (by shared vertices), in order
+/// of their first triangle.
+fn components(mesh: &Mesh) -> Vec<Vec<u32>> {
+    let n = mesh.vertices.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn find(p: &mut [usize], mut x: usize) -> usize {
+        while p[x] != x {
+            p[x] = p[p[x]];
+            x = p[x];
+        }
+        x
+    }
+    for t in &mesh.triangles {
+        let a = find(&mut parent, t[0] as usize);
+        for &v in &t[1..] {
+            let b = find(&mut parent, v as usize);
+            if a != b {
+                parent[b] = a;
+            }
+        }
+    }
+    let mut index_of = std::collections::HashMap::new();
+    let mut out: Vec<Vec<u32>> = Vec::new();
+    let mut used = vec![false; n];
+    for t in &mesh.triangles {
+        for &v in t {
+            if used[v as usize] {
+                continue;
+            }
+            used[v as usize] = true;
+            let r = find(&mut parent, v as usize);
+            let k = *index_of.entry(r).or_insert_with(|| {
+                out.push(Vec::new());
+                out.len() - 1
+            });
+            out[k].push(v);
+        }
+    }
+    out
+}
+
+/// Runs the drops with the given indices on `threads` workers (one fresh
+/// world per drop), calling `on_result` on the calling thread as results
+/// arrive (in completion order). Stops early when `on_result` errors.
+pub fn run_drops(
+    prepared: &PreparedMesh,
+    params: &RunParams,
+    indices: &[u64],
+    threads: usize,
+    mut on_result: impl FnMut(DropResult) -> Result<()>,
+) -> Result<()> {
+    let threads = threads.max(1).min(indices.len().max(1));
+    let next = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    let (tx, rx) = mpsc::sync_channel::<DropResult>(256);
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            let tx = tx.clone();
+            let (next, stop) = (&next, &stop);
+            s.spawn(move || loop {
+                if stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&index) = indices.get(i) else { break };
+                let r = drop::simulate(&prepared.body, &params.sim, &prepared.sha256, params.seed, index);
+                if tx.send(r).is_err() {
+                    break;
+                }
+            });
+        }
+        drop(tx);
+        let mut result = Ok(());
+        for r in rx.iter() {
+            if result.is_ok() {
+                result = on_result(r);
+                if result.is_err() {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            }
+        }
+        result
+    })
+}
+
+/// What a database run did.
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    pub run_id: i64,
+    /// Drops of this run (this shard) that were already in the database.
+    pub reused: u64,
+    /// Drops simulated now.
+    pub simulated: u64,
+    /// Drops stored for the run in total (all shards present).
+    pub stored: u64,
+    pub settled: u64,
+    pub clusters: Vec<Cluster>,
+    pub seconds: f64,
+}
+
+/// Runs the drops of `params` (restricted to `shard`) that the database does
+/// not have yet, committing every `commit_every` drops (and at the end), then
+/// re-clusters the run. `progress(done, total)` is called after each drop.
+#[allow(clippy::too_many_arguments)]
+pub fn run_into_db(
+    db: &mut Db,
+    prepared: &PreparedMesh,
+    units: &str,
+    scale_to_metres: f64,
+    params: &RunParams,
+    shard: Option<Shard>,
+    threads: usize,
+    cluster_params: ClusterParams,
+    mut progress: impl FnMut(u64, u64),
+) -> Result<RunSummary> {
+    let t0 = std::time::Instant::now();
+    let (closed_b, closed_n) = {
+        let mut w = prepared.mesh.clone();
+        w.weld();
+        w.edge_counts()
+    };
+    let m = &prepared.mass;
+    let inertia = m.inertia_unit_density.to_cols_array();
+    db.upsert_mesh(&MeshRecord {
+        sha256: prepared.sha256.clone(),
+        source: prepared.name.clone(),
+        units: units.to_string(),
+        scale_to_metres,
+        vertices: prepared.mesh.vertices.len() as u64,
+        triangles: prepared.mesh.triangles.len() as u64,
+        closed: closed_b == 0 && closed_n == 0,
+        volume: m.volume,
+        com: m.com.to_array(),
+        inertia,
+        mass_source: serde_json::to_value(m.source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+        warnings: prepared.warnings.clone(),
+    })?;
+    let params_json = serde_json::to_string(params)
+        .map_err(|e| Error::InvalidInput(format!("cannot serialise run parameters: {e}")))?;
+    let run_id = db.run_id(&prepared.sha256, &params_json, params.seed, params.drops, params.collider.as_str(), cluster_params)?;
+    db.set_analytic(run_id, &prepared.analytic.poses, &prepared.analytic.notes)?;
+    let done = db.finished_drops(run_id)?;
+    let mine: Vec<u64> = (0..params.drops).filter(|i| shard.is_none_or(|s| s.contains(*i))).collect();
+    let pending: Vec<u64> = mine.iter().copied().filter(|i| !done.contains(i)).collect();
+    let total = mine.len() as u64;
+    let reused = total - pending.len() as u64;
+    let mut finished = reused;
+    progress(finished, total);
+    let mut batch: Vec<DropResult> = Vec::with_capacity(64);
+    let mut last_commit = std::time::Instant::now();
+    run_drops(prepared, params, &pending, threads, |r| {
+        batch.push(r);
+        finished += 1;
+        progress(finished, total);
+        if batch.len() >= 64 || last_commit.elapsed().as_secs_f64() > 1.0 {
+            db.insert_drops(run_id, &batch)?;
+            batch.clear();
+            last_commit = std::time::Instant::now();
+        }
+        Ok(())
+    })?;
+    db.insert_drops(run_id, &batch)?;
+    let clusters = db.recompute_clusters(run_id, cluster_params)?;
+    let stored = db.drops(run_id)?;
+    Ok(RunSummary {
+        run_id,
+        reused,
+        simulated: pending.len() as u64,
+        stored: stored.len() as u64,
+        settled: stored.iter().filter(|d| d.settled).count() as u64,
+        clusters,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// For each cluster, the nearest analytic pose: (index, angle in degrees,
+/// cluster probability − analytic probability). Families get `None`.
+pub fn match_analytic(clusters: &[Cluster], analytic: &[analytic::AnalyticPose]) -> Vec<Option<(usize, f64, f64)>> {
+    clusters
+        .iter()
+        .map(|c| {
+            if c.kind != cluster::ClusterKind::Pose {
+                return None;
+            }
+            let g = DVec3::from_array(c.gravity_in_model);
+            analytic
+                .iter()
+                .enumerate()
+                .map(|(i, a)| {
+                    let cos = g.dot(DVec3::from_array(a.gravity_in_model)).clamp(-1.0, 1.0);
+                    (i, cos.acos().to_degrees(), c.probability - a.probability)
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes;
+
+    #[test]
+    fn shard_parsing_and_membership() {
+        let s: Shard = "2/3".parse().unwrap();
+        assert!(s.contains(1) && s.contains(4) && !s.contains(0));
+        assert!("0/3".parse::<Shard>().is_err());
+        assert!("4/3".parse::<Shard>().is_err());
+        assert!("x".parse::<Shard>().is_err());
+    }
+
+    #[test]
+    fn components_split_separate_boxes() {
+        let a = shapes::cuboid(DVec3::splat(0.1));
+        let mut b = shapes::cuboid(DVec3::splat(0.1));
+        let off = a.vertices.len() as u32;
+        let mut m = a.clone();
+        m.vertices.extend(b.vertices.drain(..).map(|v| v + DVec3::X));
+        m.triangles.extend(b.triangles.iter().map(|t| t.map(|i| i + off)));
+        assert_eq!(components(&m).len(), 2);
+    }
+
+    #[test]
+    fn cube_drops_settle_on_faces() {
+        let params = RunParams { drops: 24, ..Default::default() };
+        let p = prepare(shapes::cuboid(DVec3::splat(0.03)), "cube", &params).unwrap();
+        let idx: Vec<u64> = (0..24).collect();
+        let mut out = Vec::new();
+        run_drops(&p, &params, &idx, 2, |r| {
+            out.push(r);
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(out.len(), 24);
+        for d in &out {
+            assert!(d.settled, "drop {} did not settle", d.index);
+            // Gravity along a face normal, origin 3 cm above the plane.
+            let g = d.gravity_in_model;
+            let m = g.x.abs().max(g.y.abs()).max(g.z.abs());
+            assert!(m > 0.999, "{g}");
+            assert!((d.height - 0.03).abs() < 1e-3, "{}", d.height);
+        }
+    }
+}
