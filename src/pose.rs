@@ -222,7 +222,7 @@ mod tests {
         let r = axis_angle(DVec3::new(1.0, 2.0, 3.0), 0.7);
         let p = Pose::new(r, DVec3::new(0.1, 0.2, 0.5));
         let q = Pose::from_row_major(p.r_row_major(), p.t.to_array());
-        assert!((p.r - q.r).abs().max_element() < 1e-15);
+        assert!((p.r - q.r).to_cols_array().iter().all(|v| v.abs() < 1e-15));
         // Row-major: element [1] is R[0][1] = second column's x.
         assert_eq!(p.r_row_major()[1], p.r.y_axis.x);
     }
