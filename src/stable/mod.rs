@@ -87,7 +87,7 @@ impl Default for RunParams {
             seed: 0,
             collider: ColliderKind::Hull,
             hull_max_points: 64,
-            hull_tolerance_diag: 1e-3,
+            hull_tolerance_diag: 5e-3,
             sim: SimParams::default(),
         }
     }
@@ -167,6 +167,8 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     let diagonal = mesh.diagonal();
     let tol = params.hull_tolerance_diag * diagonal;
     let full = Hull::of_points(name, &mesh.vertices)?;
+    let analytic = analytic::stable_poses(&full, mass.com, AnalyticParams::default())
+        .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
     let parts: Vec<Hull> = match params.collider {
         ColliderKind::Hull => vec![full.simplified(params.hull_max_points, tol)?],
         ColliderKind::Decomposition => decomposition(&mesh, name, params.hull_max_points, tol, &mut warnings)?,
@@ -185,8 +187,6 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     } else {
         SharedShape::compound(shapes)
     };
-    let analytic = analytic::stable_poses(&full, mass.com, AnalyticParams::default())
-        .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
     let collider_points = support.len();
     Ok(PreparedMesh {
         name: name.to_string(),

@@ -1,0 +1,442 @@
+//! `plausible stable-poses ...` and `plausible bench stable`.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::stable::cluster::{ClusterKind, ClusterParams};
+use plausible::stable::db::Db;
+use plausible::stable::{self, ColliderKind, RunParams, Shard};
+
+/// Stable resting poses: drop tests, clustering, analytic cross-check, database.
+///
+/// `plausible stable-poses MESH... --db stable.sqlite` runs the drop tests
+/// (same as `plausible stable-poses run MESH... --db ...`; use the explicit
+/// `run` form when a mesh file is literally called show, merge or export).
+#[derive(clap::Args, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+pub struct StableArgs {
+    #[command(subcommand)]
+    pub action: Option<StableAction>,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum StableAction {
+    /// Run drop tests for meshes (the default action).
+    Run(RunArgs),
+    /// Print each mesh's clusters and analytic poses as tables.
+    Show(ShowArgs),
+    /// Merge databases (e.g. shards) into one; clusters are recomputed.
+    Merge(MergeArgs),
+    /// Export clusters, families and analytic poses as JSON.
+    Export(ExportArgs),
+}
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// Mesh files (OBJ, PLY, STL, glTF/GLB).
+    #[arg(required = true)]
+    pub meshes: Vec<PathBuf>,
+    /// SQLite database to create or continue.
+    #[arg(long, required = true)]
+    pub db: Option<PathBuf>,
+    /// Number of drops per mesh.
+    #[arg(long, default_value_t = 1000)]
+    pub drops: u64,
+    /// Seed of the random orientations (with the mesh hash and drop index).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Run only shard k of n (drops with index % n == k-1), e.g. 2/8.
+    #[arg(long)]
+    pub shard: Option<Shard>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Collider: a simplified convex hull, or a convex decomposition.
+    #[arg(long, default_value = "hull")]
+    pub collider: ColliderKind,
+    /// Vertex budget of each simplified collider hull.
+    #[arg(long, default_value_t = 64)]
+    pub hull_points: usize,
+    /// Angular threshold of the clustering (degrees).
+    #[arg(long, default_value_t = 5.0)]
+    pub cluster_deg: f64,
+    /// Cap on simulated time per drop (seconds).
+    #[arg(long, default_value_t = 10.0)]
+    pub max_time: f64,
+    /// Units of the mesh files: m, mm or auto.
+    #[arg(long, default_value = "auto")]
+    pub mesh_units: MeshUnits,
+    /// Also write the JSON export of the processed meshes here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// No progress bar and no summary (errors and warnings still go to stderr).
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ShowArgs {
+    #[arg(long)]
+    pub db: PathBuf,
+    /// Only meshes whose path contains this text (or whose hash starts with it).
+    pub mesh: Option<String>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct MergeArgs {
+    /// Input databases.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Output database (created or extended).
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ExportArgs {
+    #[arg(long)]
+    pub db: PathBuf,
+    #[arg(long)]
+    pub json: PathBuf,
+    /// Only meshes whose path contains this text (or whose hash starts with it).
+    pub mesh: Option<String>,
+}
+
+/// `plausible bench stable`: drop-test throughput on the meshes in assets/.
+#[derive(clap::Args, Debug)]
+pub struct BenchStableArgs {
+    /// Drops per mesh.
+    #[arg(long, default_value_t = 1000)]
+    pub drops: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Meshes to use (default: the meshes shipped in assets/).
+    #[arg(long)]
+    pub mesh: Vec<PathBuf>,
+    /// Rescale every mesh to this bounding-box diagonal (m), as the pybullet peer does.
+    #[arg(long, default_value_t = 0.15)]
+    pub diameter: f64,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Entry point of `plausible stable-poses`.
+pub fn stable_poses(args: StableArgs) -> anyhow::Result<()> {
+    match args.action {
+        None => run(args.run),
+        Some(StableAction::Run(r)) => run(r),
+        Some(StableAction::Show(s)) => show(s),
+        Some(StableAction::Merge(m)) => merge(m),
+        Some(StableAction::Export(e)) => export(e),
+    }
+}
+
+fn threads(t: Option<usize>) -> usize {
+    t.filter(|&t| t > 0)
+        .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
+}
+
+fn run(args: RunArgs) -> anyhow::Result<()> {
+    let Some(db_path) = args.db.clone() else { bail!("--db is required") };
+    if args.drops == 0 {
+        bail!("--drops must be at least 1");
+    }
+    if !(args.cluster_deg > 0.0 && args.cluster_deg < 90.0) {
+        bail!("--cluster-deg must be between 0 and 90 degrees");
+    }
+    if !(args.max_time > 0.0) {
+        bail!("--max-time must be positive");
+    }
+    let mut db = Db::open(&db_path)?;
+    let params = RunParams {
+        drops: args.drops,
+        seed: args.seed,
+        collider: args.collider,
+        hull_max_points: args.hull_points.max(4),
+        sim: stable::drop::SimParams { max_time: args.max_time, ..Default::default() },
+        ..Default::default()
+    };
+    let cluster_params = ClusterParams { cluster_deg: args.cluster_deg, ..Default::default() };
+    let nthreads = threads(args.threads);
+    let show_progress = !args.quiet && std::io::stderr().is_terminal();
+    let mut names = Vec::new();
+    for path in &args.meshes {
+        let (mesh, report) = Mesh::load(path, args.mesh_units).with_context(|| format!("loading {}", path.display()))?;
+        for w in &report.warnings {
+            eprintln!("warning: {}: {w}", path.display());
+        }
+        let name = path.display().to_string();
+        let prepared = stable::prepare(mesh, &name, &params)?;
+        for w in &prepared.warnings {
+            eprintln!("warning: {w}");
+        }
+        for n in &prepared.analytic.notes {
+            eprintln!("note: {name}: analytic: {n}");
+        }
+        let units = match (args.mesh_units, report.scale_to_metres == 1.0) {
+            (MeshUnits::Metres, _) | (MeshUnits::Auto, true) => "m",
+            _ => "mm",
+        };
+        let bar = if show_progress {
+            ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr())
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} drops, {per_sec}, ETA {eta}")
+                .map_err(|e| anyhow::anyhow!("progress template: {e}"))?
+                .progress_chars("=> "),
+        );
+        bar.set_message(short_name(path));
+        let summary = stable::run_into_db(
+            &mut db,
+            &prepared,
+            units,
+            report.scale_to_metres,
+            &params,
+            args.shard,
+            nthreads,
+            cluster_params,
+            |done, total| {
+                bar.set_length(total);
+                bar.set_position(done);
+            },
+        )?;
+        bar.finish_and_clear();
+        if !args.quiet {
+            let poses = summary.clusters.iter().filter(|c| c.kind == ClusterKind::Pose).count();
+            let families = summary.clusters.len() - poses;
+            println!(
+                "{name}: {} drops simulated ({} reused) in {:.1} s ({:.0} drops/s on {nthreads} threads); \
+                 {}/{} stored drops settled; {poses} clusters, {families} families; {} analytic poses",
+                summary.simulated,
+                summary.reused,
+                summary.seconds,
+                summary.simulated as f64 / summary.seconds.max(1e-9),
+                summary.settled,
+                summary.stored,
+                prepared.analytic.poses.len()
+            );
+        }
+        names.push(prepared.sha256.clone());
+    }
+    if let Some(json) = &args.json {
+        let mut ex = stable::export::export(&db, None)?;
+        ex.meshes.retain(|m| names.contains(&m.sha256));
+        write_json(json, &ex)?;
+    }
+    Ok(())
+}
+
+fn short_name(p: &Path) -> String {
+    p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| p.display().to_string())
+}
+
+fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
+}
+
+fn fmt_vec(v: [f64; 3]) -> String {
+    format!("({:+.3}, {:+.3}, {:+.3})", v[0], v[1], v[2])
+}
+
+fn show(args: ShowArgs) -> anyhow::Result<()> {
+    let db = Db::open_existing(&args.db)?;
+    let meshes = db.meshes()?;
+    let mut any = false;
+    for run in db.runs()? {
+        let source = meshes.iter().find(|m| m.sha256 == run.mesh_sha256).map(|m| m.source.as_str()).unwrap_or("?");
+        if let Some(f) = &args.mesh {
+            if !source.contains(f.as_str()) && !run.mesh_sha256.starts_with(f.as_str()) {
+                continue;
+            }
+        }
+        any = true;
+        let drops = db.drops(run.id)?;
+        let settled = drops.iter().filter(|d| d.settled).count();
+        let clusters = db.clusters(run.id)?;
+        let analytic = db.analytic(run.id)?;
+        let matches = stable::match_analytic(&clusters, &analytic);
+        println!(
+            "{source}  sha256 {}  seed {}  collider {}  drops {}/{}  settled {} ({:.1} %)",
+            &run.mesh_sha256[..12.min(run.mesh_sha256.len())],
+            run.seed,
+            run.collider,
+            drops.len(),
+            run.drops,
+            settled,
+            100.0 * settled as f64 / drops.len().max(1) as f64
+        );
+        println!(
+            "  {:>3}  {:<9} {:>7}  {:>17}  {:>5}  {:<27} {:>9}   {}",
+            "#", "kind", "p", "95% CI", "count", "gravity in model", "height m", "analytic match (angle, p_drop - p_analytic)"
+        );
+        for (i, (c, m)) in clusters.iter().zip(&matches).enumerate() {
+            let kind = match &c.kind {
+                ClusterKind::Pose => "pose".to_string(),
+                ClusterKind::Circle { .. } => "rolling".to_string(),
+                ClusterKind::Scattered => "scattered".to_string(),
+            };
+            let dir = match &c.kind {
+                ClusterKind::Circle { axis } => format!("axis {}", fmt_vec(*axis)),
+                ClusterKind::Scattered => "-".to_string(),
+                ClusterKind::Pose => fmt_vec(c.gravity_in_model),
+            };
+            let m = match m {
+                Some((a, angle, dp)) => format!("A{a}: {angle:5.1}°, {dp:+.3}"),
+                None => "-".into(),
+            };
+            println!(
+                "  {:>3}  {:<9} {:>7.4}  [{:.4}, {:.4}]  {:>5}  {:<27} {:>9.4}   {}",
+                i, kind, c.probability, c.ci95[0], c.ci95[1], c.count, dir, c.height, m
+            );
+        }
+        if !analytic.is_empty() {
+            println!("  analytic (quasi-static) poses:");
+            println!("  {:>3}  {:>7}  {:<27} {:>9}  {:>9}", "#", "p", "gravity in model", "height m", "margin m");
+            for (i, a) in analytic.iter().enumerate() {
+                println!(
+                    "  A{:<2}  {:>7.4}  {:<27} {:>9.4}  {:>9.4}",
+                    i,
+                    a.probability,
+                    fmt_vec(a.gravity_in_model),
+                    a.height,
+                    a.margin
+                );
+            }
+        }
+        for n in &run.analytic_notes {
+            println!("  note: {n}");
+        }
+        println!();
+    }
+    if !any {
+        match &args.mesh {
+            Some(f) => bail!("{}: no mesh matching '{f}'", args.db.display()),
+            None => println!("{}: no runs yet", args.db.display()),
+        }
+    }
+    Ok(())
+}
+
+fn merge(args: MergeArgs) -> anyhow::Result<()> {
+    for i in &args.inputs {
+        if std::fs::canonicalize(i).ok() == std::fs::canonicalize(&args.output).ok() && args.output.exists() {
+            bail!("{}: input and output are the same file", i.display());
+        }
+    }
+    let mut out = Db::open(&args.output)?;
+    let mut total = 0;
+    for i in &args.inputs {
+        let added = out.merge_from(i)?;
+        println!("{}: {added} new drops", i.display());
+        total += added;
+    }
+    println!("{}: {total} drops merged", args.output.display());
+    Ok(())
+}
+
+fn export(args: ExportArgs) -> anyhow::Result<()> {
+    let db = Db::open_existing(&args.db)?;
+    let ex = stable::export::export(&db, args.mesh.as_deref())?;
+    write_json(&args.json, &ex)
+}
+
+/// Meshes shipped in assets/ for the benchmark.
+fn bench_meshes() -> Vec<PathBuf> {
+    ["assets/pybullet/duck_vhacd.obj", "assets/pybullet/duck.obj", "assets/ycb/003_cracker_box.stl"]
+        .iter()
+        .map(|p| super::asset(p))
+        .filter(|p| p.exists())
+        .collect()
+}
+
+/// Entry point of `plausible bench stable`.
+pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
+    let nthreads = threads(args.threads);
+    let meshes = if args.mesh.is_empty() { bench_meshes() } else { args.mesh.clone() };
+    if meshes.is_empty() {
+        bail!("no meshes: assets/ not found; pass --mesh FILE");
+    }
+    let mut rows = Vec::new();
+    for path in &meshes {
+        let (mesh, _) = Mesh::load(path, MeshUnits::Metres)?;
+        // Scale about the origin (no re-centring), like the peer script.
+        let mut mesh = mesh;
+        let s = args.diameter / mesh.diagonal();
+        mesh.scale(s);
+        let params = RunParams { drops: args.drops, seed: args.seed, ..Default::default() };
+        let t_prep = Instant::now();
+        let prepared = stable::prepare(mesh, &path.display().to_string(), &params)?;
+        let prep_s = t_prep.elapsed().as_secs_f64();
+        let indices: Vec<u64> = (0..args.drops).collect();
+        let mut results = Vec::with_capacity(indices.len());
+        let t0 = Instant::now();
+        stable::run_drops(&prepared, &params, &indices, nthreads, |r| {
+            results.push(r);
+            Ok(())
+        })?;
+        let secs = t0.elapsed().as_secs_f64();
+        let settled = results.iter().filter(|d| d.settled).count();
+        let steps: u64 = results.iter().map(|d| d.steps as u64).sum();
+        let clusters = stable::cluster::cluster(&results, ClusterParams::default());
+        let (poses, families) = stable::export::split(&clusters);
+        let drops_s = args.drops as f64 / secs;
+        rows.push(serde_json::json!({
+            "mesh": short_name(path),
+            "triangles": prepared.mesh.triangles.len(),
+            "collider_points": prepared.collider_points,
+            "drops": args.drops,
+            "threads": nthreads,
+            "seconds": secs,
+            "prepare_seconds": prep_s,
+            "drops_per_s": drops_s,
+            "drops_per_s_per_core": drops_s / nthreads as f64,
+            "mean_steps_per_drop": steps as f64 / args.drops as f64,
+            "seconds_per_1000_drops": 1000.0 / drops_s,
+            "settled": settled,
+            "settled_fraction": settled as f64 / args.drops as f64,
+            "clusters": poses.iter().take(12).map(|c| serde_json::json!({
+                "p": c.probability, "ci95": c.ci95, "gravity_in_model": c.gravity_in_model
+            })).collect::<Vec<_>>(),
+            "families": families.len(),
+            "analytic": prepared.analytic.poses.iter().take(12).map(|a| serde_json::json!({
+                "p": a.probability, "gravity_in_model": a.gravity_in_model
+            })).collect::<Vec<_>>(),
+        }));
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "bench": "stable", "results": rows }))?);
+    } else {
+        println!(
+            "{:<24} {:>6} {:>6} {:>9} {:>10} {:>11} {:>10} {:>9} {:>8}",
+            "mesh", "tris", "hullpt", "drops/s", "per core", "steps/drop", "s/1000", "settled", "clusters"
+        );
+        for r in &rows {
+            println!(
+                "{:<24} {:>6} {:>6} {:>9.1} {:>10.1} {:>11.1} {:>10.2} {:>8.1}% {:>8}",
+                r["mesh"].as_str().unwrap_or("?"),
+                r["triangles"],
+                r["collider_points"],
+                r["drops_per_s"].as_f64().unwrap_or(0.0),
+                r["drops_per_s_per_core"].as_f64().unwrap_or(0.0),
+                r["mean_steps_per_drop"].as_f64().unwrap_or(0.0),
+                r["seconds_per_1000_drops"].as_f64().unwrap_or(0.0),
+                100.0 * r["settled_fraction"].as_f64().unwrap_or(0.0),
+                r["clusters"].as_array().map(|a| a.len()).unwrap_or(0)
+            );
+        }
+    }
+    Ok(())
+}
