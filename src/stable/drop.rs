@@ -74,10 +74,11 @@ pub struct DropResult {
     pub gravity_in_model: DVec3,
 }
 
-/// The rigid body dropped: collider shape plus mass properties from the mesh.
+/// The rigid body dropped: collider shapes (all attached to one body) plus
+/// mass properties from the mesh.
 #[derive(Clone)]
 pub struct DropBody {
-    pub shape: SharedShape,
+    pub shapes: Vec<SharedShape>,
     /// Vertices of the collider (model frame) used to place the body.
     pub support: Vec<DVec3>,
     pub mass: MassProperties,
@@ -133,11 +134,14 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
         .pose(Pose::from_parts(Vec3::new(0.0, 0.0, z0 as f32), Quat::from_xyzw(q0.x as f32, q0.y as f32, q0.z as f32, q0.w as f32).normalize()))
         .additional_mass_properties(mprops)
         .can_sleep(false);
-    let collider = ColliderBuilder::new(body.shape.clone())
-        .density(0.0)
-        .friction(params.friction as f32)
-        .restitution(params.restitution as f32);
-    let (handle, _) = world.insert(rb, collider);
+    let handle = world.insert_body(rb);
+    for shape in &body.shapes {
+        let collider = ColliderBuilder::new(shape.clone())
+            .density(0.0)
+            .friction(params.friction as f32)
+            .restitution(params.restitution as f32);
+        world.colliders.insert_with_parent(collider, handle, &mut world.bodies);
+    }
 
     let max_steps = (params.max_time / params.dt).ceil().max(1.0) as u32;
     let calm_needed = (params.calm_time / params.dt).ceil().max(1.0) as u32;

@@ -173,32 +173,72 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
         ColliderKind::Hull => vec![full.simplified(params.hull_max_points, tol)?],
         ColliderKind::Decomposition => decomposition(&mesh, name, params.hull_max_points, tol, &mut warnings)?,
     };
-    let mut shapes = Vec::new();
     let mut support = Vec::new();
     for p in &parts {
-        let pts: Vec<Vec3> = p.vertices.iter().map(|v| v.as_vec3()).collect();
-        let shape = SharedShape::convex_hull(&pts)
-            .ok_or_else(|| Error::InvalidInput(format!("{name}: rapier could not build a convex collider")))?;
-        shapes.push((Pose::IDENTITY, shape));
         support.extend(p.vertices.iter().copied());
     }
-    let shape = if shapes.len() == 1 {
-        shapes.pop().map(|s| s.1).ok_or_else(|| Error::InvalidInput(format!("{name}: empty collider")))?
-    } else {
-        SharedShape::compound(shapes)
-    };
+    let shapes = collider_shapes(name, &parts)?;
     let collider_points = support.len();
     Ok(PreparedMesh {
         name: name.to_string(),
         sha256,
         mesh,
-        body: DropBody { shape, support, mass: mass.clone(), diagonal },
+        body: DropBody { shapes, support, mass: mass.clone(), diagonal },
         mass,
         collider_parts: parts.len(),
         collider_points,
         analytic,
         warnings,
     })
+}
+
+/// Builds the rapier collider of convex parts.
+///
+/// parry's polyhedron-vs-plane contact uses at most four vertices of the
+/// touching face (its `local_support_feature` takes the face's first four
+/// vertices). A body resting on a face with more corners (a cylinder's end, a
+/// box scan's merged side) is then supported by a sliver of that face and
+/// topples. So every face with more than four corners also gets a fan of thin
+/// tetrahedra (face centre, two neighbouring corners, an apex inside the
+/// hull), each touching the plane with a whole triangle: together they
+/// support the full face. They lie inside the hull, so the shape is unchanged.
+/// The pieces are separate colliders on the body (not one compound shape:
+/// rapier's compound-vs-half-space path let a cylinder on its side sink and
+/// roll forever in our tests).
+fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<SharedShape>> {
+    let mut shapes: Vec<(Pose, SharedShape)> = Vec::new();
+    for part in parts {
+        let pts: Vec<Vec3> = part.vertices.iter().map(|v| v.as_vec3()).collect();
+        let hull = SharedShape::convex_hull(&pts)
+            .ok_or_else(|| Error::InvalidInput(format!("{name}: rapier could not build a convex collider")))?;
+        let mut fans = Vec::new();
+        if let Some(poly) = hull.as_convex_polyhedron() {
+            let points = poly.points();
+            let inside = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
+            let adj = poly.vertices_adj_to_face();
+            for face in poly.faces() {
+                let (first, n) = (face.first_vertex_or_edge as usize, face.num_vertices_or_edges as usize);
+                if n <= 4 || first + n > adj.len() {
+                    continue;
+                }
+                let corners: Vec<Vec3> = adj[first..first + n].iter().map(|&v| points[v as usize]).collect();
+                let centre = corners.iter().copied().sum::<Vec3>() / n as f32;
+                let apex = centre + (inside - centre) * 0.5;
+                for i in 0..n {
+                    let tet = [corners[i], corners[(i + 1) % n], centre, apex];
+                    if let Some(piece) = SharedShape::convex_hull(&tet) {
+                        fans.push((Pose::IDENTITY, piece));
+                    }
+                }
+            }
+        }
+        shapes.push((Pose::IDENTITY, hull));
+        shapes.extend(fans);
+    }
+    if shapes.is_empty() {
+        return Err(Error::InvalidInput(format!("{name}: empty collider")));
+    }
+    Ok(shapes.into_iter().map(|s| s.1).collect())
 }
 
 /// Convex parts: connected components when there are several, else VHACD.
