@@ -16,7 +16,7 @@ struct Params {
     fx: f32, fy: f32, cx: f32, cy: f32,
     width: u32, height: u32, n_hyp: u32, n_tri: u32,
     id_bits: u32, cull: u32, radius: f32, tau: f32,
-    alpha: f32, near: f32, pad0: u32, pad1: u32,
+    alpha: f32, near: f32, n_obs: u32, pad1: u32,
 }
 
 struct Tri { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
@@ -53,28 +53,67 @@ fn depth_range(p: Pose) -> vec2<f32> {
     return vec2<f32>(max(p.r2.w - params.radius, params.near), p.r2.w + params.radius);
 }
 
-fn clear_slot(base: u32, lid: u32) {
-    let npix = params.width * params.height;
-    for (var i = lid; i < npix; i += WG) {
-        atomicStore(&vis[base + i], EMPTY);
+// Pixel rectangle (x0, y0, x1, y1), inclusive, that can hold the
+// hypothesis: the projection of the box around its bounding sphere. Nothing
+// outside it is drawn, cleared or scored. x0 > x1 when it misses the image.
+fn screen_rect(p: Pose) -> vec4<i32> {
+    let c = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
+    let r = params.radius;
+    let full = vec4<i32>(0, 0, i32(params.width) - 1, i32(params.height) - 1);
+    if (c.z - r <= params.near) {
+        return full;
+    }
+    let zn = c.z - r;
+    let zf = c.z + r;
+    let xlo = min((c.x - r) / zn, (c.x - r) / zf) * params.fx + params.cx;
+    let xhi = max((c.x + r) / zn, (c.x + r) / zf) * params.fx + params.cx;
+    let ylo = min((c.y - r) / zn, (c.y - r) / zf) * params.fy + params.cy;
+    let yhi = max((c.y + r) / zn, (c.y + r) / zf) * params.fy + params.cy;
+    let lo = max(vec2<f32>(ceil(xlo), ceil(ylo)), vec2<f32>(-1.0));
+    let hi = min(vec2<f32>(floor(xhi), floor(yhi)), vec2<f32>(f32(params.width), f32(params.height)));
+    return vec4<i32>(max(vec2<i32>(lo), full.xy), min(vec2<i32>(hi), full.zw));
+}
+
+fn rect_pixels(rect: vec4<i32>) -> u32 {
+    if (rect.x > rect.z || rect.y > rect.w) {
+        return 0u;
+    }
+    return u32(rect.z - rect.x + 1) * u32(rect.w - rect.y + 1);
+}
+
+// Image index of the j-th pixel of the rectangle.
+fn rect_index(rect: vec4<i32>, j: u32) -> u32 {
+    let rw = u32(rect.z - rect.x + 1);
+    return (u32(rect.y) + j / rw) * params.width + u32(rect.x) + j % rw;
+}
+
+fn clear_slot(base: u32, lid: u32, rect: vec4<i32>) {
+    let n = rect_pixels(rect);
+    for (var j = lid; j < n; j += WG) {
+        atomicStore(&vis[base + rect_index(rect, j)], EMPTY);
     }
 }
 
-fn raster_slot(p: Pose, base: u32, lid: u32) {
+fn raster_slot(p: Pose, base: u32, lid: u32, rect: vec4<i32>) {
     let zr = depth_range(p);
     let max_code = f32((1u << (32u - params.id_bits)) - 1u);
     let zscale = max_code / max(zr.y - zr.x, 1e-9);
-    let last = vec2<f32>(f32(params.width - 1u), f32(params.height - 1u));
+    let first = vec2<f32>(f32(rect.x), f32(rect.y));
+    let last = vec2<f32>(f32(rect.z), f32(rect.w));
+    // Camera centre in model coordinates, -Rᵀt: back faces are culled with
+    // one dot product, before any vertex is transformed.
+    let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
+    let cam = -(p.r0.xyz * tr.x + p.r1.xyz * tr.y + p.r2.xyz * tr.z);
     for (var t = lid; t < params.n_tri; t += WG) {
-        let tri = tris[t];
-        let a = transform(p, tri.v0.xyz);
-        let b = transform(p, tri.v1.xyz);
-        let c = transform(p, tri.v2.xyz);
+        let plane = tris[t].plane;
+        if (params.cull != 0u && dot(plane.xyz, cam) <= plane.w) {
+            continue; // back face of a closed mesh
+        }
+        let a = transform(p, tris[t].v0.xyz);
+        let b = transform(p, tris[t].v1.xyz);
+        let c = transform(p, tris[t].v2.xyz);
         if (min(a.z, min(b.z, c.z)) < params.near) {
             continue;
-        }
-        if (params.cull != 0u && dot(rotate(p, tri.plane.xyz), a) >= 0.0) {
-            continue; // back face of a closed mesh
         }
         let sa = project(a);
         let sb = project(b);
@@ -83,7 +122,7 @@ fn raster_slot(p: Pose, base: u32, lid: u32) {
         if (abs(area) < 1e-12) {
             continue;
         }
-        let lo = max(ceil(min(sa, min(sb, sc))), vec2<f32>(0.0));
+        let lo = max(ceil(min(sa, min(sb, sc))), first);
         let hi = min(floor(max(sa, max(sb, sc))), last);
         if (lo.x > hi.x || lo.y > hi.y) {
             continue;
@@ -109,7 +148,11 @@ fn raster_slot(p: Pose, base: u32, lid: u32) {
                 }
                 let z = 1.0 / dot(w, iz);
                 let code = u32(clamp((z - zr.x) * zscale, 0.0, max_code));
-                atomicMin(&vis[row + i], (code << params.id_bits) | t);
+                let key = (code << params.id_bits) | t;
+                // A plain load first: most losing writes skip the atomic.
+                if (key < atomicLoad(&vis[row + i])) {
+                    atomicMin(&vis[row + i], key);
+                }
             }
         }
     }
@@ -122,20 +165,17 @@ fn resolve(p: Pose, key: u32, x: f32, y: f32) -> vec4<f32> {
         return vec4<f32>(0.0);
     }
     let id_mask = (1u << params.id_bits) - 1u;
-    let tri = tris[key & id_mask];
-    let n = rotate(p, tri.plane.xyz);
-    let d = tri.plane.w + dot(n, vec3<f32>(p.r0.w, p.r1.w, p.r2.w));
+    let plane = tris[key & id_mask].plane;
+    let n = rotate(p, plane.xyz);
+    let d = plane.w + dot(n, vec3<f32>(p.r0.w, p.r1.w, p.r2.w));
     let ray = vec3<f32>((x - params.cx) / params.fx, (y - params.cy) / params.fy, 1.0);
     let den = dot(n, ray);
-    // Clamp to the triangle's own depth span (grazing planes are ill-conditioned).
-    let za = dot(p.r2.xyz, tri.v0.xyz) + p.r2.w;
-    let zb = dot(p.r2.xyz, tri.v1.xyz) + p.r2.w;
-    let zc = dot(p.r2.xyz, tri.v2.xyz) + p.r2.w;
-    let zlo = min(za, min(zb, zc));
-    let zhi = max(za, max(zb, zc));
-    var z = 0.5 * (zlo + zhi);
+    // The pixel centre lies inside the triangle, so the plane gives its
+    // depth; clamp to the hypothesis' depth range for (rare) edge-on faces.
+    let zr = depth_range(p);
+    var z = zr.y;
     if (abs(den) > 1e-12) {
-        z = clamp(d / den, zlo, zhi);
+        z = clamp(d / den, zr.x, zr.y);
     }
     var nn = n;
     if (den > 0.0) {

@@ -14,15 +14,19 @@ fn render_main(
     let base = wid.x * npix;
     for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
         let p = poses[h];
-        clear_slot(base, lid);
+        let rect = screen_rect(p);
+        clear_slot(base, lid, rect);
         storageBarrier();
-        raster_slot(p, base, lid);
+        raster_slot(p, base, lid, rect);
         storageBarrier();
         for (var i = lid; i < npix; i += WG) {
-            let key = atomicLoad(&vis[base + i]);
-            let x = f32(i % params.width);
-            let y = f32(i / params.width);
-            images[h * npix + i] = resolve(p, key, x, y);
+            let x = i32(i % params.width);
+            let y = i32(i / params.width);
+            var key = EMPTY;
+            if (x >= rect.x && x <= rect.z && y >= rect.y && y <= rect.w) {
+                key = atomicLoad(&vis[base + i]);
+            }
+            images[h * npix + i] = resolve(p, key, f32(x), f32(y));
         }
         storageBarrier();
     }

@@ -2,6 +2,9 @@
 // rendering so no image leaves the workgroup. Prefixed with raster.wgsl.
 //
 // Over V = {observed depth > 0} ∪ {rendered depth > 0}:
+// (only the hypothesis' screen rectangle is visited: outside it nothing is
+// rendered, so those pixels are in V exactly when observed, scoring 0; their
+// count comes from params.n_obs, the observed pixels of the whole region)
 //   a_d = 1 - min(1, |d - d̂| / tau)       (0 where only one image is valid)
 //   a_n = 1 - min(1, (1 - clamp(n·n̂, 0, 1)) / alpha)   (0 where a normal is missing)
 //   score = (mean a_d + mean a_n) / 2, 0 when V is empty.
@@ -31,30 +34,25 @@ fn score_main(
     let base = wid.x * npix;
     for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
         let p = poses[h];
-        clear_slot(base, lid);
+        let rect = screen_rect(p);
+        clear_slot(base, lid, rect);
         storageBarrier();
-        raster_slot(p, base, lid);
+        raster_slot(p, base, lid, rect);
         storageBarrier();
         var sum = vec2<f32>(0.0);
-        var cnt = vec4<u32>(0u); // valid, rendered, observed, front
+        var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
         var behind = 0u;
-        for (var i = lid; i < npix; i += WG) {
+        let n = rect_pixels(rect);
+        for (var j = lid; j < n; j += WG) {
+            let i = rect_index(rect, j);
             let key = atomicLoad(&vis[base + i]);
-            let obs = observed[i];
-            let has_obs = obs.w > 0.0;
-            let has_ren = key != EMPTY;
-            if (!(has_obs || has_ren)) {
-                continue;
-            }
-            cnt.x += 1u;
-            if (has_obs) {
-                cnt.z += 1u;
-            }
-            if (!has_ren) {
+            if (key == EMPTY) {
                 continue;
             }
             cnt.y += 1u;
-            if (!has_obs) {
+            let obs = observed[i];
+            if (obs.w <= 0.0) {
+                cnt.x += 1u;
                 continue;
             }
             let r = resolve(p, key, f32(i % params.width), f32(i / params.width));
@@ -85,13 +83,13 @@ fn score_main(
         if (lid == 0u) {
             let c = s_cnt[0];
             var rec: Record;
-            rec.valid = c.x;
+            rec.valid = params.n_obs + c.x;
             rec.rendered = c.y;
-            rec.observed = c.z;
+            rec.observed = params.n_obs;
             rec.front = c.w;
             rec.behind = s_behind[0];
-            if (c.x > 0u) {
-                let inv = 1.0 / f32(c.x);
+            if (rec.valid > 0u) {
+                let inv = 1.0 / f32(rec.valid);
                 rec.mean_ad = s_sum[0].x * inv;
                 rec.mean_an = s_sum[0].y * inv;
                 rec.score = 0.5 * (rec.mean_ad + rec.mean_an);
@@ -116,9 +114,11 @@ fn raster_main(
     let npix = params.width * params.height;
     let base = wid.x * npix;
     for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
-        clear_slot(base, lid);
+        let p = poses[h];
+        let rect = screen_rect(p);
+        clear_slot(base, lid, rect);
         storageBarrier();
-        raster_slot(poses[h], base, lid);
+        raster_slot(p, base, lid, rect);
         storageBarrier();
     }
 }

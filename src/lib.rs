@@ -24,3 +24,4 @@ pub mod pose;
 pub mod hypotheses;
 pub mod synth;
 pub mod visual;
+pub mod explain;

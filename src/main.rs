@@ -1,1 +1,54 @@
-fn main() {}
+//! The `plausible` command-line tool.
+
+mod cli;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "plausible", version, about = "How plausible is an object pose? Visual and physical plausibility of 6D pose hypotheses, batched on any GPU.")]
+struct Cli {
+    /// More output: -v prints the adapter and backend, -vv debug logs.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Rank pose hypotheses by their visual-alignment score (eq. 3-5).
+    Score(cli::score::ScoreArgs),
+    /// Run the scorer end to end on shipped data (no arguments needed).
+    Demo(cli::demo::DemoArgs),
+    /// Measure throughput, GPU side by side with the CPU twin.
+    Bench(cli::bench::BenchArgs),
+    /// Stable resting poses: drop tests, clustering, analytic cross-check, SQLite database.
+    StablePoses(cli::stable::StableArgs),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("warn,plausible={level}"))),
+        )
+        .with_writer(std::io::stderr)
+        .without_time()
+        .init();
+    let result = match cli.command {
+        Command::Score(a) => cli::score::run(a, cli.verbose),
+        Command::Demo(a) => cli::demo::run(a, cli.verbose),
+        Command::Bench(a) => cli::bench::run(a, cli.verbose),
+        Command::StablePoses(a) => cli::stable::stable_poses(a),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}

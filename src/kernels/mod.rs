@@ -77,6 +77,17 @@ impl GpuPose {
     pub fn transform(&self, v: Vec3) -> Vec3 {
         self.rotate(v) + self.translation()
     }
+    /// `-Rᵀt`: the camera centre in model coordinates.
+    #[inline]
+    pub fn inverse_translation(&self) -> Vec3 {
+        let t = self.translation();
+        let r = &self.rows;
+        -Vec3::new(
+            r[0][0] * t.x + r[1][0] * t.y + r[2][0] * t.z,
+            r[0][1] * t.x + r[1][1] * t.y + r[2][1] * t.z,
+            r[0][2] * t.x + r[1][2] * t.y + r[2][2] * t.z,
+        )
+    }
     #[inline]
     pub fn translation(&self) -> Vec3 {
         Vec3::new(self.rows[0][3], self.rows[1][3], self.rows[2][3])
@@ -102,7 +113,9 @@ pub struct RasterParams {
     pub tau: f32,
     pub alpha: f32,
     pub near: f32,
-    pub _pad: [u32; 2],
+    /// Observed pixels of the whole region (score kernel).
+    pub n_obs: u32,
+    pub _pad: u32,
 }
 const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
 

@@ -22,25 +22,54 @@ pub struct RenderImage {
     pub normals: Vec<Vec3>,
 }
 
+/// Inclusive pixel rectangle `[x0, x1] x [y0, y1]` that can hold the
+/// hypothesis: the projection of the box around its bounding sphere,
+/// clipped to the image (`None` when it misses the image). Nothing outside
+/// it is drawn or scored (the twin of `screen_rect` in raster.wgsl).
+pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize; 4]> {
+    let c = pose.translation();
+    let (w, h) = (k.width as i64, k.height as i64);
+    if c.z - radius <= NEAR_M {
+        return Some([0, 0, w as usize - 1, h as usize - 1]);
+    }
+    let (zn, zf) = (c.z - radius, c.z + radius);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let xlo = ((c.x - radius) / zn).min((c.x - radius) / zf) * fx + cx;
+    let xhi = ((c.x + radius) / zn).max((c.x + radius) / zf) * fx + cx;
+    let ylo = ((c.y - radius) / zn).min((c.y - radius) / zf) * fy + cy;
+    let yhi = ((c.y + radius) / zn).max((c.y + radius) / zf) * fy + cy;
+    let x0 = (xlo.ceil().max(-1.0) as i64).max(0);
+    let y0 = (ylo.ceil().max(-1.0) as i64).max(0);
+    let x1 = (xhi.floor().min(w as f32) as i64).min(w - 1);
+    let y1 = (yhi.floor().min(h as f32) as i64).min(h - 1);
+    (x0 <= x1 && y0 <= y1).then(|| [x0 as usize, y0 as usize, x1 as usize, y1 as usize])
+}
+
 /// Rasterizes `mesh` at `pose` into a z-buffer of triangle ids (`u32::MAX`
 /// for background) and depths. `zbuf` and `ids` must hold `w * h` items;
-/// they are overwritten.
-pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) {
-    let (w, h) = (k.width as usize, k.height as usize);
-    zbuf.fill(f32::INFINITY);
-    ids.fill(u32::MAX);
+/// only the returned [`screen_rect`] is written (and so only it is valid).
+pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
+    let w = k.width as usize;
+    let rect = screen_rect(pose, mesh.radius, k)?;
+    for y in rect[1]..=rect[3] {
+        zbuf[y * w + rect[0]..=y * w + rect[2]].fill(f32::INFINITY);
+        ids[y * w + rect[0]..=y * w + rect[2]].fill(u32::MAX);
+    }
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     let project = |v: Vec3| -> (f32, f32) { (fx * v.x / v.z + cx, fy * v.y / v.z + cy) };
     let cross2 = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
     let sub = |a: (f32, f32), b: (f32, f32)| (a.0 - b.0, a.1 - b.1);
+    // Camera centre in model coordinates: a face is a back face when the
+    // camera lies on the inner side of its plane.
+    let cam = pose.inverse_translation();
     for (t, tri) in mesh.triangles.iter().enumerate() {
+        if mesh.cull_back_faces && Vec3::from_slice(&tri.plane[..3]).dot(cam) <= tri.plane[3] {
+            continue;
+        }
         let a = pose.transform(Vec3::from_slice(&tri.v0[..3]));
         let b = pose.transform(Vec3::from_slice(&tri.v1[..3]));
         let c = pose.transform(Vec3::from_slice(&tri.v2[..3]));
         if a.z.min(b.z).min(c.z) < NEAR_M {
-            continue;
-        }
-        if mesh.cull_back_faces && pose.rotate(Vec3::from_slice(&tri.plane[..3])).dot(a) >= 0.0 {
             continue;
         }
         let (sa, sb, sc) = (project(a), project(b), project(c));
@@ -48,10 +77,10 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
         if area.abs() < 1e-12 {
             continue;
         }
-        let x_lo = sa.0.min(sb.0).min(sc.0).ceil().max(0.0);
-        let y_lo = sa.1.min(sb.1).min(sc.1).ceil().max(0.0);
-        let x_hi = sa.0.max(sb.0).max(sc.0).floor().min(w as f32 - 1.0);
-        let y_hi = sa.1.max(sb.1).max(sc.1).floor().min(h as f32 - 1.0);
+        let x_lo = sa.0.min(sb.0).min(sc.0).ceil().max(rect[0] as f32);
+        let y_lo = sa.1.min(sb.1).min(sc.1).ceil().max(rect[1] as f32);
+        let x_hi = sa.0.max(sb.0).max(sc.0).floor().min(rect[2] as f32);
+        let y_hi = sa.1.max(sb.1).max(sc.1).floor().min(rect[3] as f32);
         if x_lo > x_hi || y_lo > y_hi {
             continue;
         }
@@ -74,20 +103,22 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
             }
         }
     }
+    Some(rect)
 }
 
-/// Exact depth and camera-facing normal at pixel `(x, y)` on triangle `tri`
-/// (the twin of `resolve` in `shaders/raster.wgsl`).
+/// Exact depth and camera-facing normal at pixel `(x, y)` on triangle `tri`,
+/// from the triangle's plane (the twin of `resolve` in raster.wgsl). The
+/// pixel centre lies inside the triangle, so the plane gives its depth;
+/// edge-on faces are clamped to the hypothesis' depth range.
 #[inline]
-pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, k: &Intrinsics, x: f32, y: f32) -> (f32, Vec3) {
+pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, radius: f32, k: &Intrinsics, x: f32, y: f32) -> (f32, Vec3) {
     let n = pose.rotate(Vec3::from_slice(&tri.plane[..3]));
-    let d = tri.plane[3] + n.dot(pose.translation());
+    let t = pose.translation();
+    let d = tri.plane[3] + n.dot(t);
     let ray = Vec3::new((x - k.cx as f32) / k.fx as f32, (y - k.cy as f32) / k.fy as f32, 1.0);
     let den = n.dot(ray);
-    let r2 = Vec3::from_slice(&pose.rows[2][..3]);
-    let zs = [tri.v0, tri.v1, tri.v2].map(|v| r2.dot(Vec3::from_slice(&v[..3])) + pose.rows[2][3]);
-    let (zlo, zhi) = (zs[0].min(zs[1]).min(zs[2]), zs[0].max(zs[1]).max(zs[2]));
-    let z = if den.abs() > 1e-12 { (d / den).clamp(zlo, zhi) } else { 0.5 * (zlo + zhi) };
+    let (zlo, zhi) = ((t.z - radius).max(NEAR_M), t.z + radius);
+    let z = if den.abs() > 1e-12 { (d / den).clamp(zlo, zhi) } else { zhi };
     (z, if den > 0.0 { -n } else { n })
 }
 
@@ -95,8 +126,8 @@ pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, k: &Intrinsics, x: f32, y: f32
 pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage {
     let n = k.pixels();
     let gp = GpuPose::from(pose);
-    let mut zbuf = vec![0.0; n];
-    let mut ids = vec![0; n];
+    let mut zbuf = vec![f32::INFINITY; n];
+    let mut ids = vec![u32::MAX; n];
     raster_ids(mesh, &gp, k, &mut zbuf, &mut ids);
     let mut depth = vec![0.0; n];
     let mut normals = vec![Vec3::ZERO; n];
@@ -104,7 +135,7 @@ pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage
         if ids[i] != u32::MAX {
             let x = (i % k.width as usize) as f32;
             let y = (i / k.width as usize) as f32;
-            let (z, nn) = resolve(&mesh.triangles[ids[i] as usize], &gp, k, x, y);
+            let (z, nn) = resolve(&mesh.triangles[ids[i] as usize], &gp, mesh.radius, k, x, y);
             depth[i] = z;
             normals[i] = nn;
         }
@@ -112,7 +143,7 @@ pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage
     RenderImage { width: k.width, height: k.height, depth, normals }
 }
 
-pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: f32, alpha: f32) -> RasterParams {
+pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: f32, alpha: f32, n_obs: u32) -> RasterParams {
     RasterParams {
         fx: k.fx as f32,
         fy: k.fy as f32,
@@ -128,7 +159,8 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
         tau,
         alpha,
         near: NEAR_M,
-        _pad: [0; 2],
+        n_obs,
+        _pad: 0,
     }
 }
 
@@ -234,7 +266,7 @@ pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsi
     let mut out = Vec::with_capacity(poses.len());
     for chunk in poses.chunks(bufs.chunk) {
         let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
-        let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0);
+        let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0, 0);
         ctx.queue.write_buffer(&bufs.params, 0, bytemuck::bytes_of(&params));
         ctx.queue.write_buffer(&bufs.poses, 0, bytemuck::cast_slice(&gp));
         let mut enc = ctx.device.create_command_encoder(&Default::default());

@@ -112,25 +112,38 @@ pub fn score_image(target: &ScoreTarget, depth: &[f32], normals: &[Vec3], p: &Sc
 
 /// CPU twin of the fused `score` kernel for a batch: renders each pose into
 /// a per-thread z-buffer and scores it, in parallel over hypotheses.
+///
+/// Like the kernel, it visits only the hypothesis' screen rectangle: outside
+/// it nothing is rendered, so those pixels are in V exactly when observed
+/// and score 0 there; they enter through the region's observed-pixel count.
 pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &ScoreParams) -> Vec<ScoreRecord> {
     let k = &target.intrinsics;
     let n = k.pixels();
+    let w = k.width as usize;
+    let n_obs = target.observed_pixels() as u32;
     poses
         .par_iter()
         .map_init(
             || (vec![0.0f32; n], vec![0u32; n]),
             |(zbuf, ids), pose| {
                 let gp = GpuPose::from(pose);
-                raster_ids(mesh, &gp, k, zbuf, ids);
                 let mut acc = Acc::default();
-                for i in 0..n {
-                    let ren = (ids[i] != u32::MAX).then(|| {
-                        let x = (i % k.width as usize) as f32;
-                        let y = (i / k.width as usize) as f32;
-                        resolve(&mesh.triangles[ids[i] as usize], &gp, k, x, y)
-                    });
-                    acc.pixel(target.depth[i], target.normals[i], ren, p);
+                if let Some([x0, y0, x1, y1]) = raster_ids(mesh, &gp, k, zbuf, ids) {
+                    for y in y0..=y1 {
+                        for x in x0..=x1 {
+                            let i = y * w + x;
+                            if ids[i] == u32::MAX {
+                                continue;
+                            }
+                            let ren = resolve(&mesh.triangles[ids[i] as usize], &gp, mesh.radius, k, x as f32, y as f32);
+                            acc.pixel(target.depth[i], target.normals[i], Some(ren), p);
+                        }
+                    }
                 }
+                // Observed pixels that are not rendered: in V, scoring 0.
+                let rendered_observed = acc.rec.observed;
+                acc.rec.valid += n_obs - rendered_observed;
+                acc.rec.observed = n_obs;
                 acc.finish()
             },
         )
@@ -162,6 +175,7 @@ pub struct GpuScorer {
     ctx: Context,
     mesh: RenderMesh,
     target_intrinsics: crate::camera::Intrinsics,
+    n_obs: u32,
     params: ScoreParams,
     bufs: RasterBuffers,
     records: wgpu::Buffer,
@@ -238,6 +252,7 @@ impl GpuScorer {
             ctx: ctx.clone(),
             mesh: mesh.clone(),
             target_intrinsics: k,
+            n_obs: target.observed_pixels() as u32,
             params,
             bufs,
             records,
@@ -257,12 +272,19 @@ impl GpuScorer {
     /// Scores `poses` (any number; split into chunks), returning records in
     /// input order and the time spent per stage.
     pub fn score(&self, poses: &[Pose]) -> Result<(Vec<ScoreRecord>, StageTimes)> {
+        self.score_with_progress(poses, |_| {})
+    }
+
+    /// Like [`score`](Self::score), calling `done(n)` after each chunk with
+    /// the number of hypotheses scored so far.
+    pub fn score_with_progress(&self, poses: &[Pose], mut done: impl FnMut(usize)) -> Result<(Vec<ScoreRecord>, StageTimes)> {
         let mut out = Vec::with_capacity(poses.len());
         let mut times = StageTimes::default();
         for chunk in poses.chunks(self.bufs.chunk) {
             let (r, t) = self.run_chunk(chunk, false)?;
             out.extend(r);
             times += t;
+            done(out.len());
         }
         Ok((out, times))
     }
@@ -282,7 +304,14 @@ impl GpuScorer {
         let mut times = StageTimes::default();
         let t0 = Instant::now();
         let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
-        let params = raster_params(&self.mesh, &self.target_intrinsics, chunk.len() as u32, self.params.tau, self.params.alpha);
+        let params = raster_params(
+            &self.mesh,
+            &self.target_intrinsics,
+            chunk.len() as u32,
+            self.params.tau,
+            self.params.alpha,
+            self.n_obs,
+        );
         ctx.queue.write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&params));
         ctx.queue.write_buffer(&self.bufs.poses, 0, bytemuck::cast_slice(&gp));
         ctx.queue.submit([]);

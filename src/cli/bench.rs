@@ -1,0 +1,212 @@
+//! `plausible bench`: throughput of the GPU path and its CPU twin, measured
+//! side by side in the same run (wall clock; the first submit is excluded
+//! by a warm-up, and each figure is the median of `--repeat` runs).
+
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use plausible::camera::Intrinsics;
+use plausible::hypotheses::around_and_random;
+use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams};
+use plausible::kernels::RenderMesh;
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+use plausible::synth::{linemod_camera, observe, SensorNoise};
+use plausible::visual::Device;
+use serde::Serialize;
+
+use super::DeviceArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub kind: BenchKind,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum BenchKind {
+    /// Visual scoring: hypotheses/s for several batch sizes, resolutions and meshes.
+    Score(BenchScoreArgs),
+    /// Stable-pose drop tests: drops/s, steps per drop, settle rate, clusters.
+    Stable(super::stable::BenchStableArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct BenchScoreArgs {
+    /// Print JSON (one object per configuration) instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Timed runs per configuration (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Only the 4k-triangle mesh and N <= 1024 (a quick look).
+    #[arg(long)]
+    pub quick: bool,
+    /// Skip the CPU twin (not recommended: figures are meant side by side).
+    #[arg(long)]
+    pub no_cpu: bool,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+}
+
+#[derive(Serialize, Debug)]
+pub struct ScoreBenchRow {
+    pub adapter: String,
+    pub backend: String,
+    pub mesh: String,
+    pub triangles: usize,
+    pub n: usize,
+    pub width: u32,
+    pub height: u32,
+    pub gpu_hyps_per_s: Option<f64>,
+    pub cpu_hyps_per_s: Option<f64>,
+    pub cpu_threads: usize,
+    pub upload_ms: Option<f64>,
+    pub render_ms: Option<f64>,
+    pub reduce_ms: Option<f64>,
+    pub readback_ms: Option<f64>,
+    pub timing: &'static str,
+}
+
+pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
+    match a.kind {
+        BenchKind::Score(s) => bench_score(s, verbose),
+        BenchKind::Stable(s) => super::stable::bench_stable(s),
+    }
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// The benchmark meshes: ~1k, ~4k and ~100k triangles, all scaled to a
+/// 0.15 m diagonal. The 100k mesh is the duck with every triangle split in
+/// 25 (same surface, 25x the triangles).
+pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
+    let load = |rel: &str| -> Result<Mesh> {
+        Ok(Mesh::load(super::asset(rel), MeshUnits::Metres)?.0.normalized(0.15))
+    };
+    let duck = load("assets/pybullet/duck.obj")?;
+    if quick {
+        return Ok(vec![("duck".into(), duck)]);
+    }
+    let bunny = load("assets/pybullet/bunny.obj")?;
+    let dense = duck.subdivided(5);
+    Ok(vec![("bunny".into(), bunny), ("duck".into(), duck), ("duck/25".into(), dense)])
+}
+
+fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
+    let device = a.device.open(verbose, true)?;
+    let (adapter, backend) = match &device {
+        Device::Gpu(c) => (c.info.name.clone(), format!("{:?}", c.info.backend)),
+        Device::Cpu => ("none".to_string(), "none".to_string()),
+    };
+    let truth = crate::cli::demo::demo_true_pose();
+    let k = linemod_camera();
+    let params = ScoreParams::default();
+    let repeat = a.repeat.max(1);
+    let mut configs: Vec<(usize, RoiSampling)> =
+        vec![(256, RoiSampling::Square(128)), (1024, RoiSampling::Square(128))];
+    if !a.quick {
+        configs.push((4096, RoiSampling::Square(128)));
+        configs.push((64, RoiSampling::FullFrame));
+    }
+    let mut rows = Vec::new();
+    if !a.json {
+        println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
+        println!(
+            "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
+            "mesh", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu/cpu", "upload", "render", "reduce", "readback"
+        );
+    }
+    for (name, mesh) in bench_meshes(a.quick)? {
+        let rmesh = RenderMesh::new(&mesh)?;
+        let (obs, mask) = observe(&rmesh, &truth, &k, SensorNoise::default(), 1);
+        for &(n, sampling) in &configs {
+            let target = ScoreTarget::new(&obs, Some(&mask), sampling, DEFAULT_ROI_MARGIN)?;
+            let poses = around_and_random(&truth, n, 7);
+            let ti: Intrinsics = target.intrinsics;
+            let mut row = ScoreBenchRow {
+                adapter: adapter.clone(),
+                backend: backend.clone(),
+                mesh: name.clone(),
+                triangles: mesh.triangles.len(),
+                n,
+                width: ti.width,
+                height: ti.height,
+                gpu_hyps_per_s: None,
+                cpu_hyps_per_s: None,
+                cpu_threads: rayon::current_num_threads(),
+                upload_ms: None,
+                render_ms: None,
+                reduce_ms: None,
+                readback_ms: None,
+                timing: "wall clock",
+            };
+            if let Device::Gpu(ctx) = &device {
+                let scorer = GpuScorer::new(ctx, &rmesh, &target, params, n)?;
+                scorer.score(&poses)?; // warm-up
+                let mut runs = Vec::new();
+                for _ in 0..repeat {
+                    let t = Instant::now();
+                    let (_, st) = scorer.score(&poses)?;
+                    runs.push((t.elapsed(), st));
+                }
+                runs.sort_by_key(|r| r.0);
+                let (total, st) = runs[runs.len() / 2];
+                let render = median((0..repeat).map(|_| scorer.raster_only(&poses)).collect::<Result<Vec<_>, _>>()?);
+                row.gpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
+                row.upload_ms = Some(ms(st.upload));
+                row.render_ms = Some(ms(render.min(st.compute)));
+                row.reduce_ms = Some(ms(st.compute.saturating_sub(render)));
+                row.readback_ms = Some(ms(st.readback));
+            }
+            if !a.no_cpu {
+                score_cpu(&rmesh, &target, &poses[..n.min(16)], &params); // warm-up
+                let total = median(
+                    (0..repeat)
+                        .map(|_| {
+                            let t = Instant::now();
+                            score_cpu(&rmesh, &target, &poses, &params);
+                            t.elapsed()
+                        })
+                        .collect(),
+                );
+                row.cpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
+            }
+            if a.json {
+                println!("{}", serde_json::to_string(&row)?);
+            } else {
+                let f = |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
+                let ratio = match (row.gpu_hyps_per_s, row.cpu_hyps_per_s) {
+                    (Some(g), Some(c)) => format!("{:.2}x", g / c),
+                    _ => "-".into(),
+                };
+                println!(
+                    "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
+                    name,
+                    row.triangles,
+                    n,
+                    format!("{}x{}", ti.width, ti.height),
+                    f(row.gpu_hyps_per_s, 0),
+                    f(row.cpu_hyps_per_s, 0),
+                    ratio,
+                    f(row.upload_ms, 2),
+                    f(row.render_ms, 2),
+                    f(row.reduce_ms, 2),
+                    f(row.readback_ms, 2)
+                );
+            }
+            rows.push(row);
+        }
+    }
+    if !a.json {
+        println!("(stage times in ms for the whole batch; render = rasterization alone, reduce = fused kernel minus render)");
+    }
+    Ok(())
+}

@@ -1,0 +1,181 @@
+//! `plausible score`: rank pose hypotheses against an observed depth frame.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context as _, Result};
+use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams, ScoreRecord};
+use plausible::kernels::RenderMesh;
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::observation::{read_camera, read_depth_png, read_mask_png, RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+use plausible::pose::{read_poses, PoseUnits};
+use plausible::visual::{ranks, Device};
+
+use super::DeviceArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct ScoreArgs {
+    /// Object mesh (.obj, .ply, .stl, .gltf, .glb).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// Units of the mesh file: m, mm or auto (a bounding-box diagonal above
+    /// 5 m is taken as millimetres, and that is reported).
+    #[arg(long, default_value = "auto")]
+    pub mesh_units: MeshUnits,
+    /// Camera JSON: a BOP scene_camera.json entry {"cam_K": [...], "depth_scale": s}
+    /// (or a whole scene_camera.json with --frame).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// Frame id to pick from a whole scene_camera.json.
+    #[arg(long)]
+    pub frame: Option<String>,
+    /// 16-bit depth PNG (value x depth_scale = millimetres).
+    #[arg(long)]
+    pub depth: PathBuf,
+    /// 8-bit mask PNG, non-zero = object (default: the whole frame counts).
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Hypotheses: JSON list of {"cam_R_m2c": [9, row-major], "cam_t_m2c": [3, mm]}.
+    #[arg(long)]
+    pub poses: PathBuf,
+    /// Units of cam_t_m2c in the pose file.
+    #[arg(long, default_value = "mm", value_parser = ["mm", "m"])]
+    pub pose_units: String,
+    /// Project slightly non-orthonormal rotations onto SO(3) instead of rejecting them.
+    #[arg(long)]
+    pub orthonormalize: bool,
+    /// Write every record (input order, with rank) to .json or .csv.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Rows of the printed ranking.
+    #[arg(long, default_value_t = 10)]
+    pub top: usize,
+    /// Depth tolerance τ of eq. 4, metres.
+    #[arg(long, default_value_t = 0.02)]
+    pub tau: f32,
+    /// Normal tolerance α of eq. 5.
+    #[arg(long, default_value_t = 0.7)]
+    pub alpha: f32,
+    /// Region of interest resampled to RES x RES pixels; 0 = native pixels.
+    #[arg(long, default_value_t = 128)]
+    pub res: u32,
+    /// Growth of the mask's bounding box on each side, as a fraction of its size.
+    #[arg(long, default_value_t = DEFAULT_ROI_MARGIN)]
+    pub margin: f64,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
+    if !(a.tau > 0.0 && a.tau.is_finite()) || !(a.alpha > 0.0 && a.alpha.is_finite()) {
+        bail!("--tau and --alpha must be positive");
+    }
+    if a.tau > 1.0 {
+        bail!("--tau {} m is larger than a metre: tau is in metres (the usual value is 0.02)", a.tau);
+    }
+    let (mesh, report) = Mesh::load(&a.mesh, a.mesh_units)?;
+    for w in &report.warnings {
+        eprintln!("warning: {}: {w}", a.mesh.display());
+    }
+    let cam = read_camera(&a.camera, a.frame.as_deref())?;
+    let obs = read_depth_png(&a.depth, &cam)?;
+    let mask = match &a.mask {
+        Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
+        None => None,
+    };
+    let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
+    let poses = read_poses(&a.poses, units, a.orthonormalize)?;
+    let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
+    let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
+    let rmesh = RenderMesh::new(&mesh)?;
+    let params = ScoreParams { tau: a.tau, alpha: a.alpha };
+    let device = a.device.open(verbose, false)?;
+
+    let t0 = Instant::now();
+    let pb = super::progress(poses.len() as u64, "scoring");
+    if a.quiet {
+        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let records = match &device {
+        Device::Gpu(ctx) => {
+            let scorer = GpuScorer::new(ctx, &rmesh, &target, params, poses.len())?;
+            scorer.score_with_progress(&poses, |n| pb.set_position(n as u64))?.0
+        }
+        Device::Cpu => {
+            let mut out = Vec::with_capacity(poses.len());
+            for chunk in poses.chunks(1024) {
+                out.extend(score_cpu(&rmesh, &target, chunk, &params));
+                pb.set_position(out.len() as u64);
+            }
+            out
+        }
+    };
+    pb.finish_and_clear();
+    let secs = t0.elapsed().as_secs_f64();
+    let rank = ranks(&records);
+
+    println!(
+        "{} hypotheses scored in {:.3} s ({:.0} hypotheses/s) on {}; region {}x{}, {} observed pixels",
+        poses.len(),
+        secs,
+        poses.len() as f64 / secs,
+        device.describe(),
+        target.intrinsics.width,
+        target.intrinsics.height,
+        target.observed_pixels()
+    );
+    print_table(&records, &rank, a.top);
+    if let Some(out) = &a.out {
+        write_records(out, &records, &rank)?;
+        println!("wrote {} records to {}", records.len(), out.display());
+    }
+    Ok(())
+}
+
+/// Prints the best `top` hypotheses.
+pub fn print_table(records: &[ScoreRecord], rank: &[usize], top: usize) {
+    let mut order: Vec<usize> = (0..records.len()).collect();
+    order.sort_by_key(|&i| rank[i]);
+    println!("{:>5} {:>7} {:>7} {:>7} {:>7} {:>7}", "rank", "index", "score", "a_d", "a_n", "|V|");
+    for &i in order.iter().take(top) {
+        let r = &records[i];
+        println!("{:>5} {:>7} {:>7.4} {:>7.4} {:>7.4} {:>7}", rank[i], i, r.score, r.mean_ad, r.mean_an, r.valid);
+    }
+}
+
+/// Writes all records in input order as JSON or CSV (by extension).
+pub fn write_records(path: &std::path::Path, records: &[ScoreRecord], rank: &[usize]) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let mut f = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
+    );
+    match ext.as_str() {
+        "json" => {
+            let v: Vec<serde_json::Value> = records
+                .iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    serde_json::json!({
+                        "index": i, "rank": rank[i], "score": r.score, "a_d": r.mean_ad, "a_n": r.mean_an,
+                        "valid": r.valid, "rendered": r.rendered, "observed": r.observed,
+                    })
+                })
+                .collect();
+            serde_json::to_writer_pretty(&mut f, &v)?;
+            writeln!(f)?;
+        }
+        "csv" => {
+            writeln!(f, "index,rank,score,a_d,a_n,valid,rendered,observed")?;
+            for (i, r) in records.iter().enumerate() {
+                writeln!(f, "{i},{},{},{},{},{},{},{}", rank[i], r.score, r.mean_ad, r.mean_an, r.valid, r.rendered, r.observed)?;
+            }
+        }
+        _ => bail!("--out {}: use a .json or .csv file name", path.display()),
+    }
+    f.flush()?;
+    Ok(())
+}
