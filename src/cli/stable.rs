@@ -61,7 +61,7 @@ pub struct RunArgs {
     #[arg(long, default_value = "hull")]
     pub collider: ColliderKind,
     /// Vertex budget of each simplified collider hull.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 96)]
     pub hull_points: usize,
     /// Angular threshold of the clustering (degrees).
     #[arg(long, default_value_t = 5.0)]
@@ -125,6 +125,12 @@ pub struct BenchStableArgs {
     pub diameter: f64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Collider for every mesh (default: hull).
+    #[arg(long)]
+    pub collider: Option<ColliderKind>,
+    /// Vertex budget of each simplified collider hull.
+    #[arg(long, default_value_t = 96)]
+    pub hull_points: usize,
     /// Print one JSON object instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -376,7 +382,14 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         let mut mesh = mesh;
         let s = args.diameter / mesh.diagonal();
         mesh.scale(s);
-        let params = RunParams { drops: args.drops, seed: args.seed, ..Default::default() };
+        let collider = args.collider.unwrap_or(ColliderKind::Hull);
+        let params = RunParams {
+            drops: args.drops,
+            seed: args.seed,
+            collider,
+            hull_max_points: args.hull_points.max(4),
+            ..Default::default()
+        };
         let t_prep = Instant::now();
         let prepared = stable::prepare(mesh, &path.display().to_string(), &params)?;
         let prep_s = t_prep.elapsed().as_secs_f64();
@@ -396,6 +409,8 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         rows.push(serde_json::json!({
             "mesh": short_name(path),
             "triangles": prepared.mesh.triangles.len(),
+            "collider": collider.as_str(),
+            "collider_parts": prepared.collider_parts,
             "collider_points": prepared.collider_points,
             "drops": args.drops,
             "threads": nthreads,

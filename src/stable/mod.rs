@@ -86,7 +86,7 @@ impl Default for RunParams {
             drops: 1000,
             seed: 0,
             collider: ColliderKind::Hull,
-            hull_max_points: 64,
+            hull_max_points: 96,
             hull_tolerance_diag: 5e-3,
             sim: SimParams::default(),
         }
