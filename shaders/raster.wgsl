@@ -2,15 +2,21 @@
 //
 // One workgroup owns one hypothesis at a time and a private "slot" of the
 // visibility buffer (one u32 per pixel). Its invocations stride over the
-// triangles; each covered pixel gets atomicMin of a key packing
-// (quantized depth << id_bits) | triangle id, so the nearest triangle wins.
-// Depth is quantized over the hypothesis' own depth range
-// [t.z - radius, t.z + radius], so 32 - id_bits bits give sub-micrometre
-// steps for typical meshes; the exact depth is recomputed afterwards from the
-// winning triangle's plane (resolve), so quantization only decides ties
-// closer than one step.
+// triangles; each covered pixel gets atomicMax of the bit-inverted key
+// (quantized depth << id_bits) | triangle id, so the nearest triangle wins
+// and 0 means "nothing drawn". Depth is quantized over the hypothesis' own
+// depth range [t.z - radius, t.z + radius], so 32 - id_bits bits give
+// sub-micrometre steps for typical meshes; the exact depth is recomputed
+// from the winning triangle's plane (resolve), so quantization only decides
+// ties closer than one step.
 //
-// CPU twin: src/kernels/raster.rs (render_cpu).
+// No clearing pass: buffers start zeroed, and the consumer of a slot reads
+// every pixel the rasterizer may have touched with atomicExchange(.., 0),
+// which hands over the key and leaves the slot empty for the next
+// hypothesis. The rasterizer reports the tight rectangle of the triangles it
+// drew, so consumers visit only that.
+//
+// CPU twin: src/kernels/raster.rs (raster_ids, resolve).
 
 struct Params {
     fx: f32, fy: f32, cx: f32, cy: f32,
@@ -29,8 +35,14 @@ struct Pose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
 @group(0) @binding(2) var<storage, read> poses: array<Pose>;
 @group(0) @binding(3) var<storage, read_write> vis: array<atomic<u32>>;
 
-const WG: u32 = 256u;
+// Invocations per workgroup: 64 measured fastest on lavapipe (fewer
+// reduction steps per hypothesis) and is a full warp/wavefront on GPUs.
+const WG: u32 = 64u;
 const EMPTY: u32 = 0xffffffffu;
+const BIG: i32 = 0x7fffffff;
+
+// Tight rectangle of what was drawn: (min x, min y, max x, max y).
+var<workgroup> drawn: array<atomic<i32>, 4>;
 
 fn rotate(p: Pose, v: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(p.r0.xyz, v), dot(p.r1.xyz, v), dot(p.r2.xyz, v));
@@ -54,8 +66,8 @@ fn depth_range(p: Pose) -> vec2<f32> {
 }
 
 // Pixel rectangle (x0, y0, x1, y1), inclusive, that can hold the
-// hypothesis: the projection of the box around its bounding sphere. Nothing
-// outside it is drawn, cleared or scored. x0 > x1 when it misses the image.
+// hypothesis: the projection of the box around its bounding sphere, clipped
+// to the image. x0 > x1 when it misses the image.
 fn screen_rect(p: Pose) -> vec4<i32> {
     let c = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
     let r = params.radius;
@@ -87,19 +99,29 @@ fn rect_index(rect: vec4<i32>, j: u32) -> u32 {
     return (u32(rect.y) + j / rw) * params.width + u32(rect.x) + j % rw;
 }
 
-fn clear_slot(base: u32, lid: u32, rect: vec4<i32>) {
-    let n = rect_pixels(rect);
-    for (var j = lid; j < n; j += WG) {
-        atomicStore(&vis[base + rect_index(rect, j)], EMPTY);
-    }
+// Takes the key of a pixel and leaves the slot empty (EMPTY = nothing drawn).
+fn take_key(at: u32) -> u32 {
+    return ~atomicExchange(&vis[at], 0u);
 }
 
-fn raster_slot(p: Pose, base: u32, lid: u32, rect: vec4<i32>) {
+// Rasterizes hypothesis p into the slot at `base`; returns (after a barrier,
+// so every invocation sees it) the tight rectangle of the drawn triangles.
+fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
+    if (lid == 0u) {
+        atomicStore(&drawn[0], BIG);
+        atomicStore(&drawn[1], BIG);
+        atomicStore(&drawn[2], -1);
+        atomicStore(&drawn[3], -1);
+    }
+    workgroupBarrier();
+    let rect = screen_rect(p);
     let zr = depth_range(p);
     let max_code = f32((1u << (32u - params.id_bits)) - 1u);
     let zscale = max_code / max(zr.y - zr.x, 1e-9);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
+    var lo_all = vec2<i32>(BIG);
+    var hi_all = vec2<i32>(-1);
     // Camera centre in model coordinates, -Rᵀt: back faces are culled with
     // one dot product, before any vertex is transformed.
     let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
@@ -127,13 +149,14 @@ fn raster_slot(p: Pose, base: u32, lid: u32, rect: vec4<i32>) {
         if (lo.x > hi.x || lo.y > hi.y) {
             continue;
         }
+        lo_all = min(lo_all, vec2<i32>(lo));
+        hi_all = max(hi_all, vec2<i32>(hi));
         let inv = 1.0 / area;
         let iz = vec3<f32>(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
         // Barycentric weights are affine in the pixel position: step them.
         let dw_dx = vec3<f32>(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
         let dw_dy = vec3<f32>(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
-        let q0 = lo;
-        let w_row0 = vec3<f32>(cross2(sc - sb, q0 - sb), cross2(sa - sc, q0 - sc), cross2(sb - sa, q0 - sa)) * inv;
+        let w_row0 = vec3<f32>(cross2(sc - sb, lo - sb), cross2(sa - sc, lo - sc), cross2(sb - sa, lo - sa)) * inv;
         let nx = u32(hi.x - lo.x) + 1u;
         let ny = u32(hi.y - lo.y) + 1u;
         let x0 = u32(lo.x);
@@ -148,18 +171,25 @@ fn raster_slot(p: Pose, base: u32, lid: u32, rect: vec4<i32>) {
                 }
                 let z = 1.0 / dot(w, iz);
                 let code = u32(clamp((z - zr.x) * zscale, 0.0, max_code));
-                let key = (code << params.id_bits) | t;
-                // A plain load first: most losing writes skip the atomic.
-                if (key < atomicLoad(&vis[row + i])) {
-                    atomicMin(&vis[row + i], key);
-                }
+                atomicMax(&vis[row + i], ~((code << params.id_bits) | t));
             }
         }
     }
+    if (hi_all.x >= 0) {
+        atomicMin(&drawn[0], lo_all.x);
+        atomicMin(&drawn[1], lo_all.y);
+        atomicMax(&drawn[2], hi_all.x);
+        atomicMax(&drawn[3], hi_all.y);
+    }
+    storageBarrier();
+    workgroupBarrier();
+    return vec4<i32>(atomicLoad(&drawn[0]), atomicLoad(&drawn[1]), atomicLoad(&drawn[2]), atomicLoad(&drawn[3]));
 }
 
 // Exact depth and camera-facing unit normal at pixel (x, y) from the winning
-// triangle's plane; vec4(0) where nothing was drawn.
+// triangle's plane; vec4(0) where nothing was drawn. The pixel centre lies
+// inside the triangle, so the plane gives its depth; edge-on faces are
+// clamped to the hypothesis' depth range.
 fn resolve(p: Pose, key: u32, x: f32, y: f32) -> vec4<f32> {
     if (key == EMPTY) {
         return vec4<f32>(0.0);
@@ -170,8 +200,6 @@ fn resolve(p: Pose, key: u32, x: f32, y: f32) -> vec4<f32> {
     let d = plane.w + dot(n, vec3<f32>(p.r0.w, p.r1.w, p.r2.w));
     let ray = vec3<f32>((x - params.cx) / params.fx, (y - params.cy) / params.fy, 1.0);
     let den = dot(n, ray);
-    // The pixel centre lies inside the triangle, so the plane gives its
-    // depth; clamp to the hypothesis' depth range for (rare) edge-on faces.
     let zr = depth_range(p);
     var z = zr.y;
     if (abs(den) > 1e-12) {

@@ -4,7 +4,7 @@
 
 @group(0) @binding(4) var<storage, read_write> images: array<vec4<f32>>;
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn render_main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
@@ -14,20 +14,17 @@ fn render_main(
     let base = wid.x * npix;
     for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
         let p = poses[h];
-        let rect = screen_rect(p);
-        clear_slot(base, lid, rect);
-        storageBarrier();
-        raster_slot(p, base, lid, rect);
-        storageBarrier();
+        let rect = raster_slot(p, base, lid);
         for (var i = lid; i < npix; i += WG) {
             let x = i32(i % params.width);
             let y = i32(i / params.width);
             var key = EMPTY;
             if (x >= rect.x && x <= rect.z && y >= rect.y && y <= rect.w) {
-                key = atomicLoad(&vis[base + i]);
+                key = take_key(base + i);
             }
             images[h * npix + i] = resolve(p, key, f32(x), f32(y));
         }
         storageBarrier();
+        workgroupBarrier();
     }
 }

@@ -2,7 +2,7 @@
 // rendering so no image leaves the workgroup. Prefixed with raster.wgsl.
 //
 // Over V = {observed depth > 0} ∪ {rendered depth > 0}:
-// (only the hypothesis' screen rectangle is visited: outside it nothing is
+// (only the rectangle of drawn triangles is visited: outside it nothing is
 // rendered, so those pixels are in V exactly when observed, scoring 0; their
 // count comes from params.n_obs, the observed pixels of the whole region)
 //   a_d = 1 - min(1, |d - d̂| / tau)       (0 where only one image is valid)
@@ -24,7 +24,7 @@ var<workgroup> s_sum: array<vec2<f32>, WG>;
 var<workgroup> s_cnt: array<vec4<u32>, WG>;
 var<workgroup> s_behind: array<u32, WG>;
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn score_main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
@@ -34,18 +34,14 @@ fn score_main(
     let base = wid.x * npix;
     for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
         let p = poses[h];
-        let rect = screen_rect(p);
-        clear_slot(base, lid, rect);
-        storageBarrier();
-        raster_slot(p, base, lid, rect);
-        storageBarrier();
+        let rect = raster_slot(p, base, lid);
         var sum = vec2<f32>(0.0);
         var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
         var behind = 0u;
         let n = rect_pixels(rect);
         for (var j = lid; j < n; j += WG) {
             let i = rect_index(rect, j);
-            let key = atomicLoad(&vis[base + i]);
+            let key = take_key(base + i);
             if (key == EMPTY) {
                 continue;
             }
@@ -104,8 +100,9 @@ fn score_main(
     }
 }
 
-// Rasterization alone (no scoring), so `bench` can split render from reduce.
-@compute @workgroup_size(256)
+// Rasterization alone (no scoring; the slot is emptied again), so `bench`
+// can split render from reduce.
+@compute @workgroup_size(WG)
 fn raster_main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
@@ -114,11 +111,12 @@ fn raster_main(
     let npix = params.width * params.height;
     let base = wid.x * npix;
     for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
-        let p = poses[h];
-        let rect = screen_rect(p);
-        clear_slot(base, lid, rect);
+        let rect = raster_slot(poses[h], base, lid);
+        let n = rect_pixels(rect);
+        for (var j = lid; j < n; j += WG) {
+            atomicStore(&vis[base + rect_index(rect, j)], 0u);
+        }
         storageBarrier();
-        raster_slot(p, base, lid, rect);
-        storageBarrier();
+        workgroupBarrier();
     }
 }

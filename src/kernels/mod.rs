@@ -159,3 +159,53 @@ impl RenderMesh {
         (usize::BITS - self.triangles.len().saturating_sub(1).leading_zeros()).max(1)
     }
 }
+
+/// Every WGSL source as the pipelines compile it: `(name, source)`.
+pub fn shader_sources() -> Vec<(&'static str, String)> {
+    vec![
+        ("render", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"))),
+        ("score", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"))),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// naga parses and validates every composed shader (what wgpu does at
+    /// pipeline creation), so a broken kernel fails here without a GPU.
+    #[test]
+    fn every_wgsl_file_validates() {
+        let mut covered = std::collections::HashSet::new();
+        for (name, src) in shader_sources() {
+            let module = naga::front::wgsl::parse_str(&src).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&src)));
+            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty())
+                .validate(&module)
+                .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+            covered.insert(name);
+        }
+        // Every shader file is part of some composed module.
+        for entry in std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders")).unwrap() {
+            let file = entry.unwrap().file_name().into_string().unwrap();
+            let stem = file.trim_end_matches(".wgsl");
+            assert!(stem == "raster" || covered.contains(stem), "shaders/{file} is not validated");
+        }
+    }
+
+    #[test]
+    fn wgsl_structs_match_rust_sizes() {
+        // Sizes the WGSL declarations imply (naga's layouter) equal the Rust ones.
+        let src = &shader_sources()[1].1;
+        let module = naga::front::wgsl::parse_str(src).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let size_of = |name: &str| {
+            let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
+            layouter[h].size as usize
+        };
+        assert_eq!(size_of("Params"), std::mem::size_of::<RasterParams>());
+        assert_eq!(size_of("Tri"), std::mem::size_of::<GpuTriangle>());
+        assert_eq!(size_of("Pose"), std::mem::size_of::<GpuPose>());
+        assert_eq!(size_of("Record"), std::mem::size_of::<score::ScoreRecord>());
+    }
+}

@@ -46,8 +46,10 @@ pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize
 }
 
 /// Rasterizes `mesh` at `pose` into a z-buffer of triangle ids (`u32::MAX`
-/// for background) and depths. `zbuf` and `ids` must hold `w * h` items;
-/// only the returned [`screen_rect`] is written (and so only it is valid).
+/// for background) and depths. `zbuf` and `ids` must hold `w * h` items.
+/// Returns the tight rectangle `[x0, y0, x1, y1]` of the drawn triangles'
+/// pixel bounds (`None` if nothing was drawn); only inside it are the
+/// buffers valid (the GPU kernel visits the same rectangle).
 pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
     let w = k.width as usize;
     let rect = screen_rect(pose, mesh.radius, k)?;
@@ -55,6 +57,7 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
         zbuf[y * w + rect[0]..=y * w + rect[2]].fill(f32::INFINITY);
         ids[y * w + rect[0]..=y * w + rect[2]].fill(u32::MAX);
     }
+    let mut drawn: Option<[usize; 4]> = None;
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     let project = |v: Vec3| -> (f32, f32) { (fx * v.x / v.z + cx, fy * v.y / v.z + cy) };
     let cross2 = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
@@ -84,6 +87,11 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
         if x_lo > x_hi || y_lo > y_hi {
             continue;
         }
+        let (bx0, by0, bx1, by1) = (x_lo as usize, y_lo as usize, x_hi as usize, y_hi as usize);
+        drawn = Some(match drawn {
+            None => [bx0, by0, bx1, by1],
+            Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
+        });
         let inv = 1.0 / area;
         for y in y_lo as usize..=y_hi as usize {
             for x in x_lo as usize..=x_hi as usize {
@@ -103,7 +111,7 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
             }
         }
     }
-    Some(rect)
+    drawn
 }
 
 /// Exact depth and camera-facing normal at pixel `(x, y)` on triangle `tri`,

@@ -1,0 +1,312 @@
+//! Bad input gets a clear error (never a panic or a silent wrong answer):
+//! one test per case of the mesh, observation, hypothesis and GPU inputs.
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use plausible::gpu::{Context, GpuOptions};
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::observation::{read_camera, read_depth_png, read_mask_png, BopCamera};
+use plausible::pose::{read_poses, PoseUnits};
+use plausible::Error;
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn err_text<T: std::fmt::Debug>(r: Result<T, Error>) -> String {
+    r.expect_err("expected an error").to_string()
+}
+
+const TRI: &str = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 3\n";
+
+#[test]
+fn mesh_missing_file() {
+    let e = err_text(Mesh::load("/nonexistent/duck.obj", MeshUnits::Auto));
+    assert!(e.contains("not found") && e.contains("duck.obj"), "{e}");
+}
+
+#[test]
+fn mesh_unsupported_extension() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "model.fbx", "whatever");
+    let e = err_text(Mesh::load(&p, MeshUnits::Auto));
+    assert!(e.contains("unsupported mesh format 'fbx'"), "{e}");
+}
+
+#[test]
+fn mesh_without_triangles() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "points.obj", "v 0 0 0\nv 1 0 0\n");
+    let e = err_text(Mesh::load(&p, MeshUnits::Auto));
+    assert!(e.contains("no triangles"), "{e}");
+    let p = write(d.path(), "empty.ply", "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n");
+    assert!(err_text(Mesh::load(&p, MeshUnits::Auto)).contains("no triangles"));
+}
+
+#[test]
+fn mesh_nan_vertex() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "nan.obj", "v 0 0 0\nv nan 0 0\nv 0 0.1 0\nf 1 2 3\n");
+    let e = err_text(Mesh::load(&p, MeshUnits::Auto));
+    assert!(e.contains("vertex 1 is not finite"), "{e}");
+    let p = write(d.path(), "inf.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\ninf 0 0\n0 1 0\n3 0 1 2\n");
+    assert!(err_text(Mesh::load(&p, MeshUnits::Auto)).contains("not finite"));
+}
+
+#[test]
+fn mesh_index_out_of_range() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n");
+    let e = err_text(Mesh::load(&p, MeshUnits::Auto));
+    assert!(e.contains("face 0 refers to vertex 7") && e.contains("only 3 vertices"), "{e}");
+    let p = write(d.path(), "bad.obj", "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 9\n");
+    assert!(Mesh::load(&p, MeshUnits::Auto).is_err());
+}
+
+#[test]
+fn mesh_truncated_binary_ply_and_stl() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("t.ply");
+    std::fs::write(&p, b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00").unwrap();
+    assert!(err_text(Mesh::load(&p, MeshUnits::Auto)).contains("malformed"));
+    let p = d.path().join("t.stl");
+    std::fs::write(&p, [0u8; 90]).unwrap();
+    assert!(err_text(Mesh::load(&p, MeshUnits::Auto)).contains("malformed"));
+}
+
+#[test]
+fn mesh_degenerate_faces_and_open_boundary_are_warnings() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "open.obj", &format!("{TRI}v 0.2 0.2 0.2\nf 1 1 4\n"));
+    let (mesh, report) = Mesh::load(&p, MeshUnits::Auto).unwrap();
+    assert_eq!(mesh.triangles.len(), 1);
+    assert_eq!(report.degenerate_faces, 1);
+    assert_eq!(report.boundary_edges, 3);
+    let text = report.warnings.join("\n");
+    assert!(text.contains("degenerate") && text.contains("open"), "{text}");
+}
+
+#[test]
+fn mesh_units_auto_detects_millimetres() {
+    // A BOP-style model in millimetres: 100 mm cube.
+    let d = tempfile::tempdir().unwrap();
+    let mut text = String::new();
+    let c = plausible::shapes::cuboid(DVec3::splat(50.0));
+    for v in &c.vertices {
+        text += &format!("v {} {} {}\n", v.x, v.y, v.z);
+    }
+    for t in &c.triangles {
+        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let p = write(d.path(), "cube_mm.obj", &text);
+    let (mesh, report) = Mesh::load(&p, MeshUnits::Auto).unwrap();
+    assert!((mesh.diagonal() - 0.1 * 3f64.sqrt()).abs() < 1e-9);
+    assert!(report.warnings.iter().any(|w| w.contains("millimetres")));
+    let (mm, _) = Mesh::load(&p, MeshUnits::Millimetres).unwrap();
+    assert!((mm.diagonal() - mesh.diagonal()).abs() < 1e-12);
+    let (m, r) = Mesh::load(&p, MeshUnits::Metres).unwrap();
+    assert!(m.diagonal() > 100.0 && r.warnings.is_empty());
+}
+
+#[test]
+fn mesh_formats_agree() {
+    // The same tetrahedron as OBJ, ASCII PLY, binary STL and glTF.
+    let d = tempfile::tempdir().unwrap();
+    let v = [[0.0f32, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]];
+    let f = [[0u32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+    let mut obj = String::new();
+    let mut ply = format!("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n");
+    for p in v {
+        obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+        ply += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    for t in f {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+        ply += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
+    }
+    let mut stl = vec![0u8; 80];
+    stl.extend(4u32.to_le_bytes());
+    for t in f {
+        stl.extend([0u8; 12]);
+        for i in t {
+            for c in v[i as usize] {
+                stl.extend(c.to_le_bytes());
+            }
+        }
+        stl.extend([0u8; 2]);
+    }
+    // Minimal glTF with an embedded base64 buffer.
+    let mut bin = Vec::new();
+    for p in v {
+        for c in p {
+            bin.extend(c.to_le_bytes());
+        }
+    }
+    for t in f {
+        for i in t {
+            bin.extend((i as u16).to_le_bytes());
+        }
+    }
+    let b64 = base64_encode(&bin);
+    let gltf = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
+        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":24}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[0.1,0.1,0.1]}},
+                     {{"bufferView":1,"componentType":5123,"count":12,"type":"SCALAR"}}]}}"#,
+        bin.len()
+    );
+    let paths = [
+        write(d.path(), "t.obj", &obj),
+        write(d.path(), "t.ply", &ply),
+        {
+            let p = d.path().join("t.stl");
+            std::fs::write(&p, &stl).unwrap();
+            p
+        },
+        write(d.path(), "t.gltf", &gltf),
+    ];
+    for p in &paths {
+        let (m, report) = Mesh::load(p, MeshUnits::Metres).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        assert_eq!(m.triangles.len(), 4, "{}", p.display());
+        assert!((m.area() - (1.5 * 0.01 + 0.5 * 3f64.sqrt() * 0.02 / 1.0 * 0.5)).abs() < 1e-6, "{}: area {}", p.display(), m.area());
+        assert_eq!(report.boundary_edges, 0, "{}", p.display());
+    }
+}
+
+fn base64_encode(data: &[u8]) -> String {
+    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for c in data.chunks(3) {
+        let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                out.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+fn camera(dir: &Path) -> PathBuf {
+    write(dir, "camera.json", r#"{"cam_K": [572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 1], "depth_scale": 0.1}"#)
+}
+
+#[test]
+fn camera_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "c1.json", r#"{"cam_K": [1, 2, 3], "depth_scale": 1}"#);
+    let cam = read_camera(&p, None).unwrap();
+    let e = plausible::camera::Intrinsics::from_k(&cam.cam_k, 640, 480).unwrap_err().to_string();
+    assert!(e.contains("expected 9 numbers"), "{e}");
+    let p = write(d.path(), "c2.json", r#"{"1": {"cam_K": [1,0,0,0,1,0,0,0,1]}, "2": {"cam_K": [1,0,0,0,1,0,0,0,1]}}"#);
+    assert!(err_text(read_camera(&p, None)).contains("--frame"));
+    assert!(read_camera(&p, Some("2")).is_ok());
+    let p = write(d.path(), "c3.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": -1}"#);
+    assert!(err_text(read_camera(&p, None)).contains("depth_scale must be positive"));
+    assert!(err_text(read_camera(Path::new("/nonexistent/cam.json"), None)).contains("not found"));
+}
+
+#[test]
+fn depth_png_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let cam = read_camera(&camera(d.path()), None).unwrap();
+    // 8-bit depth is not BOP depth.
+    let p8 = d.path().join("d8.png");
+    image::GrayImage::from_pixel(64, 48, image::Luma([7])).save(&p8).unwrap();
+    assert!(err_text(read_depth_png(&p8, &cam)).contains("16-bit"));
+    // All zero.
+    let p0 = d.path().join("d0.png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([0u16])).save(&p0).unwrap();
+    assert!(err_text(read_depth_png(&p0, &cam)).contains("no valid"));
+    // A depth_scale that makes depths absurd (metres where mm are expected).
+    let big = BopCamera { cam_k: cam.cam_k.clone(), depth_scale: 1000.0 };
+    let p1 = d.path().join("d1.png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([700u16])).save(&p1).unwrap();
+    assert!(err_text(read_depth_png(&p1, &big)).contains("depth_scale"));
+    assert!(err_text(read_depth_png(Path::new("/nonexistent/d.png"), &cam)).contains("not found"));
+}
+
+#[test]
+fn mask_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("m.png");
+    image::GrayImage::from_pixel(64, 48, image::Luma([0])).save(&p).unwrap();
+    assert!(err_text(read_mask_png(&p, 64, 48)).contains("mask is empty"));
+    assert!(err_text(read_mask_png(&p, 640, 480)).contains("64x48"));
+}
+
+fn poses_file(dir: &Path, body: &str) -> PathBuf {
+    write(dir, "poses.json", body)
+}
+
+const GOOD_R: &str = "[1,0,0, 0,1,0, 0,0,1]";
+
+#[test]
+fn poses_nan() {
+    let d = tempfile::tempdir().unwrap();
+    // JSON has no NaN literal; a null or a huge number is what arrives.
+    let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0, 0, 1e999]}}]"#));
+    let e = read_poses(&p, PoseUnits::Millimetres, false).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("NaN or infinity") || e.contains("number out of range"), "{e}");
+    let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0, null, 700]}}]"#));
+    assert!(read_poses(&p, PoseUnits::Millimetres, false).is_err());
+    // NaN built in code.
+    let bad = plausible::pose::Pose::from_row_major([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], [f64::NAN, 0.0, 0.7]);
+    assert!(bad.validated(3, false).unwrap_err().to_string().contains("pose 3: contains NaN"));
+}
+
+#[test]
+fn poses_not_orthonormal() {
+    let d = tempfile::tempdir().unwrap();
+    let p = poses_file(d.path(), r#"{"poses": [{"cam_R_m2c": [1,0.01,0, 0,1,0, 0,0,1], "cam_t_m2c": [0, 0, 700]}]}"#);
+    let e = read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string();
+    assert!(e.contains("not orthonormal") && e.contains("--orthonormalize"), "{e}");
+    let fixed = read_poses(&p, PoseUnits::Millimetres, true).unwrap();
+    assert!(fixed[0].orthonormality_error() < 1e-12);
+    let p = poses_file(d.path(), r#"[{"cam_R_m2c": [-1,0,0, 0,1,0, 0,0,1], "cam_t_m2c": [0, 0, 700]}]"#);
+    assert!(read_poses(&p, PoseUnits::Millimetres, true).unwrap_err().to_string().contains("determinant"));
+}
+
+#[test]
+fn poses_behind_camera() {
+    let d = tempfile::tempdir().unwrap();
+    let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0, 0, -500]}}]"#));
+    assert!(read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string().contains("behind the camera"));
+}
+
+#[test]
+fn poses_in_metres_where_millimetres_are_expected() {
+    let d = tempfile::tempdir().unwrap();
+    let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0.01, 0.02, 0.7]}}]"#));
+    let e = read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string();
+    assert!(e.contains("looks like metres") && e.contains("--pose-units m"), "{e}");
+    let ok = read_poses(&p, PoseUnits::Metres, false).unwrap();
+    assert!((ok[0].t.z - 0.7).abs() < 1e-12);
+}
+
+#[test]
+fn poses_malformed_json() {
+    let d = tempfile::tempdir().unwrap();
+    let p = poses_file(d.path(), r#"[{"R": [1]}]"#);
+    assert!(read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string().contains("cam_R_m2c"));
+    let p = poses_file(d.path(), r#"[{"cam_R_m2c": [1,0,0], "cam_t_m2c": [0,0,700]}]"#);
+    assert!(read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string().contains("9 numbers"));
+    let p = poses_file(d.path(), "[]");
+    assert!(read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string().contains("no poses"));
+}
+
+#[test]
+fn no_adapter_error_names_both_remedies() {
+    let e = Context::new(&GpuOptions { adapter: Some("no-such-adapter-xyz".into()), limits: None })
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no GPU adapter") && e.contains("mesa-vulkan-drivers") && e.contains("--device cpu"), "{e}");
+}
