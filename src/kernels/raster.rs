@@ -210,7 +210,12 @@ impl RasterBuffers {
             .min(lim.max_items(per_hyp_bytes.max(1)))
             .min(max_chunk.max(1) as u64)
             .max(1) as usize;
+        // Workgroups in flight. A software adapter runs one per CPU thread,
+        // so a few dozen slots keep it busy; GPUs get as many as the memory
+        // budget allows.
+        let max_slots: u64 = if ctx.is_software() { 64 } else { u64::MAX };
         let slots = (chunk as u64)
+            .min(max_slots)
             .min(lim.max_workgroups as u64)
             .min((lim.max_storage_binding.min(lim.max_buffer).min(VIS_BUDGET_BYTES) / (pix * 4)).max(1))
             .max(1) as u32;
