@@ -57,6 +57,9 @@ pub struct Context {
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
     pub limits: BatchLimits,
+    /// Whether the device records GPU timestamps (used by `bench` for the
+    /// per-stage split; wall clock is reported beside them).
+    pub timestamps: bool,
     /// Pipelines are compiled once per context and kept here.
     pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, Arc<wgpu::ComputePipeline>>>>,
 }
@@ -120,9 +123,10 @@ impl Context {
         required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
         required.max_storage_buffers_per_shader_stage = alimits.max_storage_buffers_per_shader_stage.min(8);
         required.max_compute_workgroup_storage_size = alimits.max_compute_workgroup_storage_size.min(16384);
+        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("plausible"),
-            required_features: wgpu::Features::empty(),
+            required_features: features,
             required_limits: required.clone(),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
@@ -134,7 +138,8 @@ impl Context {
             limits = limits.min(l);
         }
         tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-        Ok(Context { device, queue, info, limits, cache: Default::default() })
+        let timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
+        Ok(Context { device, queue, info, limits, timestamps, cache: Default::default() })
     }
 
     /// A one-line description: adapter name and backend.

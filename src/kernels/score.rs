@@ -159,6 +159,9 @@ pub struct StageTimes {
     pub compute: Duration,
     /// Copying the records back.
     pub readback: Duration,
+    /// GPU time of the compute pass from timestamp queries, when the
+    /// adapter has them and they were asked for ([`GpuScorer::set_timestamps`]).
+    pub gpu_compute: Option<Duration>,
 }
 
 impl std::ops::AddAssign for StageTimes {
@@ -166,6 +169,10 @@ impl std::ops::AddAssign for StageTimes {
         self.upload += o.upload;
         self.compute += o.compute;
         self.readback += o.readback;
+        self.gpu_compute = match (self.gpu_compute, o.gpu_compute) {
+            (Some(a), Some(b)) => Some(a + b),
+            (a, b) => a.or(b),
+        };
     }
 }
 
@@ -184,6 +191,8 @@ pub struct GpuScorer {
     raster_bind: wgpu::BindGroup,
     pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     raster_pipeline: std::sync::Arc<wgpu::ComputePipeline>,
+    /// Timestamp query set and its resolve buffer, when enabled.
+    timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
 }
 
 /// Default most hypotheses per dispatch: keeps each submission short (the
@@ -261,7 +270,29 @@ impl GpuScorer {
             raster_bind,
             pipeline,
             raster_pipeline,
+            timestamps: None,
         })
+    }
+
+    /// Records GPU timestamps around each compute pass (when the adapter
+    /// supports them; returns whether they are on). Costs one extra small
+    /// readback per chunk, so it is off by default.
+    pub fn set_timestamps(&mut self, on: bool) -> bool {
+        self.timestamps = (on && self.ctx.timestamps).then(|| {
+            let set = self.ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("compute timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            });
+            let buf = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps"),
+                size: 16,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (set, buf)
+        });
+        self.timestamps.is_some()
     }
 
     /// Hypotheses per dispatch.
@@ -321,7 +352,14 @@ impl GpuScorer {
         let t1 = Instant::now();
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         {
-            let mut pass = enc.begin_compute_pass(&Default::default());
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("score"),
+                timestamp_writes: self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+                    query_set: set,
+                    beginning_of_pass_write_index: Some(0),
+                    end_of_pass_write_index: Some(1),
+                }),
+            });
             if raster_only {
                 pass.set_pipeline(&self.raster_pipeline);
                 pass.set_bind_group(0, &self.raster_bind, &[]);
@@ -331,9 +369,18 @@ impl GpuScorer {
             }
             pass.dispatch_workgroups(self.bufs.slots.min(chunk.len() as u32), 1, 1);
         }
+        if let Some((set, buf)) = &self.timestamps {
+            enc.resolve_query_set(set, 0..2, buf, 0);
+        }
         ctx.queue.submit([enc.finish()]);
         ctx.wait()?;
         times.compute = t1.elapsed();
+        if let Some((_, buf)) = &self.timestamps {
+            let raw = ctx.read_buffer(buf, 16)?;
+            let ticks: &[u64] = bytemuck::cast_slice(&raw);
+            let ns = ticks[1].saturating_sub(ticks[0]) as f64 * ctx.queue.get_timestamp_period() as f64;
+            times.gpu_compute = Some(Duration::from_nanos(ns as u64));
+        }
         if raster_only {
             return Ok((Vec::new(), times));
         }
