@@ -27,8 +27,9 @@ pub struct SimParams {
     pub dt: f64,
     /// Simulated-time cap per drop (s); drops not at rest by then are unsettled.
     pub max_time: f64,
-    /// Initial gap between the lowest hull point and the plane, in bounding
-    /// diagonals (1.5 ≈ the pybullet peer's 0.3 m drop of a 0.15 m object).
+    /// Drop height: gap between the lowest hull point and the plane at
+    /// release, in bounding diagonals (1.5 ≈ the pybullet peer's 0.3 m drop
+    /// of a 0.15 m object). The free fall is computed in closed form.
     pub drop_height_diag: f64,
     /// At rest: linear speed below this many diagonals per second ...
     pub lin_tol_diag: f64,
@@ -76,7 +77,7 @@ pub struct DropResult {
     pub index: u64,
     /// Came to rest before the time cap.
     pub settled: bool,
-    /// Simulated steps.
+    /// Simulated steps (after the closed-form free fall).
     pub steps: u32,
     /// Final orientation, model to plane frame (w, x, y, z order in storage).
     pub rotation: DQuat,
@@ -121,7 +122,17 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
     let mut rng = ChaCha8Rng::from_seed(drop_seed(mesh_sha256, seed, index));
     let q0 = random_rotation(&mut rng);
     let lowest = body.support.iter().map(|p| (q0 * *p).z).fold(f64::INFINITY, f64::min);
-    let z0 = params.drop_height_diag * body.diagonal - lowest;
+    // The body is released at rest, so until it first touches the plane it
+    // only translates: that free fall is done in closed form, and the
+    // simulation starts a small gap above the plane (two steps of travel at
+    // impact speed) with the exact free-fall velocity. Saves about 50 of the
+    // ~500 steps of a drop at 240 Hz.
+    let g = 9.81;
+    let h0 = (params.drop_height_diag * body.diagonal).max(0.0);
+    let v_impact = (2.0 * g * h0).sqrt();
+    let gap = (0.02 * body.diagonal).max(2.0 * v_impact * params.dt).min(h0);
+    let v0 = (2.0 * g * (h0 - gap)).sqrt();
+    let z0 = gap - lowest;
 
     let mut world = PhysicsWorld::new();
     world.gravity = Vec3::new(0.0, 0.0, -9.81);
@@ -146,6 +157,7 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
     );
     let rb = RigidBodyBuilder::dynamic()
         .pose(Pose::from_parts(Vec3::new(0.0, 0.0, z0 as f32), Quat::from_xyzw(q0.x as f32, q0.y as f32, q0.z as f32, q0.w as f32).normalize()))
+        .linvel(Vec3::new(0.0, 0.0, -v0 as f32))
         .additional_mass_properties(mprops)
         .can_sleep(false)
         .ccd_enabled(params.ccd);
@@ -172,8 +184,18 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
         if b.linvel().length() < lin_tol && b.angvel().length() < ang_tol {
             calm += 1;
             if calm >= calm_needed {
-                settled = true;
-                break;
+                // Still for long enough: accept only a statically stable
+                // pose (centre of mass above the support polygon), not a
+                // body balanced on an edge that has not started to tip yet.
+                let p = b.position();
+                let r = p.rotation;
+                let q = DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
+                let t = DVec3::new(p.translation.x as f64, p.translation.y as f64, p.translation.z as f64);
+                if supported(body, q, t) {
+                    settled = true;
+                    break;
+                }
+                calm = 0;
             }
         } else {
             calm = 0;
@@ -191,9 +213,62 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
     DropResult { index, settled, steps, rotation, height, gravity_in_model }
 }
 
+/// Whether the body at rotation `q`, translation `t` is statically stable
+/// on the plane: the collider vertices within 1 % of the diagonal of the
+/// lowest one form the support polygon, and the centre of mass must project
+/// inside it by a small margin (0.1 % of the diagonal).
+pub fn supported(body: &DropBody, q: DQuat, t: DVec3) -> bool {
+    let world: Vec<DVec3> = body.support.iter().map(|p| q * *p + t).collect();
+    let low = world.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+    let tol = 0.01 * body.diagonal;
+    let mut pts: Vec<[f64; 2]> = world.iter().filter(|p| p.z <= low + tol).map(|p| [p.x, p.y]).collect();
+    let com = q * body.mass.com + t;
+    point_in_hull_2d(&mut pts, [com.x, com.y], 1e-3 * body.diagonal)
+}
+
+/// Point-in-convex-hull test in 2D with an inward margin (Andrew's
+/// monotone chain). Fewer than three hull corners (an edge or a vertex)
+/// never contain a point strictly.
+fn point_in_hull_2d(pts: &mut [[f64; 2]], p: [f64; 2], margin: f64) -> bool {
+    pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(pts.len() + 1);
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &[f64; 2]>> =
+            if pass == 0 { Box::new(pts.iter()) } else { Box::new(pts.iter().rev()) };
+        for &q in iter {
+            while hull.len() >= start + 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0 {
+                hull.pop();
+            }
+            hull.push(q);
+        }
+        hull.pop();
+    }
+    if hull.len() < 3 {
+        return false;
+    }
+    (0..hull.len()).all(|i| {
+        let a = hull[i];
+        let b = hull[(i + 1) % hull.len()];
+        let len = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
+        len > 0.0 && cross(a, b, p) / len > margin
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn support_polygon_test() {
+        let mut sq = vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.5]];
+        assert!(point_in_hull_2d(&mut sq, [0.5, 0.5], 0.01));
+        assert!(!point_in_hull_2d(&mut sq, [1.2, 0.5], 0.01));
+        assert!(!point_in_hull_2d(&mut sq, [0.995, 0.5], 0.01));
+        let mut edge = vec![[0.0, 0.0], [1.0, 0.0]];
+        assert!(!point_in_hull_2d(&mut edge, [0.5, 0.0], 0.0));
+    }
 
     #[test]
     fn seeds_differ_per_index_and_rotations_are_unit() {
