@@ -2,13 +2,13 @@
 //
 // One workgroup owns one hypothesis at a time and a private "slot" of the
 // visibility buffer (one u32 per pixel). Its invocations stride over the
-// triangles; each covered pixel gets atomicMax of the bit-inverted key
-// (quantized depth << id_bits) | triangle id, so the nearest triangle wins
-// and 0 means "nothing drawn". Depth is quantized over the hypothesis' own
-// depth range [t.z - radius, t.z + radius], so 32 - id_bits bits give
-// sub-micrometre steps for typical meshes; the exact depth is recomputed
-// from the winning triangle's plane (resolve), so quantization only decides
-// ties closer than one step.
+// triangles; each covered pixel gets atomicMax of the key
+// (quantized inverse depth << id_bits) | triangle id, so the nearest triangle
+// wins and 0 means "nothing drawn". Inverse depth is quantized over the
+// hypothesis' own depth range [t.z - radius, t.z + radius], so 32 - id_bits
+// bits give sub-micrometre steps for typical meshes; the exact depth is
+// recomputed from the winning triangle's plane (resolve), so quantization
+// only decides ties closer than one step.
 //
 // No clearing pass: buffers start zeroed, and the consumer of a slot reads
 // every pixel the rasterizer may have touched with atomicExchange(.., 0),
@@ -38,7 +38,7 @@ struct Pose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
 // Invocations per workgroup: 64 measured fastest on lavapipe (fewer
 // reduction steps per hypothesis) and is a full warp/wavefront on GPUs.
 const WG: u32 = 64u;
-const EMPTY: u32 = 0xffffffffu;
+const EMPTY: u32 = 0u;
 const BIG: i32 = 0x7fffffff;
 
 // Tight rectangle of what was drawn: (min x, min y, max x, max y).
@@ -101,7 +101,7 @@ fn rect_index(rect: vec4<i32>, j: u32) -> u32 {
 
 // Takes the key of a pixel and leaves the slot empty (EMPTY = nothing drawn).
 fn take_key(at: u32) -> u32 {
-    return ~atomicExchange(&vis[at], 0u);
+    return atomicExchange(&vis[at], 0u);
 }
 
 // Rasterizes hypothesis p into the slot at `base`; returns (after a barrier,
@@ -115,9 +115,13 @@ fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
     }
     workgroupBarrier();
     let rect = screen_rect(p);
+    // Keys quantize inverse depth (affine in screen space, no division per
+    // pixel; larger = nearer) over the hypothesis' range. Code 0 is reserved
+    // for "nothing drawn".
     let zr = depth_range(p);
     let max_code = f32((1u << (32u - params.id_bits)) - 1u);
-    let zscale = max_code / max(zr.y - zr.x, 1e-9);
+    let izfar = 1.0 / zr.y;
+    let izscale = (max_code - 1.0) / max(1.0 / zr.x - izfar, 1e-9);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
     var lo_all = vec2<i32>(BIG);
@@ -169,9 +173,8 @@ fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
                 if (min(w.x, min(w.y, w.z)) < 0.0) {
                     continue;
                 }
-                let z = 1.0 / dot(w, iz);
-                let code = u32(clamp((z - zr.x) * zscale, 0.0, max_code));
-                atomicMax(&vis[row + i], ~((code << params.id_bits) | t));
+                let code = u32(clamp((dot(w, iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
+                atomicMax(&vis[row + i], (code << params.id_bits) | t);
             }
         }
     }
