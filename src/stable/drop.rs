@@ -60,7 +60,7 @@ impl Default for SimParams {
             drop_height_diag: 1.5,
             lin_tol_diag: 0.02,
             ang_tol: 0.05,
-            calm_time: 0.25,
+            calm_time: 0.1,
             friction: 0.5,
             restitution: 0.0,
             density: 1000.0,
