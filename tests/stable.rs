@@ -12,7 +12,9 @@ use plausible::stable::db::Db;
 use plausible::stable::{self, match_analytic, ColliderKind, RunParams, Shard};
 
 fn asset(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets").join(rel)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("assets")
+        .join(rel)
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -24,11 +26,28 @@ fn tmp(name: &str) -> PathBuf {
 }
 
 /// Runs `params.drops` drops of `mesh` into a fresh database and returns it.
-fn run_db(path: &Path, mesh: Mesh, name: &str, params: &RunParams, shard: Option<Shard>, threads: usize) -> Db {
+fn run_db(
+    path: &Path,
+    mesh: Mesh,
+    name: &str,
+    params: &RunParams,
+    shard: Option<Shard>,
+    threads: usize,
+) -> Db {
     let prepared = stable::prepare(mesh, name, params).unwrap();
     let mut db = Db::open(path).unwrap();
-    stable::run_into_db(&mut db, &prepared, "m", 1.0, params, shard, threads, ClusterParams::default(), |_, _| {})
-        .unwrap();
+    stable::run_into_db(
+        &mut db,
+        &prepared,
+        "m",
+        1.0,
+        params,
+        shard,
+        threads,
+        ClusterParams::default(),
+        |_, _| {},
+    )
+    .unwrap();
     db
 }
 
@@ -37,7 +56,9 @@ fn assert_same_contents(a: &Db, b: &Db) {
     let (a, b) = (a.contents().unwrap(), b.contents().unwrap());
     if a != b {
         let (la, lb): (Vec<&str>, Vec<&str>) = (a.lines().collect(), b.lines().collect());
-        let i = (0..la.len().min(lb.len())).find(|&i| la[i] != lb[i]).unwrap_or(la.len().min(lb.len()));
+        let i = (0..la.len().min(lb.len()))
+            .find(|&i| la[i] != lb[i])
+            .unwrap_or(la.len().min(lb.len()));
         panic!(
             "databases differ at line {i} ({} vs {} lines):\n{}\n{}",
             la.len(),
@@ -49,7 +70,11 @@ fn assert_same_contents(a: &Db, b: &Db) {
 }
 
 fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
-    DVec3::from_array(a).dot(DVec3::from_array(b)).clamp(-1.0, 1.0).acos().to_degrees()
+    DVec3::from_array(a)
+        .dot(DVec3::from_array(b))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
 }
 
 #[test]
@@ -58,7 +83,11 @@ fn cube_six_faces_each_within_ci_of_one_sixth() {
     // 1/6 with probability of about 0.74, so some seeds fail this check by
     // chance (seeds 1 and 6 of 0..10 do). The chi-square test below is the
     // bias check.
-    let params = RunParams { drops: 1000, seed: 0, ..Default::default() };
+    let params = RunParams {
+        drops: 1000,
+        seed: 0,
+        ..Default::default()
+    };
     let cube = shapes::cuboid(DVec3::splat(0.04));
     let prepared = stable::prepare(cube.clone(), "cube", &params).unwrap();
     // Analytic: six faces of probability 1/6.
@@ -76,24 +105,49 @@ fn cube_six_faces_each_within_ci_of_one_sixth() {
     assert_eq!(clusters.len(), 6, "{clusters:?}");
     for c in &clusters {
         assert_eq!(c.kind, ClusterKind::Pose);
-        assert!(c.ci95[0] <= 1.0 / 6.0 && 1.0 / 6.0 <= c.ci95[1], "p = {} CI {:?}", c.probability, c.ci95);
+        assert!(
+            c.ci95[0] <= 1.0 / 6.0 && 1.0 / 6.0 <= c.ci95[1],
+            "p = {} CI {:?}",
+            c.probability,
+            c.ci95
+        );
         assert!((c.height - 0.04).abs() < 1e-3, "height {}", c.height);
         // The canonical rotation maps the cluster's gravity to -z.
         let r = glam::DMat3::from_cols_array(&c.r_model_to_plane).transpose();
         let down = r * DVec3::from_array(c.gravity_in_model);
         assert!((down - DVec3::NEG_Z).length() < 1e-9);
     }
-    let chi2: f64 = clusters.iter().map(|c| (c.count as f64 - settled as f64 / 6.0).powi(2) / (settled as f64 / 6.0)).sum();
-    assert!(chi2 < 15.09, "chi² = {chi2} (p < 0.01 for 5 degrees of freedom)");
+    let chi2: f64 = clusters
+        .iter()
+        .map(|c| (c.count as f64 - settled as f64 / 6.0).powi(2) / (settled as f64 / 6.0))
+        .sum();
+    assert!(
+        chi2 < 15.09,
+        "chi² = {chi2} (p < 0.01 for 5 degrees of freedom)"
+    );
     let m = match_analytic(&clusters, &db.analytic(run.id).unwrap());
-    assert!(m.iter().all(|m| m.is_some_and(|(_, angle, _)| angle < 1.0)), "{m:?}");
+    assert!(
+        m.iter().all(|m| m.is_some_and(|(_, angle, _)| angle < 1.0)),
+        "{m:?}"
+    );
 }
 
 #[test]
 fn box_three_pairs_largest_face_most_probable() {
     let half = DVec3::new(0.015, 0.03, 0.05);
-    let params = RunParams { drops: 600, seed: 0, ..Default::default() };
-    let db = run_db(&tmp("box.sqlite"), shapes::cuboid(half), "box", &params, None, 2);
+    let params = RunParams {
+        drops: 600,
+        seed: 0,
+        ..Default::default()
+    };
+    let db = run_db(
+        &tmp("box.sqlite"),
+        shapes::cuboid(half),
+        "box",
+        &params,
+        None,
+        2,
+    );
     let run = &db.runs().unwrap()[0];
     let clusters = db.clusters(run.id).unwrap();
     let analytic = db.analytic(run.id).unwrap();
@@ -104,25 +158,42 @@ fn box_three_pairs_largest_face_most_probable() {
     let mut pair_a = [0.0; 3];
     for c in &clusters {
         let g = c.gravity_in_model;
-        let axis = (0..3).max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs())).unwrap();
+        let axis = (0..3)
+            .max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs()))
+            .unwrap();
         assert!(g[axis].abs() > 0.999);
         pair_p[axis] += c.probability;
     }
     for a in &analytic {
         let g = a.gravity_in_model;
-        let axis = (0..3).max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs())).unwrap();
+        let axis = (0..3)
+            .max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs()))
+            .unwrap();
         pair_a[axis] += a.probability;
     }
     // Largest faces are ±x (0.06 x 0.10 m): the most probable pair in both.
-    assert!(pair_p[0] > pair_p[1] && pair_p[1] > pair_p[2], "drops {pair_p:?}");
-    assert!(pair_a[0] > pair_a[1] && pair_a[1] > pair_a[2], "analytic {pair_a:?}");
+    assert!(
+        pair_p[0] > pair_p[1] && pair_p[1] > pair_p[2],
+        "drops {pair_p:?}"
+    );
+    assert!(
+        pair_a[0] > pair_a[1] && pair_a[1] > pair_a[2],
+        "analytic {pair_a:?}"
+    );
     for k in 0..3 {
-        assert!((pair_p[k] - pair_a[k]).abs() < 0.12, "pair {k}: drops {} vs analytic {}", pair_p[k], pair_a[k]);
+        assert!(
+            (pair_p[k] - pair_a[k]).abs() < 0.12,
+            "pair {k}: drops {} vs analytic {}",
+            pair_p[k],
+            pair_a[k]
+        );
     }
     // Each member of a pair is equally likely by symmetry: within its CI.
     for c in &clusters {
         let g = c.gravity_in_model;
-        let axis = (0..3).max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs())).unwrap();
+        let axis = (0..3)
+            .max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs()))
+            .unwrap();
         let half_pair = pair_p[axis] / 2.0;
         assert!(c.ci95[0] <= half_pair && half_pair <= c.ci95[1], "{c:?}");
     }
@@ -130,33 +201,75 @@ fn box_three_pairs_largest_face_most_probable() {
 
 #[test]
 fn cylinder_two_end_faces_and_a_rolling_family() {
-    let params = RunParams { drops: 400, seed: 3, ..Default::default() };
-    let db = run_db(&tmp("cyl.sqlite"), shapes::cylinder(0.03, 0.05, 64), "cylinder", &params, None, 2);
+    let params = RunParams {
+        drops: 400,
+        seed: 3,
+        ..Default::default()
+    };
+    let db = run_db(
+        &tmp("cyl.sqlite"),
+        shapes::cylinder(0.03, 0.05, 64),
+        "cylinder",
+        &params,
+        None,
+        2,
+    );
     let run = &db.runs().unwrap()[0];
     let drops = db.drops(run.id).unwrap();
     let settled = drops.iter().filter(|d| d.settled).count();
-    assert!(settled as f64 >= 0.99 * drops.len() as f64, "settled {settled}/{}", drops.len());
+    assert!(
+        settled as f64 >= 0.99 * drops.len() as f64,
+        "settled {settled}/{}",
+        drops.len()
+    );
     let clusters = db.clusters(run.id).unwrap();
-    let families: Vec<_> = clusters.iter().filter(|c| c.kind != ClusterKind::Pose).collect();
+    let families: Vec<_> = clusters
+        .iter()
+        .filter(|c| c.kind != ClusterKind::Pose)
+        .collect();
     assert_eq!(families.len(), 1, "{clusters:?}");
     match &families[0].kind {
-        ClusterKind::Circle { axis } => assert!(angle_deg(*axis, [0.0, 0.0, 1.0]) < 3.0, "axis {axis:?}"),
+        ClusterKind::Circle { axis } => {
+            assert!(angle_deg(*axis, [0.0, 0.0, 1.0]) < 3.0, "axis {axis:?}")
+        }
         k => panic!("expected a rolling family, got {k:?}"),
     }
-    let ends: Vec<_> =
-        clusters.iter().filter(|c| c.kind == ClusterKind::Pose && c.gravity_in_model[2].abs() > 0.999).collect();
+    let ends: Vec<_> = clusters
+        .iter()
+        .filter(|c| c.kind == ClusterKind::Pose && c.gravity_in_model[2].abs() > 0.999)
+        .collect();
     assert_eq!(ends.len(), 2, "{clusters:?}");
     // Ends and family hold (nearly) all settled drops.
     let covered: u64 = ends.iter().map(|c| c.count).sum::<u64>() + families[0].count;
-    assert!(covered as f64 >= 0.98 * settled as f64, "covered {covered} of {settled}");
+    assert!(
+        covered as f64 >= 0.98 * settled as f64,
+        "covered {covered} of {settled}"
+    );
 }
 
 /// Drops `mesh` and checks every cluster holding at least `min_p` of the
 /// settled drops against the nearest analytic pose; returns the analytic
 /// probability carried by the matched facets and the settled fraction.
-fn check_against_analytic(mesh: Mesh, name: &str, drops: u64, min_p: f64, max_deg: f64) -> (f64, f64) {
-    let params = RunParams { drops, seed: 4, ..Default::default() };
-    let db = run_db(&tmp(&format!("{name}.sqlite")), mesh, name, &params, None, 2);
+fn check_against_analytic(
+    mesh: Mesh,
+    name: &str,
+    drops: u64,
+    min_p: f64,
+    max_deg: f64,
+) -> (f64, f64) {
+    let params = RunParams {
+        drops,
+        seed: 4,
+        ..Default::default()
+    };
+    let db = run_db(
+        &tmp(&format!("{name}.sqlite")),
+        mesh,
+        name,
+        &params,
+        None,
+        2,
+    );
     let run = &db.runs().unwrap()[0];
     let all = db.drops(run.id).unwrap();
     let settled = all.iter().filter(|d| d.settled).count() as f64 / all.len() as f64;
@@ -169,10 +282,17 @@ fn check_against_analytic(mesh: Mesh, name: &str, drops: u64, min_p: f64, max_de
             continue;
         }
         let (a, angle, _) = m.expect("pose cluster");
-        assert!(angle < max_deg, "{name}: cluster p={:.3} is {angle:.1}° from the nearest analytic pose", c.probability);
+        assert!(
+            angle < max_deg,
+            "{name}: cluster p={:.3} is {angle:.1}° from the nearest analytic pose",
+            c.probability
+        );
         matched.insert(a);
     }
-    (matched.iter().map(|&a| analytic[a].probability).sum(), settled)
+    (
+        matched.iter().map(|&a| analytic[a].probability).sum(),
+        settled,
+    )
 }
 
 #[test]
@@ -182,7 +302,10 @@ fn real_mesh_clusters_match_the_likeliest_analytic_facets() {
     let (mesh, _) = Mesh::load(asset("ycb/003_cracker_box.stl"), MeshUnits::Metres).unwrap();
     let (carried, settled) = check_against_analytic(mesh, "cracker_box", 300, 0.01, 5.0);
     assert!(settled >= 0.99, "settled {settled}");
-    assert!(carried > 0.8, "matched analytic facets carry only {carried}");
+    assert!(
+        carried > 0.8,
+        "matched analytic facets carry only {carried}"
+    );
 }
 
 #[test]
@@ -196,26 +319,58 @@ fn rounded_duck_settles_and_its_main_poses_match() {
     let (mesh, _) = Mesh::load(asset("pybullet/duck.obj"), MeshUnits::Metres).unwrap();
     let (carried, settled) = check_against_analytic(mesh.normalized(0.15), "duck", 300, 0.10, 8.0);
     assert!(settled >= 0.99, "settled {settled}");
-    assert!(carried > 0.5, "matched analytic facets carry only {carried}");
+    assert!(
+        carried > 0.5,
+        "matched analytic facets carry only {carried}"
+    );
 }
 
 #[test]
 fn same_seed_gives_identical_databases_for_one_and_two_threads() {
     let (mesh, _) = Mesh::load(asset("pybullet/duck_vhacd.obj"), MeshUnits::Metres).unwrap();
     let mesh = mesh.normalized(0.15);
-    let params = RunParams { drops: 80, seed: 5, ..Default::default() };
-    let a = run_db(&tmp("det1.sqlite"), mesh.clone(), "duck_vhacd", &params, None, 1);
-    let b = run_db(&tmp("det2.sqlite"), mesh.clone(), "duck_vhacd", &params, None, 2);
+    let params = RunParams {
+        drops: 80,
+        seed: 5,
+        ..Default::default()
+    };
+    let a = run_db(
+        &tmp("det1.sqlite"),
+        mesh.clone(),
+        "duck_vhacd",
+        &params,
+        None,
+        1,
+    );
+    let b = run_db(
+        &tmp("det2.sqlite"),
+        mesh.clone(),
+        "duck_vhacd",
+        &params,
+        None,
+        2,
+    );
     assert_same_contents(&a, &b);
     // A different seed gives different drops.
-    let c = run_db(&tmp("det3.sqlite"), mesh, "duck_vhacd", &RunParams { seed: 6, ..params }, None, 2);
+    let c = run_db(
+        &tmp("det3.sqlite"),
+        mesh,
+        "duck_vhacd",
+        &RunParams { seed: 6, ..params },
+        None,
+        2,
+    );
     assert_ne!(a.contents().unwrap(), c.contents().unwrap());
 }
 
 #[test]
 fn shards_merged_equal_a_single_run() {
     let mesh = shapes::cuboid(DVec3::new(0.02, 0.03, 0.045));
-    let params = RunParams { drops: 90, seed: 7, ..Default::default() };
+    let params = RunParams {
+        drops: 90,
+        seed: 7,
+        ..Default::default()
+    };
     let single = run_db(&tmp("single.sqlite"), mesh.clone(), "box", &params, None, 2);
     let mut shard_paths = Vec::new();
     for k in 1..=3 {
@@ -226,7 +381,12 @@ fn shards_merged_equal_a_single_run() {
     }
     let mut merged = Db::open(tmp("merged.sqlite")).unwrap();
     // Merge in a scrambled order, one shard twice: nothing is duplicated.
-    for p in [&shard_paths[2], &shard_paths[0], &shard_paths[2], &shard_paths[1]] {
+    for p in [
+        &shard_paths[2],
+        &shard_paths[0],
+        &shard_paths[2],
+        &shard_paths[1],
+    ] {
         merged.merge_from(p).unwrap();
     }
     assert_same_contents(&merged, &single);
@@ -274,13 +434,24 @@ fn killed_run_resumes_without_loss_or_duplicates() {
     {
         let db = Db::open_existing(&killed).unwrap();
         let n = db.drops(db.runs().unwrap()[0].id).unwrap().len();
-        assert!(n < 3000, "the run finished before it was killed ({status:?}); nothing was tested");
+        assert!(
+            n < 3000,
+            "the run finished before it was killed ({status:?}); nothing was tested"
+        );
     }
     // Restart: finishes the remaining drops.
     let out = Command::new(bin).args(args(&killed)).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let out = Command::new(bin).args(args(&full)).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let a = Db::open_existing(&killed).unwrap();
     let b = Db::open_existing(&full).unwrap();
     assert_eq!(a.drops(a.runs().unwrap()[0].id).unwrap().len(), 3000);
@@ -291,7 +462,12 @@ fn killed_run_resumes_without_loss_or_duplicates() {
 fn cli_show_merge_export_and_json() {
     let bin = env!("CARGO_BIN_EXE_plausible");
     let mesh = asset("pybullet/duck_vhacd.obj");
-    let (s1, s2, merged, json) = (tmp("cli1.sqlite"), tmp("cli2.sqlite"), tmp("cli_m.sqlite"), tmp("cli.json"));
+    let (s1, s2, merged, json) = (
+        tmp("cli1.sqlite"),
+        tmp("cli2.sqlite"),
+        tmp("cli_m.sqlite"),
+        tmp("cli.json"),
+    );
     for (db, shard) in [(&s1, "1/2"), (&s2, "2/2")] {
         let out = Command::new(bin)
             .args(["stable-poses", "run"])
@@ -300,22 +476,61 @@ fn cli_show_merge_export_and_json() {
             .arg(db)
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
-    let out = Command::new(bin).args(["stable-poses", "merge"]).arg(&s1).arg(&s2).arg("-o").arg(&merged).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let out = Command::new(bin).args(["stable-poses", "show", "--db"]).arg(&merged).output().unwrap();
+    let out = Command::new(bin)
+        .args(["stable-poses", "merge"])
+        .arg(&s1)
+        .arg(&s2)
+        .arg("-o")
+        .arg(&merged)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = Command::new(bin)
+        .args(["stable-poses", "show", "--db"])
+        .arg(&merged)
+        .output()
+        .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("drops 40/40") && text.contains("analytic"), "{text}");
-    let out = Command::new(bin).args(["stable-poses", "export", "--db"]).arg(&merged).arg("--json").arg(&json).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(
+        out.status.success() && text.contains("drops 40/40") && text.contains("analytic"),
+        "{text}"
+    );
+    let out = Command::new(bin)
+        .args(["stable-poses", "export", "--db"])
+        .arg(&merged)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let m = &v["meshes"][0];
     assert_eq!(m["drops"], 40);
     let clusters = m["clusters"].as_array().unwrap();
     assert!(!clusters.is_empty());
-    let ps: Vec<f64> = clusters.iter().map(|c| c["probability"].as_f64().unwrap()).collect();
-    assert!(ps.windows(2).all(|w| w[0] >= w[1]), "clusters sorted by probability");
+    let ps: Vec<f64> = clusters
+        .iter()
+        .map(|c| c["probability"].as_f64().unwrap())
+        .collect();
+    assert!(
+        ps.windows(2).all(|w| w[0] >= w[1]),
+        "clusters sorted by probability"
+    );
     assert_eq!(clusters[0]["R_model_to_plane"].as_array().unwrap().len(), 9);
     assert_eq!(clusters[0]["ci95"].as_array().unwrap().len(), 2);
     assert!(m["analytic"].as_array().unwrap().len() >= 4);
@@ -327,20 +542,37 @@ fn bad_inputs_give_clear_errors_or_warnings() {
     // Zero volume: a flat square.
     let flat = Mesh::from_raw(
         "flat",
-        vec![DVec3::ZERO, DVec3::X * 0.1, DVec3::Y * 0.1, DVec3::new(0.1, 0.1, 0.0)],
+        vec![
+            DVec3::ZERO,
+            DVec3::X * 0.1,
+            DVec3::Y * 0.1,
+            DVec3::new(0.1, 0.1, 0.0),
+        ],
         vec![[0, 1, 2], [1, 3, 2]],
     )
     .unwrap()
     .0;
-    let err = stable::prepare(flat, "flat", &RunParams::default()).err().unwrap().to_string();
+    let err = stable::prepare(flat, "flat", &RunParams::default())
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("volume"), "{err}");
     // Unsupported file.
     let bin = env!("CARGO_BIN_EXE_plausible");
     let bad = tmp("mesh.xyz");
     std::fs::write(&bad, "1 2 3\n").unwrap();
-    let out = Command::new(bin).args(["stable-poses"]).arg(&bad).args(["--db"]).arg(tmp("bad.sqlite")).output().unwrap();
+    let out = Command::new(bin)
+        .args(["stable-poses"])
+        .arg(&bad)
+        .args(["--db"])
+        .arg(tmp("bad.sqlite"))
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && stderr.contains("unsupported mesh format"), "{stderr}");
+    assert!(
+        !out.status.success() && stderr.contains("unsupported mesh format"),
+        "{stderr}"
+    );
     // A millimetre-scale mesh: the unit check speaks and converts it.
     let mm = tmp("cube_mm.obj");
     let mut obj = String::new();
@@ -353,19 +585,44 @@ fn bad_inputs_give_clear_errors_or_warnings() {
     }
     std::fs::write(&mm, obj).unwrap();
     let mm_db = tmp("mm.sqlite");
-    let out = Command::new(bin).args(["stable-poses"]).arg(&mm).args(["--drops", "12", "--db"]).arg(&mm_db).output().unwrap();
+    let out = Command::new(bin)
+        .args(["stable-poses"])
+        .arg(&mm)
+        .args(["--drops", "12", "--db"])
+        .arg(&mm_db)
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && stderr.contains("millimetres"), "{stderr}");
+    assert!(
+        out.status.success() && stderr.contains("millimetres"),
+        "{stderr}"
+    );
     let db = Db::open_existing(&mm_db).unwrap();
     let m = &db.meshes().unwrap()[0];
     assert_eq!(m.units, "mm");
-    assert!((m.volume - 0.08f64.powi(3)).abs() < 1e-9, "volume {}", m.volume);
+    assert!(
+        (m.volume - 0.08f64.powi(3)).abs() < 1e-9,
+        "volume {}",
+        m.volume
+    );
     // Bad CLI values.
-    let out = Command::new(bin).args(["stable-poses"]).arg(&mm).args(["--shard", "4/3", "--db", "x.sqlite"]).output().unwrap();
+    let out = Command::new(bin)
+        .args(["stable-poses"])
+        .arg(&mm)
+        .args(["--shard", "4/3", "--db", "x.sqlite"])
+        .output()
+        .unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("bad shard"));
     // Decomposition collider on a file made of convex parts.
     let (vhacd, _) = Mesh::load(asset("pybullet/duck_vhacd.obj"), MeshUnits::Metres).unwrap();
-    let p = stable::prepare(vhacd, "duck_vhacd", &RunParams { collider: ColliderKind::Decomposition, ..Default::default() })
-        .unwrap();
+    let p = stable::prepare(
+        vhacd,
+        "duck_vhacd",
+        &RunParams {
+            collider: ColliderKind::Decomposition,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     assert_eq!(p.collider_parts, 5);
 }

@@ -1,5 +1,6 @@
 //! `plausible stable-poses ...` and `plausible bench stable`.
 
+use std::fmt::Write as _;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -155,12 +156,17 @@ pub fn stable_poses(args: StableArgs) -> anyhow::Result<()> {
 }
 
 fn threads(t: Option<usize>) -> usize {
-    t.filter(|&t| t > 0)
-        .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
+    t.filter(|&t| t > 0).unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    })
 }
 
 fn run(args: RunArgs) -> anyhow::Result<()> {
-    let Some(db_path) = args.db.clone() else { bail!("--db is required") };
+    let Some(db_path) = args.db.clone() else {
+        bail!("--db is required")
+    };
     if args.drops == 0 {
         bail!("--drops must be at least 1");
     }
@@ -179,15 +185,23 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         seed: args.seed,
         collider: args.collider,
         hull_max_points: args.hull_points.max(4),
-        sim: stable::drop::SimParams { max_time: args.max_time, dt: 1.0 / args.step_hz, ..Default::default() },
+        sim: stable::drop::SimParams {
+            max_time: args.max_time,
+            dt: 1.0 / args.step_hz,
+            ..Default::default()
+        },
         ..Default::default()
     };
-    let cluster_params = ClusterParams { cluster_deg: args.cluster_deg, ..Default::default() };
+    let cluster_params = ClusterParams {
+        cluster_deg: args.cluster_deg,
+        ..Default::default()
+    };
     let nthreads = threads(args.threads);
     let show_progress = !args.quiet && std::io::stderr().is_terminal();
     let mut names = Vec::new();
     for path in &args.meshes {
-        let (mesh, report) = Mesh::load(path, args.mesh_units).with_context(|| format!("loading {}", path.display()))?;
+        let (mesh, report) = Mesh::load(path, args.mesh_units)
+            .with_context(|| format!("loading {}", path.display()))?;
         for w in &report.warnings {
             eprintln!("warning: {}: {w}", path.display());
         }
@@ -209,9 +223,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             ProgressBar::hidden()
         };
         bar.set_style(
-            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} drops, {per_sec}, ETA {eta}")
-                .map_err(|e| anyhow::anyhow!("progress template: {e}"))?
-                .progress_chars("=> "),
+            ProgressStyle::with_template(
+                "{msg} [{bar:30}] {pos}/{len} drops, {per_sec}, ETA {eta}",
+            )
+            .map_err(|e| anyhow::anyhow!("progress template: {e}"))?
+            .progress_chars("=> "),
         );
         bar.set_message(short_name(path));
         let summary = stable::run_into_db(
@@ -230,7 +246,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         )?;
         bar.finish_and_clear();
         if !args.quiet {
-            let poses = summary.clusters.iter().filter(|c| c.kind == ClusterKind::Pose).count();
+            let poses = summary
+                .clusters
+                .iter()
+                .filter(|c| c.kind == ClusterKind::Pose)
+                .count();
             let families = summary.clusters.len() - poses;
             println!(
                 "{name}: {} drops simulated ({} reused) in {:.1} s ({:.0} drops/s on {nthreads} threads); \
@@ -255,7 +275,9 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
 }
 
 fn short_name(p: &Path) -> String {
-    p.file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| p.display().to_string())
+    p.file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .unwrap_or_else(|| p.display().to_string())
 }
 
 fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
@@ -271,8 +293,13 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
     let db = Db::open_existing(&args.db)?;
     let meshes = db.meshes()?;
     let mut any = false;
+    let mut out = String::new();
     for run in db.runs()? {
-        let source = meshes.iter().find(|m| m.sha256 == run.mesh_sha256).map(|m| m.source.as_str()).unwrap_or("?");
+        let source = meshes
+            .iter()
+            .find(|m| m.sha256 == run.mesh_sha256)
+            .map(|m| m.source.as_str())
+            .unwrap_or("?");
         if let Some(f) = &args.mesh {
             if !source.contains(f.as_str()) && !run.mesh_sha256.starts_with(f.as_str()) {
                 continue;
@@ -284,7 +311,8 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
         let clusters = db.clusters(run.id)?;
         let analytic = db.analytic(run.id)?;
         let matches = stable::match_analytic(&clusters, &analytic);
-        println!(
+        writeln!(
+            out,
             "{source}  sha256 {}  seed {}  collider {}  drops {}/{}  settled {} ({:.1} %)",
             &run.mesh_sha256[..12.min(run.mesh_sha256.len())],
             run.seed,
@@ -293,11 +321,19 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
             run.drops,
             settled,
             100.0 * settled as f64 / drops.len().max(1) as f64
-        );
-        println!(
+        )?;
+        writeln!(
+            out,
             "  {:>3}  {:<9} {:>7}  {:>17}  {:>5}  {:<27} {:>9}   {}",
-            "#", "kind", "p", "95% CI", "count", "gravity in model", "height m", "analytic match (angle, p_drop - p_analytic)"
-        );
+            "#",
+            "kind",
+            "p",
+            "95% CI",
+            "count",
+            "gravity in model",
+            "height m",
+            "analytic match (angle, p_drop - p_analytic)"
+        )?;
         for (i, (c, m)) in clusters.iter().zip(&matches).enumerate() {
             let kind = match &c.kind {
                 ClusterKind::Pose => "pose".to_string(),
@@ -313,42 +349,59 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
                 Some((a, angle, dp)) => format!("A{a}: {angle:5.1}°, {dp:+.3}"),
                 None => "-".into(),
             };
-            println!(
+            writeln!(
+                out,
                 "  {:>3}  {:<9} {:>7.4}  [{:.4}, {:.4}]  {:>5}  {:<27} {:>9.4}   {}",
                 i, kind, c.probability, c.ci95[0], c.ci95[1], c.count, dir, c.height, m
-            );
+            )?;
         }
         if !analytic.is_empty() {
-            println!("  analytic (quasi-static) poses:");
-            println!("  {:>3}  {:>7}  {:<27} {:>9}  {:>9}", "#", "p", "gravity in model", "height m", "margin m");
+            writeln!(out, "  analytic (quasi-static) poses:")?;
+            writeln!(
+                out,
+                "  {:>3}  {:>7}  {:<27} {:>9}  {:>9}",
+                "#", "p", "gravity in model", "height m", "margin m"
+            )?;
             for (i, a) in analytic.iter().enumerate() {
-                println!(
+                writeln!(
+                    out,
                     "  A{:<2}  {:>7.4}  {:<27} {:>9.4}  {:>9.4}",
                     i,
                     a.probability,
                     fmt_vec(a.gravity_in_model),
                     a.height,
                     a.margin
-                );
+                )?;
             }
         }
         for n in &run.analytic_notes {
-            println!("  note: {n}");
+            writeln!(out, "  note: {n}")?;
         }
-        println!();
+        writeln!(out)?;
     }
     if !any {
         match &args.mesh {
             Some(f) => bail!("{}: no mesh matching '{f}'", args.db.display()),
-            None => println!("{}: no runs yet", args.db.display()),
+            None => writeln!(out, "{}: no runs yet", args.db.display())?,
         }
     }
-    Ok(())
+    print_ignoring_closed_pipe(&out)
+}
+
+/// Writes to stdout; a closed pipe (`... | head`) ends output quietly.
+fn print_ignoring_closed_pipe(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
+    }
 }
 
 fn merge(args: MergeArgs) -> anyhow::Result<()> {
     for i in &args.inputs {
-        if std::fs::canonicalize(i).ok() == std::fs::canonicalize(&args.output).ok() && args.output.exists() {
+        if std::fs::canonicalize(i).ok() == std::fs::canonicalize(&args.output).ok()
+            && args.output.exists()
+        {
             bail!("{}: input and output are the same file", i.display());
         }
     }
@@ -371,17 +424,25 @@ fn export(args: ExportArgs) -> anyhow::Result<()> {
 
 /// Meshes shipped in assets/ for the benchmark.
 fn bench_meshes() -> Vec<PathBuf> {
-    ["assets/pybullet/duck_vhacd.obj", "assets/pybullet/duck.obj", "assets/ycb/003_cracker_box.stl"]
-        .iter()
-        .map(|p| super::asset(p))
-        .filter(|p| p.exists())
-        .collect()
+    [
+        "assets/pybullet/duck_vhacd.obj",
+        "assets/pybullet/duck.obj",
+        "assets/ycb/003_cracker_box.stl",
+    ]
+    .iter()
+    .map(|p| super::asset(p))
+    .filter(|p| p.exists())
+    .collect()
 }
 
 /// Entry point of `plausible bench stable`.
 pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
     let nthreads = threads(args.threads);
-    let meshes = if args.mesh.is_empty() { bench_meshes() } else { args.mesh.clone() };
+    let meshes = if args.mesh.is_empty() {
+        bench_meshes()
+    } else {
+        args.mesh.clone()
+    };
     if meshes.is_empty() {
         bail!("no meshes: assets/ not found; pass --mesh FILE");
     }
@@ -398,7 +459,10 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
             seed: args.seed,
             collider,
             hull_max_points: args.hull_points.max(4),
-            sim: stable::drop::SimParams { dt: 1.0 / args.step_hz.clamp(10.0, 10_000.0), ..Default::default() },
+            sim: stable::drop::SimParams {
+                dt: 1.0 / args.step_hz.clamp(10.0, 10_000.0),
+                ..Default::default()
+            },
             ..Default::default()
         };
         let t_prep = Instant::now();
@@ -443,11 +507,24 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         }));
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "bench": "stable", "results": rows }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &serde_json::json!({ "bench": "stable", "results": rows })
+            )?
+        );
     } else {
         println!(
             "{:<24} {:>6} {:>6} {:>9} {:>10} {:>11} {:>10} {:>9} {:>8}",
-            "mesh", "tris", "hullpt", "drops/s", "per core", "steps/drop", "s/1000", "settled", "clusters"
+            "mesh",
+            "tris",
+            "hullpt",
+            "drops/s",
+            "per core",
+            "steps/drop",
+            "s/1000",
+            "settled",
+            "clusters"
         );
         for r in &rows {
             println!(

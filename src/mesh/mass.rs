@@ -58,7 +58,11 @@ impl MassProperties {
     /// Errors when the solid has (numerically) zero volume: a flat or
     /// degenerate mesh has no meaningful centre of mass or inertia.
     pub fn of_mesh(mesh: &Mesh) -> Result<(MassProperties, Vec<String>)> {
-        let name = mesh.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "mesh".into());
+        let name = mesh
+            .source
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| "mesh".into());
         let mut warnings = Vec::new();
         let mut welded = mesh.clone();
         welded.weld();
@@ -112,10 +116,15 @@ fn check_volume(name: &str, props: &MassProperties, diagonal: f64) -> Result<()>
 /// (reference point = bounding-box centre, to keep the sums well conditioned).
 /// The sign of the result follows the winding (outward CCW = positive).
 fn integrate(vertices: &[DVec3], triangles: &[[u32; 3]]) -> MassProperties {
-    let (lo, hi) = vertices
-        .iter()
-        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), v| (l.min(*v), h.max(*v)));
-    let origin = if lo.is_finite() { 0.5 * (lo + hi) } else { DVec3::ZERO };
+    let (lo, hi) = vertices.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(l, h), v| (l.min(*v), h.max(*v)),
+    );
+    let origin = if lo.is_finite() {
+        0.5 * (lo + hi)
+    } else {
+        DVec3::ZERO
+    };
     let mut six_vol = 0.0;
     let mut first = DVec3::ZERO; // ∫ x dV, times 24
     let mut second = DMat3::ZERO; // ∫ x xᵀ dV, times 120
@@ -133,7 +142,11 @@ fn integrate(vertices: &[DVec3], triangles: &[[u32; 3]]) -> MassProperties {
     let volume = six_vol / 6.0;
     let moment = first / 24.0;
     let cov = second * (1.0 / 120.0);
-    let com_local = if volume.abs() > 0.0 { moment / volume } else { DVec3::ZERO };
+    let com_local = if volume.abs() > 0.0 {
+        moment / volume
+    } else {
+        DVec3::ZERO
+    };
     // Covariance about the centre of mass, then I = tr(C) 1 - C.
     let cov_com = cov - outer(com_local, com_local) * volume;
     let trace = cov_com.x_axis.x + cov_com.y_axis.y + cov_com.z_axis.z;
@@ -155,12 +168,16 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
 /// fewer than four points or points that span no volume.
 pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u32; 3]>), String> {
     if points.len() < 4 {
-        return Err(format!("a convex hull needs at least 4 points, got {}", points.len()));
+        return Err(format!(
+            "a convex hull needs at least 4 points, got {}",
+            points.len()
+        ));
     }
     // Centre before converting to f32 so precision follows the object size.
-    let (lo, hi) = points
-        .iter()
-        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), v| (l.min(*v), h.max(*v)));
+    let (lo, hi) = points.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(l, h), v| (l.min(*v), h.max(*v)),
+    );
     if !lo.is_finite() || !hi.is_finite() {
         return Err("points are not finite".into());
     }
@@ -196,8 +213,16 @@ mod tests {
         assert!((p.volume - a * b * c).abs() < 1e-12);
         assert!((p.com - DVec3::new(1.0, -2.0, 0.5)).length() < 1e-12);
         let v = a * b * c;
-        let expect = DVec3::new(v * (b * b + c * c) / 12.0, v * (a * a + c * c) / 12.0, v * (a * a + b * b) / 12.0);
-        let got = DVec3::new(p.inertia_unit_density.x_axis.x, p.inertia_unit_density.y_axis.y, p.inertia_unit_density.z_axis.z);
+        let expect = DVec3::new(
+            v * (b * b + c * c) / 12.0,
+            v * (a * a + c * c) / 12.0,
+            v * (a * a + b * b) / 12.0,
+        );
+        let got = DVec3::new(
+            p.inertia_unit_density.x_axis.x,
+            p.inertia_unit_density.y_axis.y,
+            p.inertia_unit_density.z_axis.z,
+        );
         assert!((got - expect).length() < 1e-12, "{got} vs {expect}");
         assert!(p.inertia_unit_density.x_axis.y.abs() < 1e-14);
     }
@@ -235,8 +260,15 @@ mod tests {
     #[test]
     fn flat_mesh_is_an_error() {
         let v = vec![DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::new(1.0, 1.0, 0.0)];
-        let m = Mesh { vertices: v, triangles: vec![[0, 1, 2], [1, 3, 2]], source: None };
+        let m = Mesh {
+            vertices: v,
+            triangles: vec![[0, 1, 2], [1, 3, 2]],
+            source: None,
+        };
         let err = MassProperties::of_mesh(&m).unwrap_err().to_string();
-        assert!(err.contains("zero volume") || err.contains("no volume"), "{err}");
+        assert!(
+            err.contains("zero volume") || err.contains("no volume"),
+            "{err}"
+        );
     }
 }

@@ -58,7 +58,10 @@ pub struct AnalyticParams {
 
 impl Default for AnalyticParams {
     fn default() -> Self {
-        AnalyticParams { merge_deg: 2.0, plane_tol_rel: 2e-3 }
+        AnalyticParams {
+            merge_deg: 2.0,
+            plane_tol_rel: 2e-3,
+        }
     }
 }
 
@@ -75,7 +78,9 @@ struct Facet {
 pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<Analytic> {
     let diag = hull.diagonal();
     if !(diag > 0.0) || !com.is_finite() {
-        return Err(Error::InvalidInput("quasi-static analysis: degenerate hull or centre of mass".into()));
+        return Err(Error::InvalidInput(
+            "quasi-static analysis: degenerate hull or centre of mass".into(),
+        ));
     }
     let outside = hull.outside_distance(com);
     if outside > -1e-9 * diag {
@@ -132,7 +137,9 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
                     continue;
                 }
                 let (nj, _) = planes[j];
-                let flat = hull.triangles[j].iter().all(|&v| (n0.dot(hull.vertices[v as usize]) - d0).abs() <= plane_tol);
+                let flat = hull.triangles[j]
+                    .iter()
+                    .all(|&v| (n0.dot(hull.vertices[v as usize]) - d0).abs() <= plane_tol);
                 // Degenerate (zero-normal) slivers join any neighbouring facet.
                 if (nj == DVec3::ZERO || nj.dot(n0) >= cos_merge) && flat && n0 != DVec3::ZERO {
                     facet_of[j] = f;
@@ -151,10 +158,18 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
             n += planes[i].0 * areas[i];
             area += areas[i];
         }
-        let n = if n.length() > 0.0 { n.normalize() } else { planes[group[0]].0 };
+        let n = if n.length() > 0.0 {
+            n.normalize()
+        } else {
+            planes[group[0]].0
+        };
         let offset = group
             .iter()
-            .flat_map(|&i| hull.triangles[i].iter().map(|&v| n.dot(hull.vertices[v as usize])))
+            .flat_map(|&i| {
+                hull.triangles[i]
+                    .iter()
+                    .map(|&v| n.dot(hull.vertices[v as usize]))
+            })
             .fold(f64::NEG_INFINITY, f64::max);
         let mut boundary = Vec::new();
         for &i in group {
@@ -164,10 +179,19 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
                 if other == Some(facet_of[i]) {
                     continue;
                 }
-                boundary.push((hull.vertices[t[k] as usize], hull.vertices[t[(k + 1) % 3] as usize], other));
+                boundary.push((
+                    hull.vertices[t[k] as usize],
+                    hull.vertices[t[(k + 1) % 3] as usize],
+                    other,
+                ));
             }
         }
-        facets.push(Facet { normal: n, offset, area, boundary });
+        facets.push(Facet {
+            normal: n,
+            offset,
+            area,
+            boundary,
+        });
     }
 
     // Where each facet sends its probability: itself when stable.
@@ -196,7 +220,9 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
                 inside = false;
                 let better = match exit {
                     None => true,
-                    Some((s, l, _)) => seg < s - 1e-12 * diag || (seg <= s + 1e-12 * diag && signed < l),
+                    Some((s, l, _)) => {
+                        seg < s - 1e-12 * diag || (seg <= s + 1e-12 * diag && signed < l)
+                    }
                 };
                 if better {
                     exit = Some((seg, signed, other));
@@ -223,7 +249,9 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
             match next[cur] {
                 None => break cur,
                 Some(usize::MAX) => {
-                    notes.push(format!("facet {cur}: open hull edge; treated as a resting facet"));
+                    notes.push(format!(
+                        "facet {cur}: open hull edge; treated as a resting facet"
+                    ));
                     break cur;
                 }
                 Some(nx) => {
@@ -240,7 +268,9 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
                                 ha.total_cmp(&hb).then(a.cmp(&b))
                             })
                             .unwrap_or(nx);
-                        notes.push(format!("topple cycle among facets {cycle:?} (rounding); ended at facet {low}"));
+                        notes.push(format!(
+                            "topple cycle among facets {cycle:?} (rounding); ended at facet {low}"
+                        ));
                         next[low] = None;
                         break low;
                     }
@@ -275,7 +305,10 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
     }
     let four_pi = 4.0 * std::f64::consts::PI;
     if (total / four_pi - 1.0).abs() > 1e-3 {
-        notes.push(format!("solid angles sum to {:.4}·4π; probabilities renormalised", total / four_pi));
+        notes.push(format!(
+            "solid angles sum to {:.4}·4π; probabilities renormalised",
+            total / four_pi
+        ));
     }
     let mut poses: Vec<AnalyticPose> = (0..facets.len())
         .filter(|&f| sink_of[f] == f && mass[f] > 0.0)
@@ -306,7 +339,11 @@ mod tests {
         let a = run(&shapes::cuboid(DVec3::splat(0.05)), DVec3::ZERO).unwrap();
         assert_eq!(a.poses.len(), 6);
         for p in &a.poses {
-            assert!((p.probability - 1.0 / 6.0).abs() < 1e-9, "{}", p.probability);
+            assert!(
+                (p.probability - 1.0 / 6.0).abs() < 1e-9,
+                "{}",
+                p.probability
+            );
             assert!((p.height - 0.05).abs() < 1e-6);
         }
     }
@@ -328,8 +365,16 @@ mod tests {
         // subtends a larger solid angle from the centre of mass.
         let m = shapes::cuboid(DVec3::new(0.01, 0.01, 0.1));
         let a = run(&m, DVec3::new(0.0, 0.0, 0.09)).unwrap();
-        let top = a.poses.iter().find(|p| p.gravity_in_model[2] > 0.99).unwrap();
-        let bottom = a.poses.iter().find(|p| p.gravity_in_model[2] < -0.99).unwrap();
+        let top = a
+            .poses
+            .iter()
+            .find(|p| p.gravity_in_model[2] > 0.99)
+            .unwrap();
+        let bottom = a
+            .poses
+            .iter()
+            .find(|p| p.gravity_in_model[2] < -0.99)
+            .unwrap();
         assert!(top.probability > bottom.probability);
         let total: f64 = a.poses.iter().map(|p| p.probability).sum();
         assert!((total - 1.0).abs() < 1e-9);
@@ -354,7 +399,11 @@ mod tests {
         let a = stable_poses(&h, com, AnalyticParams::default()).unwrap();
         let total: f64 = a.poses.iter().map(|p| p.probability).sum();
         assert!((total - 1.0).abs() < 1e-9);
-        assert!(a.poses.iter().all(|p| p.gravity_in_model[2].abs() < 0.9), "{:?}", a.poses);
+        assert!(
+            a.poses.iter().all(|p| p.gravity_in_model[2].abs() < 0.9),
+            "{:?}",
+            a.poses
+        );
         assert!(a.poses.iter().all(|p| p.margin > 0.0));
     }
 }

@@ -27,7 +27,10 @@ pub struct ClusterParams {
 
 impl Default for ClusterParams {
     fn default() -> Self {
-        ClusterParams { cluster_deg: 5.0, family_min_clusters: 8 }
+        ClusterParams {
+            cluster_deg: 5.0,
+            family_min_clusters: 8,
+        }
     }
 }
 
@@ -86,7 +89,11 @@ pub fn wilson95(k: u64, n: u64) -> [f64; 2] {
 /// +x axis. Returned row-major.
 pub fn canonical_rotation(g: DVec3) -> [f64; 9] {
     let z = -g.normalize_or(DVec3::NEG_Z);
-    let e = if z.dot(DVec3::X).abs() < 0.9 { DVec3::X } else { DVec3::Y };
+    let e = if z.dot(DVec3::X).abs() < 0.9 {
+        DVec3::X
+    } else {
+        DVec3::Y
+    };
     let x = (e - z * e.dot(z)).normalize();
     let y = z.cross(x);
     // Rows of R are the plane axes expressed in the model frame.
@@ -101,13 +108,19 @@ struct Group {
 /// Clusters the settled drops. `drops` may be in any order; the result is
 /// sorted by probability (ties: earliest member drop first).
 pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
-    let mut settled: Vec<&DropResult> = drops.iter().filter(|d| d.settled && d.gravity_in_model.is_finite()).collect();
+    let mut settled: Vec<&DropResult> = drops
+        .iter()
+        .filter(|d| d.settled && d.gravity_in_model.is_finite())
+        .collect();
     settled.sort_by_key(|d| d.index);
     let n = settled.len() as u64;
     if n == 0 {
         return Vec::new();
     }
-    let dirs: Vec<DVec3> = settled.iter().map(|d| d.gravity_in_model.normalize()).collect();
+    let dirs: Vec<DVec3> = settled
+        .iter()
+        .map(|d| d.gravity_in_model.normalize())
+        .collect();
     let cos_t = params.cluster_deg.to_radians().cos();
 
     // Leader pass in index order.
@@ -119,12 +132,21 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
                 groups[g].sum += *d;
                 groups[g].members.push(i);
             }
-            None => groups.push(Group { sum: *d, members: vec![i] }),
+            None => groups.push(Group {
+                sum: *d,
+                members: vec![i],
+            }),
         }
     }
     // One reassignment to the nearest final centre.
     let centres: Vec<DVec3> = groups.iter().map(|g| g.sum.normalize_or_zero()).collect();
-    let mut assigned: Vec<Group> = centres.iter().map(|_| Group { sum: DVec3::ZERO, members: Vec::new() }).collect();
+    let mut assigned: Vec<Group> = centres
+        .iter()
+        .map(|_| Group {
+            sum: DVec3::ZERO,
+            members: Vec::new(),
+        })
+        .collect();
     for (i, d) in dirs.iter().enumerate() {
         let mut best = (0usize, f64::NEG_INFINITY);
         for (c, centre) in centres.iter().enumerate() {
@@ -136,15 +158,31 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
         assigned[best.0].sum += *d;
         assigned[best.0].members.push(i);
     }
-    let mut groups: Vec<Group> = assigned.into_iter().filter(|g| !g.members.is_empty()).collect();
+    let mut groups: Vec<Group> = assigned
+        .into_iter()
+        .filter(|g| !g.members.is_empty())
+        .collect();
 
     let mut out = Vec::new();
     // Rolling families on great circles.
     loop {
-        let Some((axis, member_groups)) = find_circle(&groups, &dirs, params) else { break };
-        let mut members: Vec<usize> = member_groups.iter().flat_map(|&g| groups[g].members.iter().copied()).collect();
+        let Some((axis, member_groups)) = find_circle(&groups, &dirs, params) else {
+            break;
+        };
+        let mut members: Vec<usize> = member_groups
+            .iter()
+            .flat_map(|&g| groups[g].members.iter().copied())
+            .collect();
         members.sort_unstable();
-        out.push(make_cluster(ClusterKind::Circle { axis: canonical_sign(axis).to_array() }, &members, &dirs, &settled, n));
+        out.push(make_cluster(
+            ClusterKind::Circle {
+                axis: canonical_sign(axis).to_array(),
+            },
+            &members,
+            &dirs,
+            &settled,
+            n,
+        ));
         let mut keep = Vec::new();
         for (g, grp) in groups.into_iter().enumerate() {
             if !member_groups.contains(&g) {
@@ -158,16 +196,38 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
     let small_groups: Vec<usize> = (0..groups.len()).filter(|&g| small(&groups[g])).collect();
     let small_drops: usize = small_groups.iter().map(|&g| groups[g].members.len()).sum();
     if small_groups.len() >= 20 && small_drops as f64 >= 0.5 * n as f64 {
-        let mut members: Vec<usize> = small_groups.iter().flat_map(|&g| groups[g].members.iter().copied()).collect();
+        let mut members: Vec<usize> = small_groups
+            .iter()
+            .flat_map(|&g| groups[g].members.iter().copied())
+            .collect();
         members.sort_unstable();
-        out.push(make_cluster(ClusterKind::Scattered, &members, &dirs, &settled, n));
-        groups = groups.into_iter().enumerate().filter(|(g, _)| !small_groups.contains(g)).map(|(_, g)| g).collect();
+        out.push(make_cluster(
+            ClusterKind::Scattered,
+            &members,
+            &dirs,
+            &settled,
+            n,
+        ));
+        groups = groups
+            .into_iter()
+            .enumerate()
+            .filter(|(g, _)| !small_groups.contains(g))
+            .map(|(_, g)| g)
+            .collect();
     }
     for g in &groups {
-        out.push(make_cluster(ClusterKind::Pose, &g.members, &dirs, &settled, n));
+        out.push(make_cluster(
+            ClusterKind::Pose,
+            &g.members,
+            &dirs,
+            &settled,
+            n,
+        ));
     }
     out.sort_by(|a, b| {
-        b.count.cmp(&a.count).then(a.representatives.first().cmp(&b.representatives.first()))
+        b.count
+            .cmp(&a.count)
+            .then(a.representatives.first().cmp(&b.representatives.first()))
     });
     out
 }
@@ -202,16 +262,29 @@ fn canonical_sign(a: DVec3) -> DVec3 {
 /// when it holds at least `family_min_clusters` clusters and the drops near
 /// it are concentrated on it (at least 80 % of the drops within 3θ of the
 /// circle lie within θ), which separates a rolling cylinder from a ball.
-fn find_circle(groups: &[Group], dirs: &[DVec3], params: ClusterParams) -> Option<(DVec3, Vec<usize>)> {
+fn find_circle(
+    groups: &[Group],
+    dirs: &[DVec3],
+    params: ClusterParams,
+) -> Option<(DVec3, Vec<usize>)> {
     if groups.len() < params.family_min_clusters {
         return None;
     }
     let sin_t = params.cluster_deg.to_radians().sin();
-    let sin_3t = (3.0 * params.cluster_deg).to_radians().min(std::f64::consts::FRAC_PI_2).sin();
+    let sin_3t = (3.0 * params.cluster_deg)
+        .to_radians()
+        .min(std::f64::consts::FRAC_PI_2)
+        .sin();
     let centres: Vec<DVec3> = groups.iter().map(|g| g.sum.normalize_or_zero()).collect();
     // Candidate axes from pairs of the largest clusters.
     let mut by_size: Vec<usize> = (0..groups.len()).collect();
-    by_size.sort_by(|&a, &b| groups[b].members.len().cmp(&groups[a].members.len()).then(a.cmp(&b)));
+    by_size.sort_by(|&a, &b| {
+        groups[b]
+            .members
+            .len()
+            .cmp(&groups[a].members.len())
+            .then(a.cmp(&b))
+    });
     by_size.truncate(48);
     let mut best: Option<(usize, usize, DVec3)> = None; // (clusters, drops, axis)
     for (ii, &i) in by_size.iter().enumerate() {
@@ -221,7 +294,9 @@ fn find_circle(groups: &[Group], dirs: &[DVec3], params: ClusterParams) -> Optio
                 continue; // closer than ~20° (or opposite): a poor axis
             }
             let axis = c.normalize();
-            let on: Vec<usize> = (0..groups.len()).filter(|&g| centres[g].dot(axis).abs() < sin_t).collect();
+            let on: Vec<usize> = (0..groups.len())
+                .filter(|&g| centres[g].dot(axis).abs() < sin_t)
+                .collect();
             let drops: usize = on.iter().map(|&g| groups[g].members.len()).sum();
             if best.is_none_or(|(bc, bd, _)| (on.len(), drops) > (bc, bd)) {
                 best = Some((on.len(), drops, axis));
@@ -233,7 +308,9 @@ fn find_circle(groups: &[Group], dirs: &[DVec3], params: ClusterParams) -> Optio
         return None;
     }
     // Refine the axis: the direction least represented among member drops.
-    let members: Vec<usize> = (0..groups.len()).filter(|&g| centres[g].dot(axis).abs() < sin_t).collect();
+    let members: Vec<usize> = (0..groups.len())
+        .filter(|&g| centres[g].dot(axis).abs() < sin_t)
+        .collect();
     let mut scatter = DMat3::ZERO;
     for &g in &members {
         for &m in &groups[g].members {
@@ -247,7 +324,9 @@ fn find_circle(groups: &[Group], dirs: &[DVec3], params: ClusterParams) -> Optio
     if (near as f64) < 0.8 * wide as f64 {
         return None;
     }
-    let members: Vec<usize> = (0..groups.len()).filter(|&g| centres[g].dot(axis).abs() < sin_t).collect();
+    let members: Vec<usize> = (0..groups.len())
+        .filter(|&g| centres[g].dot(axis).abs() < sin_t)
+        .collect();
     if members.len() < params.family_min_clusters {
         return None;
     }
@@ -271,14 +350,28 @@ fn smallest_eigenvector(m: DMat3) -> Option<DVec3> {
     Some(v)
 }
 
-fn make_cluster(kind: ClusterKind, members: &[usize], dirs: &[DVec3], drops: &[&DropResult], n: u64) -> Cluster {
+fn make_cluster(
+    kind: ClusterKind,
+    members: &[usize],
+    dirs: &[DVec3],
+    drops: &[&DropResult],
+    n: u64,
+) -> Cluster {
     let sum: DVec3 = members.iter().map(|&m| dirs[m]).sum();
     let mean = sum.normalize_or_zero();
-    let height = members.iter().map(|&m| drops[m].height).sum::<f64>() / members.len().max(1) as f64;
-    let mut reps: Vec<(f64, u64)> = members.iter().map(|&m| (-dirs[m].dot(mean), drops[m].index)).collect();
+    let height =
+        members.iter().map(|&m| drops[m].height).sum::<f64>() / members.len().max(1) as f64;
+    let mut reps: Vec<(f64, u64)> = members
+        .iter()
+        .map(|&m| (-dirs[m].dot(mean), drops[m].index))
+        .collect();
     reps.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     let count = members.len() as u64;
-    let rot_dir = if mean == DVec3::ZERO { dirs[members[0]] } else { mean };
+    let rot_dir = if mean == DVec3::ZERO {
+        dirs[members[0]]
+    } else {
+        mean
+    };
     let mut representatives: Vec<u64> = reps.iter().take(3).map(|r| r.1).collect();
     if !matches!(kind, ClusterKind::Pose) {
         // Families: representatives are simply the earliest member drops.
@@ -302,19 +395,34 @@ mod tests {
     use glam::DQuat;
 
     fn drop_with(index: u64, g: DVec3) -> DropResult {
-        DropResult { index, settled: true, steps: 1, rotation: DQuat::IDENTITY, height: 0.1, gravity_in_model: g.normalize() }
+        DropResult {
+            index,
+            settled: true,
+            steps: 1,
+            rotation: DQuat::IDENTITY,
+            height: 0.1,
+            gravity_in_model: g.normalize(),
+        }
     }
 
     #[test]
     fn wilson_matches_reference_values() {
         let [lo, hi] = wilson95(50, 100);
-        assert!((lo - 0.4038).abs() < 1e-4 && (hi - 0.5962).abs() < 1e-4, "{lo} {hi}");
+        assert!(
+            (lo - 0.4038).abs() < 1e-4 && (hi - 0.5962).abs() < 1e-4,
+            "{lo} {hi}"
+        );
         assert_eq!(wilson95(0, 0), [0.0, 1.0]);
     }
 
     #[test]
     fn canonical_rotation_maps_gravity_down_and_is_proper() {
-        for g in [DVec3::X, DVec3::new(0.3, -0.2, 0.9), DVec3::NEG_Z, DVec3::new(-1.0, 0.01, 0.0)] {
+        for g in [
+            DVec3::X,
+            DVec3::new(0.3, -0.2, 0.9),
+            DVec3::NEG_Z,
+            DVec3::new(-1.0, 0.01, 0.0),
+        ] {
             let r = canonical_rotation(g);
             let m = DMat3::from_cols_array(&r).transpose();
             let down = m * g.normalize();
@@ -328,16 +436,25 @@ mod tests {
         let mut drops = Vec::new();
         let axes = [DVec3::X, DVec3::NEG_X, DVec3::Z];
         for i in 0..90u64 {
-            let jitter = DVec3::new(0.0, ((i * 7) % 5) as f64 * 0.01, ((i * 3) % 4) as f64 * 0.01);
+            let jitter = DVec3::new(
+                0.0,
+                ((i * 7) % 5) as f64 * 0.01,
+                ((i * 3) % 4) as f64 * 0.01,
+            );
             drops.push(drop_with(i, axes[(i % 3) as usize] + jitter));
         }
-        drops.push(DropResult { settled: false, ..drop_with(90, DVec3::Y) });
+        drops.push(DropResult {
+            settled: false,
+            ..drop_with(90, DVec3::Y)
+        });
         let a = cluster(&drops, ClusterParams::default());
         drops.reverse();
         let b = cluster(&drops, ClusterParams::default());
         assert_eq!(a, b);
         assert_eq!(a.len(), 3);
-        assert!(a.iter().all(|c| c.count == 30 && c.kind == ClusterKind::Pose));
+        assert!(a
+            .iter()
+            .all(|c| c.count == 30 && c.kind == ClusterKind::Pose));
     }
 
     #[test]
@@ -348,12 +465,17 @@ mod tests {
             drops.push(drop_with(i, DVec3::new(a.cos(), a.sin(), 0.0)));
         }
         for i in 200..260u64 {
-            drops.push(drop_with(i, if i % 2 == 0 { DVec3::Z } else { DVec3::NEG_Z }));
+            drops.push(drop_with(
+                i,
+                if i % 2 == 0 { DVec3::Z } else { DVec3::NEG_Z },
+            ));
         }
         let c = cluster(&drops, ClusterParams::default());
         assert_eq!(c.len(), 3);
         match &c[0].kind {
-            ClusterKind::Circle { axis } => assert!((DVec3::from_array(*axis) - DVec3::Z).length() < 1e-6),
+            ClusterKind::Circle { axis } => {
+                assert!((DVec3::from_array(*axis) - DVec3::Z).length() < 1e-6)
+            }
             k => panic!("{k:?}"),
         }
         assert_eq!(c[0].count, 200);

@@ -135,7 +135,9 @@ impl Db {
         let path = path.as_ref().to_path_buf();
         let conn = Connection::open(&path).map_err(|e| err(&path, e))?;
         let db = Db { conn, path };
-        db.conn.busy_timeout(std::time::Duration::from_secs(30)).map_err(|e| db.e(e))?;
+        db.conn
+            .busy_timeout(std::time::Duration::from_secs(30))
+            .map_err(|e| db.e(e))?;
         db.conn.execute_batch(SCHEMA).map_err(|e| db.e(e))?;
         Ok(db)
     }
@@ -144,7 +146,9 @@ impl Db {
     pub fn open_existing(path: impl AsRef<Path>) -> Result<Db> {
         let p = path.as_ref();
         if !p.exists() {
-            return Err(Error::NotFound { path: p.to_path_buf() });
+            return Err(Error::NotFound {
+                path: p.to_path_buf(),
+            });
         }
         Db::open(p)
     }
@@ -206,13 +210,15 @@ impl Db {
                     closed: r.get(6)?,
                     volume: r.get(7)?,
                     com: [r.get(8)?, r.get(9)?, r.get(10)?],
-                    inertia: serde_json::from_str(&r.get::<_, String>(11)?).unwrap_or([f64::NAN; 9]),
+                    inertia: serde_json::from_str(&r.get::<_, String>(11)?)
+                        .unwrap_or([f64::NAN; 9]),
                     mass_source: r.get(12)?,
                     warnings: serde_json::from_str(&r.get::<_, String>(13)?).unwrap_or_default(),
                 })
             })
             .map_err(|e| self.e(e))?;
-        rows.collect::<std::result::Result<Vec<_>, _>>().map_err(|e| self.e(e))
+        rows.collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| self.e(e))
     }
 
     /// Finds the run for (mesh, parameters) or creates it. `params_json` is the
@@ -251,9 +257,11 @@ impl Db {
             )
             .map_err(|e| self.e(e))?;
         self.conn
-            .query_row("SELECT id FROM runs WHERE mesh_sha256 = ?1 AND params_key = ?2", params![mesh_sha256, key], |r| {
-                r.get(0)
-            })
+            .query_row(
+                "SELECT id FROM runs WHERE mesh_sha256 = ?1 AND params_key = ?2",
+                params![mesh_sha256, key],
+                |r| r.get(0),
+            )
             .map_err(|e| self.e(e))
     }
 
@@ -278,18 +286,26 @@ impl Db {
                     drops: r.get::<_, i64>(5)? as u64,
                     collider: r.get(6)?,
                     crate_version: r.get(7)?,
-                    cluster_params: serde_json::from_str(&r.get::<_, String>(8)?).unwrap_or_default(),
-                    analytic_notes: serde_json::from_str(&r.get::<_, String>(9)?).unwrap_or_default(),
+                    cluster_params: serde_json::from_str(&r.get::<_, String>(8)?)
+                        .unwrap_or_default(),
+                    analytic_notes: serde_json::from_str(&r.get::<_, String>(9)?)
+                        .unwrap_or_default(),
                 })
             })
             .map_err(|e| self.e(e))?;
-        rows.collect::<std::result::Result<Vec<_>, _>>().map_err(|e| self.e(e))
+        rows.collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| self.e(e))
     }
 
     /// Indices of the drops already stored for a run.
     pub fn finished_drops(&self, run_id: i64) -> Result<HashSet<u64>> {
-        let mut st = self.conn.prepare("SELECT drop_index FROM drops WHERE run_id = ?1").map_err(|e| self.e(e))?;
-        let rows = st.query_map([run_id], |r| r.get::<_, i64>(0)).map_err(|e| self.e(e))?;
+        let mut st = self
+            .conn
+            .prepare("SELECT drop_index FROM drops WHERE run_id = ?1")
+            .map_err(|e| self.e(e))?;
+        let rows = st
+            .query_map([run_id], |r| r.get::<_, i64>(0))
+            .map_err(|e| self.e(e))?;
         let mut out = HashSet::new();
         for r in rows {
             out.insert(r.map_err(|e| self.e(e))? as u64);
@@ -353,25 +369,45 @@ impl Db {
                 })
             })
             .map_err(|e| self.e(e))?;
-        rows.collect::<std::result::Result<Vec<_>, _>>().map_err(|e| self.e(e))
+        rows.collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| self.e(e))
     }
 
     /// Replaces the analytic poses of a run.
-    pub fn set_analytic(&mut self, run_id: i64, poses: &[AnalyticPose], notes: &[String]) -> Result<()> {
+    pub fn set_analytic(
+        &mut self,
+        run_id: i64,
+        poses: &[AnalyticPose],
+        notes: &[String],
+    ) -> Result<()> {
         let path = self.path.clone();
         let tx = self.conn.transaction().map_err(|e| err(&path, e))?;
-        tx.execute("DELETE FROM analytic WHERE run_id = ?1", [run_id]).map_err(|e| err(&path, e))?;
+        tx.execute("DELETE FROM analytic WHERE run_id = ?1", [run_id])
+            .map_err(|e| err(&path, e))?;
         for (rank, p) in poses.iter().enumerate() {
             let g = p.gravity_in_model;
             tx.execute(
                 "INSERT INTO analytic (run_id, rank, probability, gx, gy, gz, height, margin, area)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
-                params![run_id, rank as i64, p.probability, g[0], g[1], g[2], p.height, p.margin, p.area],
+                params![
+                    run_id,
+                    rank as i64,
+                    p.probability,
+                    g[0],
+                    g[1],
+                    g[2],
+                    p.height,
+                    p.margin,
+                    p.area
+                ],
             )
             .map_err(|e| err(&path, e))?;
         }
-        tx.execute("UPDATE runs SET analytic_notes = ?1 WHERE id = ?2", params![json(&notes), run_id])
-            .map_err(|e| err(&path, e))?;
+        tx.execute(
+            "UPDATE runs SET analytic_notes = ?1 WHERE id = ?2",
+            params![json(&notes), run_id],
+        )
+        .map_err(|e| err(&path, e))?;
         tx.commit().map_err(|e| err(&path, e))
     }
 
@@ -394,16 +430,22 @@ impl Db {
                 })
             })
             .map_err(|e| self.e(e))?;
-        rows.collect::<std::result::Result<Vec<_>, _>>().map_err(|e| self.e(e))
+        rows.collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| self.e(e))
     }
 
     /// Re-clusters a run's stored drops and replaces its `clusters` rows.
-    pub fn recompute_clusters(&mut self, run_id: i64, params: ClusterParams) -> Result<Vec<Cluster>> {
+    pub fn recompute_clusters(
+        &mut self,
+        run_id: i64,
+        params: ClusterParams,
+    ) -> Result<Vec<Cluster>> {
         let drops = self.drops(run_id)?;
         let clusters = cluster(&drops, params);
         let path = self.path.clone();
         let tx = self.conn.transaction().map_err(|e| err(&path, e))?;
-        tx.execute("DELETE FROM clusters WHERE run_id = ?1", [run_id]).map_err(|e| err(&path, e))?;
+        tx.execute("DELETE FROM clusters WHERE run_id = ?1", [run_id])
+            .map_err(|e| err(&path, e))?;
         for (rank, c) in clusters.iter().enumerate() {
             let (kind, axis) = match &c.kind {
                 ClusterKind::Pose => ("pose", None),
@@ -433,8 +475,11 @@ impl Db {
             )
             .map_err(|e| err(&path, e))?;
         }
-        tx.execute("UPDATE runs SET cluster_params = ?1 WHERE id = ?2", params![json(&params), run_id])
-            .map_err(|e| err(&path, e))?;
+        tx.execute(
+            "UPDATE runs SET cluster_params = ?1 WHERE id = ?2",
+            params![json(&params), run_id],
+        )
+        .map_err(|e| err(&path, e))?;
         tx.commit().map_err(|e| err(&path, e))?;
         Ok(clusters)
     }
@@ -454,7 +499,9 @@ impl Db {
                 let axis: Option<String> = r.get(1)?;
                 let kind = match kind.as_str() {
                     "circle" => ClusterKind::Circle {
-                        axis: axis.and_then(|a| serde_json::from_str(&a).ok()).unwrap_or([f64::NAN; 3]),
+                        axis: axis
+                            .and_then(|a| serde_json::from_str(&a).ok())
+                            .unwrap_or([f64::NAN; 3]),
                     },
                     "scattered" => ClusterKind::Scattered,
                     _ => ClusterKind::Pose,
@@ -465,13 +512,16 @@ impl Db {
                     probability: r.get(3)?,
                     ci95: [r.get(4)?, r.get(5)?],
                     gravity_in_model: [r.get(6)?, r.get(7)?, r.get(8)?],
-                    r_model_to_plane: serde_json::from_str(&r.get::<_, String>(9)?).unwrap_or([f64::NAN; 9]),
+                    r_model_to_plane: serde_json::from_str(&r.get::<_, String>(9)?)
+                        .unwrap_or([f64::NAN; 9]),
                     height: r.get(10)?,
-                    representatives: serde_json::from_str(&r.get::<_, String>(11)?).unwrap_or_default(),
+                    representatives: serde_json::from_str(&r.get::<_, String>(11)?)
+                        .unwrap_or_default(),
                 })
             })
             .map_err(|e| self.e(e))?;
-        rows.collect::<std::result::Result<Vec<_>, _>>().map_err(|e| self.e(e))
+        rows.collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| self.e(e))
     }
 
     /// Merges another database into this one: meshes and runs are matched by
@@ -486,7 +536,14 @@ impl Db {
         }
         let mut added = 0;
         for run in src.runs()? {
-            let id = self.run_id(&run.mesh_sha256, &run.params, run.seed, run.drops, &run.collider, run.cluster_params)?;
+            let id = self.run_id(
+                &run.mesh_sha256,
+                &run.params,
+                run.seed,
+                run.drops,
+                &run.collider,
+                run.cluster_params,
+            )?;
             if self.analytic(id)?.is_empty() {
                 self.set_analytic(id, &src.analytic(run.id)?, &run.analytic_notes)?;
             }
@@ -529,7 +586,10 @@ impl Db {
             ("clusters", "run_id, rank"),
             ("analytic", "run_id, rank"),
         ] {
-            let mut st = self.conn.prepare(&format!("SELECT * FROM {table} ORDER BY {order}")).map_err(|e| self.e(e))?;
+            let mut st = self
+                .conn
+                .prepare(&format!("SELECT * FROM {table} ORDER BY {order}"))
+                .map_err(|e| self.e(e))?;
             let ncol = st.column_count();
             let names: Vec<String> = st.column_names().iter().map(|s| s.to_string()).collect();
             let mut rows = st.query([]).map_err(|e| self.e(e))?;
@@ -557,7 +617,9 @@ impl Db {
     /// Whether the database holds a run for this mesh hash (any parameters).
     pub fn has_mesh(&self, sha256: &str) -> Result<bool> {
         self.conn
-            .query_row("SELECT 1 FROM meshes WHERE sha256 = ?1", [sha256], |_| Ok(()))
+            .query_row("SELECT 1 FROM meshes WHERE sha256 = ?1", [sha256], |_| {
+                Ok(())
+            })
             .optional()
             .map(|o| o.is_some())
             .map_err(|e| self.e(e))
@@ -572,7 +634,10 @@ fn same_drop(a: &DropResult, b: &DropResult) -> bool {
 }
 
 fn err(path: &Path, e: rusqlite::Error) -> Error {
-    Error::Database { path: path.to_path_buf(), reason: e.to_string() }
+    Error::Database {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    }
 }
 
 fn json<T: serde::Serialize + ?Sized>(v: &T) -> String {
@@ -582,5 +647,8 @@ fn json<T: serde::Serialize + ?Sized>(v: &T) -> String {
 /// Lower-case hex SHA-256 of `bytes`.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::{Digest, Sha256};
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }

@@ -114,14 +114,30 @@ pub fn random_rotation(rng: &mut impl Rng) -> DQuat {
     let (u1, u2, u3): (f64, f64, f64) = (rng.random(), rng.random(), rng.random());
     let tau = std::f64::consts::TAU;
     let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
-    DQuat::from_xyzw(a * (tau * u2).sin(), a * (tau * u2).cos(), b * (tau * u3).sin(), b * (tau * u3).cos()).normalize()
+    DQuat::from_xyzw(
+        a * (tau * u2).sin(),
+        a * (tau * u2).cos(),
+        b * (tau * u3).sin(),
+        b * (tau * u3).cos(),
+    )
+    .normalize()
 }
 
 /// Runs drop `index` for the body.
-pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u64, index: u64) -> DropResult {
+pub fn simulate(
+    body: &DropBody,
+    params: &SimParams,
+    mesh_sha256: &str,
+    seed: u64,
+    index: u64,
+) -> DropResult {
     let mut rng = ChaCha8Rng::from_seed(drop_seed(mesh_sha256, seed, index));
     let q0 = random_rotation(&mut rng);
-    let lowest = body.support.iter().map(|p| (q0 * *p).z).fold(f64::INFINITY, f64::min);
+    let lowest = body
+        .support
+        .iter()
+        .map(|p| (q0 * *p).z)
+        .fold(f64::INFINITY, f64::min);
     // The body is released at rest, so until it first touches the plane it
     // only translates: that free fall is done in closed form, and the
     // simulation starts a small gap above the plane (two steps of travel at
@@ -130,7 +146,9 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
     let g = 9.81;
     let h0 = (params.drop_height_diag * body.diagonal).max(0.0);
     let v_impact = (2.0 * g * h0).sqrt();
-    let gap = (0.02 * body.diagonal).max(2.0 * v_impact * params.dt).min(h0);
+    let gap = (0.02 * body.diagonal)
+        .max(2.0 * v_impact * params.dt)
+        .min(h0);
     let v0 = (2.0 * g * (h0 - gap)).sqrt();
     let z0 = gap - lowest;
 
@@ -149,14 +167,21 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
     );
     let m = &body.mass;
     let inertia = m.inertia(params.density);
-    let inertia32 = glam::Mat3::from_cols(inertia.x_axis.as_vec3(), inertia.y_axis.as_vec3(), inertia.z_axis.as_vec3());
+    let inertia32 = glam::Mat3::from_cols(
+        inertia.x_axis.as_vec3(),
+        inertia.y_axis.as_vec3(),
+        inertia.z_axis.as_vec3(),
+    );
     let mprops = rapier3d::parry::mass_properties::MassProperties::with_inertia_matrix(
         m.com.as_vec3(),
         m.mass(params.density) as f32,
         inertia32,
     );
     let rb = RigidBodyBuilder::dynamic()
-        .pose(Pose::from_parts(Vec3::new(0.0, 0.0, z0 as f32), Quat::from_xyzw(q0.x as f32, q0.y as f32, q0.z as f32, q0.w as f32).normalize()))
+        .pose(Pose::from_parts(
+            Vec3::new(0.0, 0.0, z0 as f32),
+            Quat::from_xyzw(q0.x as f32, q0.y as f32, q0.z as f32, q0.w as f32).normalize(),
+        ))
         .linvel(Vec3::new(0.0, 0.0, -v0 as f32))
         .additional_mass_properties(mprops)
         .can_sleep(false)
@@ -167,7 +192,9 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
             .density(0.0)
             .friction(params.friction as f32)
             .restitution(params.restitution as f32);
-        world.colliders.insert_with_parent(collider, handle, &mut world.bodies);
+        world
+            .colliders
+            .insert_with_parent(collider, handle, &mut world.bodies);
     }
 
     let max_steps = (params.max_time / params.dt).ceil().max(1.0) as u32;
@@ -180,7 +207,9 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
     while steps < max_steps {
         world.step();
         steps += 1;
-        let Some(b) = world.bodies.get(handle) else { break };
+        let Some(b) = world.bodies.get(handle) else {
+            break;
+        };
         if b.linvel().length() < lin_tol && b.angvel().length() < ang_tol {
             calm += 1;
             if calm >= calm_needed {
@@ -189,8 +218,13 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
                 // body balanced on an edge that has not started to tip yet.
                 let p = b.position();
                 let r = p.rotation;
-                let q = DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
-                let t = DVec3::new(p.translation.x as f64, p.translation.y as f64, p.translation.z as f64);
+                let q =
+                    DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
+                let t = DVec3::new(
+                    p.translation.x as f64,
+                    p.translation.y as f64,
+                    p.translation.z as f64,
+                );
                 if supported(body, q, t) {
                     settled = true;
                     break;
@@ -205,12 +239,22 @@ pub fn simulate(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u6
         Some(b) => {
             let p = b.position();
             let r = p.rotation;
-            (DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize(), p.translation.z as f64)
+            (
+                DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize(),
+                p.translation.z as f64,
+            )
         }
         None => (q0, f64::NAN),
     };
     let gravity_in_model = (rotation.inverse() * DVec3::NEG_Z).normalize();
-    DropResult { index, settled, steps, rotation, height, gravity_in_model }
+    DropResult {
+        index,
+        settled,
+        steps,
+        rotation,
+        height,
+        gravity_in_model,
+    }
 }
 
 /// Whether the body at rotation `q`, translation `t` is statically stable
@@ -221,7 +265,11 @@ pub fn supported(body: &DropBody, q: DQuat, t: DVec3) -> bool {
     let world: Vec<DVec3> = body.support.iter().map(|p| q * *p + t).collect();
     let low = world.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
     let tol = 0.01 * body.diagonal;
-    let mut pts: Vec<[f64; 2]> = world.iter().filter(|p| p.z <= low + tol).map(|p| [p.x, p.y]).collect();
+    let mut pts: Vec<[f64; 2]> = world
+        .iter()
+        .filter(|p| p.z <= low + tol)
+        .map(|p| [p.x, p.y])
+        .collect();
     let com = q * body.mass.com + t;
     point_in_hull_2d(&mut pts, [com.x, com.y], 1e-3 * body.diagonal)
 }
@@ -231,14 +279,21 @@ pub fn supported(body: &DropBody, q: DQuat, t: DVec3) -> bool {
 /// never contain a point strictly.
 fn point_in_hull_2d(pts: &mut [[f64; 2]], p: [f64; 2], margin: f64) -> bool {
     pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
-    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
     let mut hull: Vec<[f64; 2]> = Vec::with_capacity(pts.len() + 1);
     for pass in 0..2 {
         let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &[f64; 2]>> =
-            if pass == 0 { Box::new(pts.iter()) } else { Box::new(pts.iter().rev()) };
+        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
         for &q in iter {
-            while hull.len() >= start + 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0 {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0
+            {
                 hull.pop();
             }
             hull.push(q);

@@ -90,7 +90,11 @@ pub fn split(clusters: &[Cluster]) -> (Vec<ClusterExport>, Vec<FamilyExport>) {
                 representatives: c.representatives.clone(),
             }),
             kind => families.push(FamilyExport {
-                kind: if matches!(kind, ClusterKind::Circle { .. }) { "circle" } else { "scattered" },
+                kind: if matches!(kind, ClusterKind::Circle { .. }) {
+                    "circle"
+                } else {
+                    "scattered"
+                },
                 axis: match kind {
                     ClusterKind::Circle { axis } => Some(*axis),
                     _ => None,
@@ -109,7 +113,12 @@ pub fn split(clusters: &[Cluster]) -> (Vec<ClusterExport>, Vec<FamilyExport>) {
 fn analytic(poses: &[AnalyticPose]) -> Vec<AnalyticExport> {
     poses
         .iter()
-        .map(|a| AnalyticExport { probability: a.probability, gravity_in_model: a.gravity_in_model, height: a.height, margin: a.margin })
+        .map(|a| AnalyticExport {
+            probability: a.probability,
+            gravity_in_model: a.gravity_in_model,
+            height: a.height,
+            margin: a.margin,
+        })
         .collect()
 }
 
@@ -119,7 +128,11 @@ pub fn export(db: &Db, filter: Option<&str>) -> Result<Export> {
     let meshes = db.meshes()?;
     let mut out = Vec::new();
     for run in db.runs()? {
-        let source = meshes.iter().find(|m| m.sha256 == run.mesh_sha256).map(|m| m.source.clone()).unwrap_or_default();
+        let source = meshes
+            .iter()
+            .find(|m| m.sha256 == run.mesh_sha256)
+            .map(|m| m.source.clone())
+            .unwrap_or_default();
         if let Some(f) = filter {
             if !source.contains(f) && !run.mesh_sha256.starts_with(f) {
                 continue;
@@ -143,5 +156,8 @@ pub fn export(db: &Db, filter: Option<&str>) -> Result<Export> {
             analytic: analytic(&db.analytic(run.id)?),
         });
     }
-    Ok(Export { format: "plausible-stable-poses/1", meshes: out })
+    Ok(Export {
+        format: "plausible-stable-poses/1",
+        meshes: out,
+    })
 }

@@ -23,24 +23,31 @@ pub struct Hull {
 impl Hull {
     /// The convex hull of `points`; `name` is used in error messages.
     pub fn of_points(name: &str, points: &[DVec3]) -> Result<Hull> {
-        let (vertices, triangles) =
-            convex_hull(points).map_err(|r| Error::InvalidInput(format!("{name}: convex hull: {r}")))?;
-        Ok(Hull { vertices, triangles })
+        let (vertices, triangles) = convex_hull(points)
+            .map_err(|r| Error::InvalidInput(format!("{name}: convex hull: {r}")))?;
+        Ok(Hull {
+            vertices,
+            triangles,
+        })
     }
 
     /// Bounding-box diagonal of the hull.
     pub fn diagonal(&self) -> f64 {
-        let (lo, hi) = self
-            .vertices
-            .iter()
-            .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), v| (l.min(*v), h.max(*v)));
+        let (lo, hi) = self.vertices.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(l, h), v| (l.min(*v), h.max(*v)),
+        );
         (hi - lo).length()
     }
 
     /// Outward unit normal and plane offset (`n·x = d`) of triangle `i`.
     pub fn plane(&self, i: usize) -> (DVec3, f64) {
         let t = self.triangles[i];
-        let (a, b, c) = (self.vertices[t[0] as usize], self.vertices[t[1] as usize], self.vertices[t[2] as usize]);
+        let (a, b, c) = (
+            self.vertices[t[0] as usize],
+            self.vertices[t[1] as usize],
+            self.vertices[t[2] as usize],
+        );
         let n = (b - a).cross(c - a).normalize_or_zero();
         (n, n.dot(a))
     }
@@ -100,10 +107,14 @@ impl Hull {
             if chosen.len() >= max_points.max(4) {
                 return Ok(hull);
             }
-            let planes: Vec<(DVec3, f64)> = (0..hull.triangles.len()).map(|i| hull.plane(i)).collect();
+            let planes: Vec<(DVec3, f64)> =
+                (0..hull.triangles.len()).map(|i| hull.plane(i)).collect();
             let mut best = (usize::MAX, tolerance);
             for (i, p) in pts.iter().enumerate() {
-                let out = planes.iter().map(|(n, d)| n.dot(*p) - d).fold(f64::NEG_INFINITY, f64::max);
+                let out = planes
+                    .iter()
+                    .map(|(n, d)| n.dot(*p) - d)
+                    .fold(f64::NEG_INFINITY, f64::max);
                 if out > best.1 {
                     best = (i, out);
                 }
@@ -120,7 +131,11 @@ impl Hull {
         self.triangles
             .iter()
             .map(|t| {
-                let (a, b, c) = (self.vertices[t[0] as usize], self.vertices[t[1] as usize], self.vertices[t[2] as usize]);
+                let (a, b, c) = (
+                    self.vertices[t[0] as usize],
+                    self.vertices[t[1] as usize],
+                    self.vertices[t[2] as usize],
+                );
                 a.dot(b.cross(c)) / 6.0
             })
             .sum()
@@ -144,7 +159,11 @@ mod tests {
         let simple = full.simplified(64, 1e-9).unwrap();
         assert_eq!(simple.vertices.len(), 64);
         // Every original vertex within a few percent of the radius of the simplified hull.
-        let worst = full.vertices.iter().map(|p| simple.outside_distance(*p)).fold(0.0, f64::max);
+        let worst = full
+            .vertices
+            .iter()
+            .map(|p| simple.outside_distance(*p))
+            .fold(0.0, f64::max);
         assert!(worst < 0.1 * 0.12, "{worst}");
         assert!(simple.volume() > 0.8 * full.volume());
     }

@@ -49,7 +49,9 @@ impl std::str::FromStr for ColliderKind {
         match s {
             "hull" => Ok(ColliderKind::Hull),
             "decomposition" | "decomp" => Ok(ColliderKind::Decomposition),
-            _ => Err(format!("unknown collider '{s}' (expected hull or decomposition)")),
+            _ => Err(format!(
+                "unknown collider '{s}' (expected hull or decomposition)"
+            )),
         }
     }
 }
@@ -171,7 +173,9 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
         .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
     let parts: Vec<Hull> = match params.collider {
         ColliderKind::Hull => vec![full.simplified(params.hull_max_points, tol)?],
-        ColliderKind::Decomposition => decomposition(&mesh, name, params.hull_max_points, tol, &mut warnings)?,
+        ColliderKind::Decomposition => {
+            decomposition(&mesh, name, params.hull_max_points, tol, &mut warnings)?
+        }
     };
     let mut support = Vec::new();
     for p in &parts {
@@ -183,7 +187,12 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
         name: name.to_string(),
         sha256,
         mesh,
-        body: DropBody { shapes, support, mass: mass.clone(), diagonal },
+        body: DropBody {
+            shapes,
+            support,
+            mass: mass.clone(),
+            diagonal,
+        },
         mass,
         collider_parts: parts.len(),
         collider_points,
@@ -209,19 +218,26 @@ fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<SharedShape>> {
     let mut shapes: Vec<(Pose, SharedShape)> = Vec::new();
     for part in parts {
         let pts: Vec<Vec3> = part.vertices.iter().map(|v| v.as_vec3()).collect();
-        let hull = SharedShape::convex_hull(&pts)
-            .ok_or_else(|| Error::InvalidInput(format!("{name}: rapier could not build a convex collider")))?;
+        let hull = SharedShape::convex_hull(&pts).ok_or_else(|| {
+            Error::InvalidInput(format!("{name}: rapier could not build a convex collider"))
+        })?;
         let mut fans = Vec::new();
         if let Some(poly) = hull.as_convex_polyhedron() {
             let points = poly.points();
             let inside = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
             let adj = poly.vertices_adj_to_face();
             for face in poly.faces() {
-                let (first, n) = (face.first_vertex_or_edge as usize, face.num_vertices_or_edges as usize);
+                let (first, n) = (
+                    face.first_vertex_or_edge as usize,
+                    face.num_vertices_or_edges as usize,
+                );
                 if n <= 4 || first + n > adj.len() {
                     continue;
                 }
-                let corners: Vec<Vec3> = adj[first..first + n].iter().map(|&v| points[v as usize]).collect();
+                let corners: Vec<Vec3> = adj[first..first + n]
+                    .iter()
+                    .map(|&v| points[v as usize])
+                    .collect();
                 let centre = corners.iter().copied().sum::<Vec3>() / n as f32;
                 let apex = centre + (inside - centre) * 0.5;
                 for i in 0..n {
@@ -242,7 +258,13 @@ fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<SharedShape>> {
 }
 
 /// Convex parts: connected components when there are several, else VHACD.
-fn decomposition(mesh: &Mesh, name: &str, max_points: usize, tol: f64, warnings: &mut Vec<String>) -> Result<Vec<Hull>> {
+fn decomposition(
+    mesh: &Mesh,
+    name: &str,
+    max_points: usize,
+    tol: f64,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Hull>> {
     let mut welded = mesh.clone();
     welded.weld();
     let comps = components(&welded);
@@ -252,7 +274,9 @@ fn decomposition(mesh: &Mesh, name: &str, max_points: usize, tol: f64, warnings:
             let pts: Vec<DVec3> = c.iter().map(|&v| welded.vertices[v as usize]).collect();
             // Tiny or flat components (slivers) carry no volume: skip them.
             match Hull::of_points(name, &pts) {
-                Ok(h) if h.volume() > 1e-9 * mesh.diagonal().powi(3) => parts.push(h.simplified(max_points, tol)?),
+                Ok(h) if h.volume() > 1e-9 * mesh.diagonal().powi(3) => {
+                    parts.push(h.simplified(max_points, tol)?)
+                }
                 _ => {}
             }
         }
@@ -275,7 +299,9 @@ fn decomposition(mesh: &Mesh, name: &str, max_points: usize, tol: f64, warnings:
         }
     }
     if parts.is_empty() {
-        return Err(Error::InvalidInput(format!("{name}: the convex decomposition produced no solid part")));
+        return Err(Error::InvalidInput(format!(
+            "{name}: the convex decomposition produced no solid part"
+        )));
     }
     Ok(parts)
 }
@@ -345,7 +371,13 @@ pub fn run_drops(
                 }
                 let i = next.fetch_add(1, Ordering::Relaxed);
                 let Some(&index) = indices.get(i) else { break };
-                let r = drop::simulate(&prepared.body, &params.sim, &prepared.sha256, params.seed, index);
+                let r = drop::simulate(
+                    &prepared.body,
+                    &params.sim,
+                    &prepared.sha256,
+                    params.seed,
+                    index,
+                );
                 if tx.send(r).is_err() {
                     break;
                 }
@@ -414,15 +446,27 @@ pub fn run_into_db(
         volume: m.volume,
         com: m.com.to_array(),
         inertia,
-        mass_source: serde_json::to_value(m.source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+        mass_source: serde_json::to_value(m.source)
+            .ok()
+            .and_then(|v| v.as_str().map(String::from))
+            .unwrap_or_default(),
         warnings: prepared.warnings.clone(),
     })?;
     let params_json = serde_json::to_string(params)
         .map_err(|e| Error::InvalidInput(format!("cannot serialise run parameters: {e}")))?;
-    let run_id = db.run_id(&prepared.sha256, &params_json, params.seed, params.drops, params.collider.as_str(), cluster_params)?;
+    let run_id = db.run_id(
+        &prepared.sha256,
+        &params_json,
+        params.seed,
+        params.drops,
+        params.collider.as_str(),
+        cluster_params,
+    )?;
     db.set_analytic(run_id, &prepared.analytic.poses, &prepared.analytic.notes)?;
     let done = db.finished_drops(run_id)?;
-    let mine: Vec<u64> = (0..params.drops).filter(|i| shard.is_none_or(|s| s.contains(*i))).collect();
+    let mine: Vec<u64> = (0..params.drops)
+        .filter(|i| shard.is_none_or(|s| s.contains(*i)))
+        .collect();
     let pending: Vec<u64> = mine.iter().copied().filter(|i| !done.contains(i)).collect();
     let total = mine.len() as u64;
     let reused = total - pending.len() as u64;
@@ -457,7 +501,10 @@ pub fn run_into_db(
 
 /// For each cluster, the nearest analytic pose: (index, angle in degrees,
 /// cluster probability − analytic probability). Families get `None`.
-pub fn match_analytic(clusters: &[Cluster], analytic: &[analytic::AnalyticPose]) -> Vec<Option<(usize, f64, f64)>> {
+pub fn match_analytic(
+    clusters: &[Cluster],
+    analytic: &[analytic::AnalyticPose],
+) -> Vec<Option<(usize, f64, f64)>> {
     clusters
         .iter()
         .map(|c| {
@@ -469,7 +516,9 @@ pub fn match_analytic(clusters: &[Cluster], analytic: &[analytic::AnalyticPose])
                 .iter()
                 .enumerate()
                 .map(|(i, a)| {
-                    let cos = g.dot(DVec3::from_array(a.gravity_in_model)).clamp(-1.0, 1.0);
+                    let cos = g
+                        .dot(DVec3::from_array(a.gravity_in_model))
+                        .clamp(-1.0, 1.0);
                     (i, cos.acos().to_degrees(), c.probability - a.probability)
                 })
                 .min_by(|a, b| a.1.total_cmp(&b.1))
@@ -497,14 +546,19 @@ mod tests {
         let mut b = shapes::cuboid(DVec3::splat(0.1));
         let off = a.vertices.len() as u32;
         let mut m = a.clone();
-        m.vertices.extend(b.vertices.drain(..).map(|v| v + DVec3::X));
-        m.triangles.extend(b.triangles.iter().map(|t| t.map(|i| i + off)));
+        m.vertices
+            .extend(b.vertices.drain(..).map(|v| v + DVec3::X));
+        m.triangles
+            .extend(b.triangles.iter().map(|t| t.map(|i| i + off)));
         assert_eq!(components(&m).len(), 2);
     }
 
     #[test]
     fn cube_drops_settle_on_faces() {
-        let params = RunParams { drops: 24, ..Default::default() };
+        let params = RunParams {
+            drops: 24,
+            ..Default::default()
+        };
         let p = prepare(shapes::cuboid(DVec3::splat(0.03)), "cube", &params).unwrap();
         let idx: Vec<u64> = (0..24).collect();
         let mut out = Vec::new();
