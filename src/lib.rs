@@ -25,3 +25,4 @@ pub mod hypotheses;
 pub mod synth;
 pub mod visual;
 pub mod explain;
+pub mod physical;

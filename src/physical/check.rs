@@ -1,0 +1,121 @@
+//! Checking a whole scene: every object against the planes and all other
+//! objects, with the exact CPU twin (a scene has few objects; the GPU path
+//! is for batches of hypotheses, see [`super::gpu`]).
+
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use super::contacts::{evaluate_detailed, Body, Detail, Environment, Evaluation, Obstacle, Verdict};
+use super::scene::Scene;
+use super::sdf::{SdfGrid, DEFAULT_RESOLUTION};
+use super::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
+use crate::error::Result;
+use crate::mesh::mass::MassProperties;
+use crate::mesh::Mesh;
+
+/// Options of a scene check.
+#[derive(Clone, Debug)]
+pub struct CheckOptions {
+    /// Surface samples per object.
+    pub samples: usize,
+    /// Seed of the surface sampling.
+    pub seed: u64,
+    /// ε in metres; `None`: per object from its sample spacing.
+    pub epsilon: Option<f64>,
+    /// SDF grid cells across each mesh's longest side.
+    pub sdf_resolution: usize,
+}
+
+impl Default for CheckOptions {
+    fn default() -> Self {
+        CheckOptions { samples: DEFAULT_SAMPLES, seed: DEFAULT_SEED, epsilon: None, sdf_resolution: DEFAULT_RESOLUTION }
+    }
+}
+
+/// The check of one object.
+#[derive(Clone, Debug)]
+pub struct ObjectCheck {
+    pub name: String,
+    pub is_static: bool,
+    pub epsilon: f64,
+    /// Largest trilinear error bound of the grids it was checked against.
+    pub grid_error_bound: f64,
+    pub mass_kg: f64,
+    pub com_world: DVec3,
+    pub evaluation: Evaluation,
+    pub detail: Detail,
+}
+
+/// A scene's objects with their prepared bodies and grids (shared between
+/// objects with the same mesh).
+pub struct Prepared {
+    pub bodies: Vec<Body>,
+    pub grids: Vec<Arc<SdfGrid>>,
+    pub mass: Vec<MassProperties>,
+}
+
+/// Samples, mass properties and grids for every object.
+pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
+    let mut done: Vec<(Arc<Mesh>, Body, Arc<SdfGrid>, MassProperties)> = Vec::new();
+    let (mut bodies, mut grids, mut mass) = (Vec::new(), Vec::new(), Vec::new());
+    for o in &scene.objects {
+        let found = done.iter().find(|(m, ..)| Arc::ptr_eq(m, &o.mesh));
+        let (b, g, mp) = match found {
+            Some((_, b, g, mp)) => (b.clone(), g.clone(), mp.clone()),
+            None => {
+                let b = Body::new(&o.mesh, opts.samples, opts.seed, opts.epsilon)?;
+                let g = Arc::new(SdfGrid::bake(&o.mesh, opts.sdf_resolution)?);
+                let (mp, _) = MassProperties::of_mesh(&o.mesh)?;
+                done.push((o.mesh.clone(), b.clone(), g.clone(), mp.clone()));
+                (b, g, mp)
+            }
+        };
+        bodies.push(b);
+        grids.push(g);
+        mass.push(mp);
+    }
+    Ok(Prepared { bodies, grids, mass })
+}
+
+/// The environment of object `i`: the planes and every other object.
+pub fn environment_of(scene: &Scene, prep: &Prepared, i: usize) -> Environment {
+    Environment {
+        planes: scene.planes.clone(),
+        obstacles: scene
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(j, o)| Obstacle { sdf: prep.grids[j].clone(), pose: o.pose })
+            .collect(),
+        gravity: scene.gravity,
+    }
+}
+
+/// Checks every object of the scene. Static objects are held in place:
+/// their verdict is intersecting or plausible.
+pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck>> {
+    let prep = prepare(scene, opts)?;
+    let mut out = Vec::new();
+    for (i, o) in scene.objects.iter().enumerate() {
+        let env = environment_of(scene, &prep, i);
+        let body = &prep.bodies[i];
+        env.check_epsilon(body.epsilon)?;
+        let (mut e, detail) = evaluate_detailed(body, &o.pose, &env);
+        if o.is_static {
+            e.verdict = if e.intersecting > 0 { Verdict::Intersecting } else { Verdict::Plausible };
+        }
+        out.push(ObjectCheck {
+            name: o.name.clone(),
+            is_static: o.is_static,
+            epsilon: body.epsilon,
+            grid_error_bound: env.error_bound(),
+            mass_kg: prep.mass[i].mass(o.density),
+            com_world: o.pose.transform_point(prep.mass[i].com),
+            evaluation: e,
+            detail,
+        });
+    }
+    Ok(out)
+}

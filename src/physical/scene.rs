@@ -1,0 +1,269 @@
+//! The scene JSON: objects with meshes and poses, support planes, gravity.
+//!
+//! World frame (the default): metres, z up, gravity (0, 0, −9.81):
+//! ```json
+//! {"gravity": [0, 0, -9.81],
+//!  "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1]}],
+//!  "objects": [{"name": "cube", "mesh": "cube.obj", "units": "m",
+//!               "R": [1, 0, 0, 0, 1, 0, 0, 0, 1], "t": [0, 0, 0.025],
+//!               "static": false, "density": 1000}]}
+//! ```
+//! Camera frame (`"frame": "camera"`): objects carry BOP poses
+//! (`cam_R_m2c` row-major, `cam_t_m2c` in millimetres) and `planes` holds
+//! exactly one support plane in the camera frame (`point` in millimetres).
+//! The scene is moved into a world frame on that plane: origin at the plane
+//! point, z along the plane normal turned towards the camera, gravity −z.
+//!
+//! Mesh paths are relative to the JSON file. A plane is the boundary of a
+//! solid half-space: points on the side its normal points to are outside.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::{DMat3, DVec3};
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+use crate::mesh::{Mesh, MeshUnits};
+use crate::pose::{orthonormalize_rotation, Pose, ORTHONORMAL_TOL};
+
+/// Default density of objects in kg/m³ (water; only masses depend on it).
+pub const DEFAULT_DENSITY: f64 = 1000.0;
+
+/// A support plane: the solid half-space below it is the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plane {
+    pub point: DVec3,
+    /// Unit normal, pointing out of the solid.
+    pub normal: DVec3,
+}
+
+impl Plane {
+    /// Signed distance of `x` (positive on the normal's side).
+    pub fn distance(&self, x: DVec3) -> f64 {
+        self.normal.dot(x - self.point)
+    }
+}
+
+/// One object of the scene, in the world frame.
+#[derive(Clone, Debug)]
+pub struct SceneObject {
+    pub name: String,
+    pub mesh: Arc<Mesh>,
+    /// The mesh file as resolved against the JSON's folder.
+    pub mesh_path: PathBuf,
+    pub units: MeshUnits,
+    /// Model to world.
+    pub pose: Pose,
+    /// Static objects (a table, a shelf) are held in place: they support
+    /// others and are checked for intersections only.
+    pub is_static: bool,
+    /// kg/m³.
+    pub density: f64,
+}
+
+/// A validated scene in the world frame (metres).
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub gravity: DVec3,
+    pub planes: Vec<Plane>,
+    pub objects: Vec<SceneObject>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    #[serde(default)]
+    frame: Option<String>,
+    #[serde(default)]
+    gravity: Option<Vec<f64>>,
+    #[serde(default)]
+    planes: Vec<RawPlane>,
+    objects: Vec<RawObject>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPlane {
+    point: Vec<f64>,
+    normal: Vec<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawObject {
+    #[serde(default)]
+    name: Option<String>,
+    mesh: String,
+    #[serde(default)]
+    units: Option<String>,
+    #[serde(default, rename = "R")]
+    r: Option<Vec<f64>>,
+    #[serde(default)]
+    t: Option<Vec<f64>>,
+    #[serde(default, rename = "cam_R_m2c")]
+    cam_r: Option<Vec<f64>>,
+    #[serde(default, rename = "cam_t_m2c")]
+    cam_t: Option<Vec<f64>>,
+    #[serde(default, rename = "static")]
+    is_static: Option<bool>,
+    #[serde(default)]
+    density: Option<f64>,
+}
+
+fn vec3(what: &str, v: &[f64]) -> std::result::Result<DVec3, String> {
+    if v.len() != 3 {
+        return Err(format!("{what} must have 3 numbers, found {}", v.len()));
+    }
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("{what} contains NaN or infinity"));
+    }
+    Ok(DVec3::new(v[0], v[1], v[2]))
+}
+
+fn rotation(what: &str, v: &[f64]) -> std::result::Result<DMat3, String> {
+    if v.len() != 9 {
+        return Err(format!("{what} must have 9 numbers (row-major 3x3), found {}", v.len()));
+    }
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("{what} contains NaN or infinity"));
+    }
+    let r = DMat3::from_cols_array(&[v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]]).transpose();
+    let det = r.determinant();
+    if det <= 0.0 {
+        return Err(format!("{what} has determinant {det:.4}; a rotation must have determinant +1"));
+    }
+    let e = r.transpose() * r - DMat3::IDENTITY;
+    let err = e.to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if err > ORTHONORMAL_TOL {
+        return Err(format!("{what} is not orthonormal (max |RᵀR − I| = {err:.2e} > {ORTHONORMAL_TOL:.0e})"));
+    }
+    Ok(if err > 1e-12 { orthonormalize_rotation(r) } else { r })
+}
+
+impl Scene {
+    /// Reads and validates a scene file; meshes are loaded relative to it.
+    pub fn load(path: &Path) -> Result<Scene> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Scene::from_json(&text, &base, path)
+    }
+
+    /// Parses and validates scene JSON; `base` resolves mesh paths and
+    /// `name` labels errors.
+    pub fn from_json(text: &str, base: &Path, name: &Path) -> Result<Scene> {
+        let bad = |reason: String| Error::BadJson { path: name.to_path_buf(), reason };
+        let raw: RawScene = serde_json::from_str(text).map_err(|e| {
+            let hint = if text.contains("NaN") || text.contains("Infinity") {
+                " (JSON has no NaN or Infinity: every number must be finite)"
+            } else {
+                ""
+            };
+            bad(format!("{e}{hint}"))
+        })?;
+        let camera = match raw.frame.as_deref() {
+            None | Some("world") => false,
+            Some("camera") => true,
+            Some(f) => return Err(bad(format!("unknown frame '{f}' (expected \"world\" or \"camera\")"))),
+        };
+        if raw.objects.is_empty() {
+            return Err(bad("the scene has no objects".into()));
+        }
+        let mut planes = Vec::new();
+        for (i, p) in raw.planes.iter().enumerate() {
+            let point = vec3(&format!("plane {i}: point"), &p.point).map_err(bad)?;
+            let normal = vec3(&format!("plane {i}: normal"), &p.normal).map_err(bad)?;
+            let len = normal.length();
+            if !(len > 1e-12) {
+                return Err(bad(format!("plane {i}: normal has zero length")));
+            }
+            planes.push(Plane { point, normal: normal / len });
+        }
+        let mut gravity = DVec3::new(0.0, 0.0, -9.81);
+        // Camera frame: world = plane frame.
+        let mut to_world = Pose::IDENTITY;
+        if camera {
+            if raw.gravity.is_some() {
+                return Err(bad("a camera-frame scene takes gravity from its support plane; remove \"gravity\"".into()));
+            }
+            if planes.len() != 1 {
+                return Err(bad(format!("a camera-frame scene needs exactly one support plane, found {}", planes.len())));
+            }
+            let p = planes[0];
+            let point = p.point * 1e-3;
+            let mut up = p.normal;
+            if up.dot(-point) < 0.0 {
+                up = -up; // the camera looks at the plane from above
+            }
+            let helper = if DVec3::X.cross(up).length() > 0.1 { DVec3::X } else { DVec3::Z };
+            let x = (helper - up * helper.dot(up)).normalize();
+            let y = up.cross(x);
+            let r = DMat3::from_cols(x, y, up).transpose(); // camera -> world
+            to_world = Pose::new(r, -(r * point));
+            planes = vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }];
+        } else if let Some(g) = &raw.gravity {
+            gravity = vec3("gravity", g).map_err(bad)?;
+            if !(gravity.length() > 1e-9) {
+                return Err(bad("gravity has zero length".into()));
+            }
+        }
+        let mut cache: Vec<(PathBuf, MeshUnits, Arc<Mesh>)> = Vec::new();
+        let mut objects = Vec::new();
+        for (i, o) in raw.objects.iter().enumerate() {
+            let oname = o.name.clone().unwrap_or_else(|| {
+                Path::new(&o.mesh).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("object{i}"))
+            });
+            let label = format!("object {i} ('{oname}')");
+            let units: MeshUnits = match &o.units {
+                Some(u) => u.parse().map_err(|e: String| bad(format!("{label}: {e}")))?,
+                None => MeshUnits::Auto,
+            };
+            let pose = if camera {
+                if o.r.is_some() || o.t.is_some() {
+                    return Err(bad(format!("{label}: a camera-frame scene gives poses as cam_R_m2c / cam_t_m2c")));
+                }
+                let (Some(r), Some(t)) = (&o.cam_r, &o.cam_t) else {
+                    return Err(bad(format!("{label}: missing cam_R_m2c or cam_t_m2c")));
+                };
+                let r = rotation(&format!("{label}: cam_R_m2c"), r).map_err(bad)?;
+                let t = vec3(&format!("{label}: cam_t_m2c"), t).map_err(bad)? * 1e-3;
+                to_world.compose(&Pose::new(r, t))
+            } else {
+                if o.cam_r.is_some() || o.cam_t.is_some() {
+                    return Err(bad(format!("{label}: cam_R_m2c / cam_t_m2c need \"frame\": \"camera\"")));
+                }
+                let (Some(r), Some(t)) = (&o.r, &o.t) else {
+                    return Err(bad(format!("{label}: missing R or t")));
+                };
+                Pose::new(rotation(&format!("{label}: R"), r).map_err(bad)?, vec3(&format!("{label}: t"), t).map_err(bad)?)
+            };
+            let density = o.density.unwrap_or(DEFAULT_DENSITY);
+            if !(density.is_finite() && density > 0.0) {
+                return Err(bad(format!("{label}: density must be a positive number, got {density}")));
+            }
+            let mesh_path = base.join(&o.mesh);
+            let mesh = match cache.iter().find(|(p, u, _)| *p == mesh_path && *u == units) {
+                Some((_, _, m)) => m.clone(),
+                None => {
+                    if !mesh_path.is_file() {
+                        return Err(bad(format!("{label}: mesh '{}' not found (looked for {})", o.mesh, mesh_path.display())));
+                    }
+                    let (m, _) = Mesh::load(&mesh_path, units).map_err(|e| bad(format!("{label}: {e}")))?;
+                    let m = Arc::new(m);
+                    cache.push((mesh_path.clone(), units, m.clone()));
+                    m
+                }
+            };
+            objects.push(SceneObject {
+                name: oname,
+                mesh,
+                mesh_path,
+                units,
+                pose,
+                is_static: o.is_static.unwrap_or(false),
+                density,
+            });
+        }
+        Ok(Scene { gravity, planes, objects })
+    }
+}

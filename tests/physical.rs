@@ -1,0 +1,201 @@
+//! Physical plausibility: ground truth on analytic scenes, bad inputs, and
+//! the GPU kernel against its CPU twin.
+
+use std::path::Path;
+
+use glam::{DMat3, DVec3};
+use plausible::physical::check::{check_scene, CheckOptions, ObjectCheck};
+use plausible::physical::{Scene, Verdict};
+use plausible::pose::axis_angle;
+
+const SIDE: f64 = 0.05;
+
+fn write_obj(path: &Path, mesh: &plausible::mesh::Mesh) {
+    let mut s = String::new();
+    for v in &mesh.vertices {
+        s += &format!("v {} {} {}\n", v.x, v.y, v.z);
+    }
+    for t in &mesh.triangles {
+        s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+/// A temp folder with `cube.obj` (5 cm) and `slab.obj` (10 x 10 x 4 cm).
+fn assets() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    write_obj(&dir.path().join("cube.obj"), &plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)));
+    write_obj(&dir.path().join("slab.obj"), &plausible::shapes::cuboid(DVec3::new(0.05, 0.05, 0.02)));
+    dir
+}
+
+fn rows(r: DMat3) -> String {
+    let a = r.transpose().to_cols_array();
+    format!("[{}]", a.iter().map(|v| format!("{v:.17}")).collect::<Vec<_>>().join(", "))
+}
+
+fn object(name: &str, mesh: &str, r: DMat3, t: DVec3, is_static: bool) -> String {
+    format!(
+        r#"{{"name": "{name}", "mesh": "{mesh}", "units": "m", "R": {}, "t": [{:.17}, {:.17}, {:.17}], "static": {is_static}}}"#,
+        rows(r),
+        t.x,
+        t.y,
+        t.z
+    )
+}
+
+fn scene(dir: &Path, objects: &[String]) -> Scene {
+    let text = format!(
+        r#"{{"gravity": [0, 0, -9.81], "planes": [{{"point": [0, 0, 0], "normal": [0, 0, 1]}}], "objects": [{}]}}"#,
+        objects.join(", ")
+    );
+    let path = dir.join("scene.json");
+    std::fs::write(&path, text).unwrap();
+    Scene::load(&path).unwrap()
+}
+
+fn check(dir: &Path, objects: &[String]) -> Vec<ObjectCheck> {
+    check_scene(&scene(dir, objects), &CheckOptions::default()).unwrap()
+}
+
+#[test]
+fn cube_resting_on_the_plane_is_plausible_with_half_side_margin() {
+    let d = assets();
+    let r = check(d.path(), &[object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.3, -0.2, SIDE / 2.0), false)]);
+    let e = &r[0].evaluation;
+    assert_eq!(e.verdict, Verdict::Plausible, "{e:?}");
+    assert_eq!(e.intersecting, 0);
+    assert!(e.supported > 100 && e.supported == e.contact, "{e:?}");
+    // (The OBJ round trip stores f32 vertices: 1e-8 m of slack.)
+    assert!(e.min_distance.abs() < 1e-8, "{e:?}");
+    let m = e.stability_margin.unwrap();
+    assert!((m - SIDE / 2.0).abs() < 1e-8, "margin {m}");
+    // ε from the sample spacing: 1024 samples on 0.015 m² -> 3.8 mm, half of it clamped to 2 mm.
+    assert_eq!(r[0].epsilon, 0.002);
+}
+
+#[test]
+fn cube_lifted_1cm_floats_and_sunk_1cm_intersects() {
+    let d = assets();
+    let up = check(d.path(), &[object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0 + 0.01), false)]);
+    let e = &up[0].evaluation;
+    assert_eq!(e.verdict, Verdict::Floating, "{e:?}");
+    assert_eq!((e.intersecting, e.contact, e.supported), (0, 0, 0));
+    assert!((e.min_distance - 0.01).abs() < 1e-8);
+    assert_eq!(e.stability_margin, None);
+    let down = check(d.path(), &[object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0 - 0.01), false)]);
+    let e = &down[0].evaluation;
+    assert_eq!(e.verdict, Verdict::Intersecting, "{e:?}");
+    assert!(e.intersecting > 150, "{e:?}");
+    assert!((e.min_distance + 0.01).abs() < 1e-8);
+}
+
+#[test]
+fn cube_tilted_30_degrees_onto_an_edge_has_contacts_but_is_unstable() {
+    let d = assets();
+    let r = axis_angle(DVec3::Y, 30f64.to_radians());
+    // Lowest corner height of the rotated cube, put exactly on the plane.
+    let low = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)).vertices.iter().map(|v| (r * *v).z).fold(f64::INFINITY, f64::min);
+    let res = check(d.path(), &[object("cube", "cube.obj", r, DVec3::new(0.0, 0.0, -low), false)]);
+    let e = &res[0].evaluation;
+    assert_eq!(e.verdict, Verdict::Unstable, "{e:?}");
+    assert!(e.contact >= 5 && e.supported == e.contact && e.intersecting == 0, "{e:?}");
+    // The resting edge is a (cos 30° - sin 30°) = 9.15 mm beside the centre of mass. Samples
+    // within ε above the plane reach ε / tan 30° up the lower face towards it, so the margin
+    // lies between -9.15 mm and -9.15 mm + ε / tan 30°.
+    let edge_x = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)).vertices.iter().map(|v| r * *v).fold(DVec3::INFINITY, |m, v| if v.z < m.z { v } else { m }).x;
+    let m = e.stability_margin.unwrap();
+    let eps = res[0].epsilon;
+    assert!(m >= -edge_x.abs() - 1e-8 && m <= -edge_x.abs() + eps / 30f64.to_radians().tan(), "margin {m} vs {}", -edge_x.abs());
+}
+
+#[test]
+fn box_on_a_box_centred_is_stable_and_shifted_past_the_edge_is_not() {
+    let d = assets();
+    let slab = object("slab", "slab.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, 0.02), false);
+    let on = |x: f64| object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(x, 0.0, 0.04 + SIDE / 2.0), false);
+    let centred = check(d.path(), &[slab.clone(), on(0.0)]);
+    assert_eq!(centred[0].evaluation.verdict, Verdict::Plausible, "{:?}", centred[0].evaluation);
+    let e = &centred[1].evaluation;
+    assert_eq!(e.verdict, Verdict::Plausible, "{e:?}");
+    assert!((e.stability_margin.unwrap() - SIDE / 2.0).abs() < 2e-3, "{e:?}");
+    // The slab's top-face contacts touch the cube's bottom (normal down): not support.
+    let s = &centred[0].evaluation;
+    assert!(s.contact > s.supported, "{s:?}");
+    // Shifted so the centre of mass is 1 cm past the slab's edge (x = 0.05).
+    let shifted = check(d.path(), &[slab, on(0.06)]);
+    let e = &shifted[1].evaluation;
+    assert_eq!(e.verdict, Verdict::Unstable, "{e:?}");
+    // The support polygon is the hull of random samples: it falls short of
+    // the true contact region by up to about one sample spacing (3.8 mm).
+    let m = e.stability_margin.unwrap();
+    assert!(m < -0.01 + 1e-8 && m > -0.01 - 0.004, "margin {m}");
+}
+
+#[test]
+fn interpenetrating_objects_are_intersecting() {
+    let d = assets();
+    let a = object("a", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0), false);
+    let b = object("b", "cube.obj", axis_angle(DVec3::Z, 0.3), DVec3::new(0.03, 0.0, SIDE / 2.0), false);
+    let r = check(d.path(), &[a, b]);
+    for o in &r {
+        assert_eq!(o.evaluation.verdict, Verdict::Intersecting, "{}: {:?}", o.name, o.evaluation);
+        assert!(o.evaluation.min_distance < -0.005);
+    }
+}
+
+#[test]
+fn camera_frame_scene_matches_the_world_frame() {
+    let d = assets();
+    // Camera 0.6 m above the plane looking down at 45 degrees.
+    let cam_from_world = plausible::pose::Pose::new(
+        axis_angle(DVec3::X, 3.0 * std::f64::consts::FRAC_PI_4),
+        DVec3::new(0.0, 0.1, 0.6),
+    );
+    let cube_world = plausible::pose::Pose::new(axis_angle(DVec3::Z, 0.4), DVec3::new(0.02, 0.01, SIDE / 2.0));
+    let c = cam_from_world.compose(&cube_world);
+    let n = cam_from_world.r * DVec3::Z;
+    let p = cam_from_world.t * 1000.0;
+    let text = format!(
+        r#"{{"frame": "camera", "planes": [{{"point": [{}, {}, {}], "normal": [{}, {}, {}]}}],
+            "objects": [{{"mesh": "cube.obj", "units": "m", "cam_R_m2c": {}, "cam_t_m2c": [{}, {}, {}]}}]}}"#,
+        p.x, p.y, p.z, -n.x, -n.y, -n.z, rows(c.r), c.t.x * 1000.0, c.t.y * 1000.0, c.t.z * 1000.0
+    );
+    let s = Scene::from_json(&text, d.path(), Path::new("camera.json")).unwrap();
+    assert_eq!(s.objects[0].name, "cube");
+    let r = check_scene(&s, &CheckOptions::default()).unwrap();
+    let e = &r[0].evaluation;
+    assert_eq!(e.verdict, Verdict::Plausible, "{e:?}");
+    assert!((e.stability_margin.unwrap() - SIDE / 2.0).abs() < 1e-6, "{e:?}");
+}
+
+fn load_err(dir: &Path, text: &str) -> String {
+    Scene::from_json(text, dir, Path::new("bad.json")).unwrap_err().to_string()
+}
+
+#[test]
+fn bad_inputs_each_get_their_error() {
+    let d = assets();
+    let p = d.path();
+    let obj = |r: &str, t: &str, mesh: &str| format!(r#"{{"objects": [{{"mesh": "{mesh}", "R": {r}, "t": {t}}}]}}"#);
+    let id = "[1,0,0,0,1,0,0,0,1]";
+    let e = load_err(p, &obj(id, "[0,0,0]", "missing.obj"));
+    assert!(e.contains("mesh 'missing.obj' not found"), "{e}");
+    let e = load_err(p, &obj(id, "[0,NaN,0]", "cube.obj"));
+    assert!(e.contains("every number must be finite"), "{e}");
+    let e = load_err(p, &obj("[1,0,0,0,1,0,0,0.5,1]", "[0,0,0]", "cube.obj"));
+    assert!(e.contains("not orthonormal"), "{e}");
+    let e = load_err(p, &obj("[1,0,0,0,1,0,0,0,-1]", "[0,0,0]", "cube.obj"));
+    assert!(e.contains("determinant"), "{e}");
+    let e = load_err(p, r#"{"planes": [{"point": [0,0,0], "normal": [0,0,0]}], "objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#);
+    assert!(e.contains("plane 0: normal has zero length"), "{e}");
+    let e = load_err(p, &obj(id, "[0,0]", "cube.obj"));
+    assert!(e.contains("t must have 3 numbers"), "{e}");
+    let e = load_err(p, r#"{"objects": []}"#);
+    assert!(e.contains("no objects"), "{e}");
+    let e = load_err(p, r#"{"objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0], "colour": 1}]}"#);
+    assert!(e.contains("unknown field"), "{e}");
+    let e = load_err(p, r#"{"gravity": [0,0,0], "objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#);
+    assert!(e.contains("gravity has zero length"), "{e}");
+}
+
