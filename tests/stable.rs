@@ -605,6 +605,42 @@ fn bad_inputs_give_clear_errors_or_warnings() {
         "volume {}",
         m.volume
     );
+    // An open mesh (a box without its top): warning, hull fallback for the mass.
+    let open = tmp("open_box.obj");
+    let mut obj = String::new();
+    let c = shapes::cuboid(DVec3::new(0.03, 0.04, 0.05));
+    for v in &c.vertices {
+        obj.push_str(&format!("v {} {} {}\n", v.x, v.y, v.z));
+    }
+    for t in c
+        .triangles
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !(2..4).contains(i))
+        .map(|(_, t)| t)
+    {
+        obj.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    std::fs::write(&open, obj).unwrap();
+    let open_db = tmp("open.sqlite");
+    let out = Command::new(bin)
+        .args(["stable-poses"])
+        .arg(&open)
+        .args(["--drops", "12", "--db"])
+        .arg(&open_db)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.contains("not closed"),
+        "{stderr}"
+    );
+    let m = &Db::open_existing(&open_db).unwrap().meshes().unwrap()[0];
+    assert_eq!(m.mass_source, "convex_hull_fallback");
+    assert!(
+        !m.closed && (m.volume - 0.06 * 0.08 * 0.1).abs() < 1e-7,
+        "{m:?}"
+    );
     // Bad CLI values.
     let out = Command::new(bin)
         .args(["stable-poses"])

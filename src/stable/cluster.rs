@@ -191,8 +191,9 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
         }
         groups = keep;
     }
-    // Ball-like objects: most settled drops in many tiny clusters.
-    let small = |g: &Group| (g.members.len() as f64) < (0.02 * n as f64).max(2.0);
+    // Ball-like objects: most settled drops in many small clusters (each
+    // under 5 % of the drops, at least 20 of them).
+    let small = |g: &Group| (g.members.len() as f64) < (0.05 * n as f64).max(2.0);
     let small_groups: Vec<usize> = (0..groups.len()).filter(|&g| small(&groups[g])).collect();
     let small_drops: usize = small_groups.iter().map(|&g| groups[g].members.len()).sum();
     if small_groups.len() >= 20 && small_drops as f64 >= 0.5 * n as f64 {
@@ -455,6 +456,23 @@ mod tests {
         assert!(a
             .iter()
             .all(|c| c.count == 30 && c.kind == ClusterKind::Pose));
+    }
+
+    #[test]
+    fn directions_all_over_the_sphere_become_one_scattered_family() {
+        // Fibonacci sphere: 400 well-spread directions.
+        let n = 400;
+        let drops: Vec<DropResult> = (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let phi = i as f64 * 2.399963229728653;
+                let r = (1.0 - z * z).sqrt();
+                drop_with(i, DVec3::new(r * phi.cos(), r * phi.sin(), z))
+            })
+            .collect();
+        let c = cluster(&drops, ClusterParams::default());
+        assert_eq!(c[0].kind, ClusterKind::Scattered, "{:?}", c[0]);
+        assert!(c[0].count as f64 >= 0.9 * n as f64, "{}", c[0].count);
     }
 
     #[test]
