@@ -115,7 +115,8 @@ pub struct RasterParams {
     pub near: f32,
     /// Observed pixels of the whole region (score kernel).
     pub n_obs: u32,
-    pub _pad: u32,
+    /// First hypothesis of this dispatch's wave.
+    pub first: u32,
 }
 const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
 
@@ -165,6 +166,7 @@ pub fn shader_sources() -> Vec<(&'static str, String)> {
     vec![
         ("render", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"))),
         ("score", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"))),
+        ("contacts", crate::physical::gpu::CONTACTS_WGSL.to_string()),
     ]
 }
 

@@ -20,6 +20,7 @@
 
 pub mod check;
 pub mod contacts;
+pub mod gpu;
 pub mod samples;
 pub mod scene;
 pub mod sdf;

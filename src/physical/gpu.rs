@@ -1,0 +1,376 @@
+//! GPU dispatch of the `contacts` kernel (`shaders/contacts.wgsl`): N poses
+//! of one body × its M samples × the environment (planes and grids), one
+//! 16-byte record and M bits per pose read back. The support polygon is
+//! finished on the CPU from the supported-sample bits (a hull of a few
+//! hundred 2D points per pose, in parallel): exact for the GPU's
+//! classification, and cheaper than shipping the points back.
+//!
+//! The GPU uses the trilinear grid values, so δ of a sample near another
+//! object differs from the exact value by at most the grid's error bound
+//! ([`super::sdf::SdfGrid::error_bound`]); plane distances agree to f32
+//! rounding. Samples whose class those values cannot decide (a grid value
+//! within the bound of ±ε, or a grid contact near an edge of the other
+//! object, where interpolated normals blend faces) are flagged by the kernel
+//! and refined exactly on the CPU in [`GpuContacts::finish`], so the
+//! verdicts match the CPU twin's.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use bytemuck::{Pod, Zeroable};
+use rayon::prelude::*;
+use wgpu::util::DeviceExt;
+
+use super::contacts::{classify, finish, Body, Environment, Evaluation, SampleClass, SUPPORT_COS};
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::kernels::GpuPose;
+use crate::pose::Pose;
+
+/// The WGSL source of the kernel.
+pub const CONTACTS_WGSL: &str = include_str!("../../shaders/contacts.wgsl");
+
+/// Most planes the kernel takes (they live in the uniform block).
+pub const MAX_PLANES: usize = 4;
+
+/// Invocations per workgroup (`WG` in the shader; checked by a test).
+#[cfg(test)]
+const WG: u32 = 32;
+
+/// Uniform parameters (`Params` in the shader).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ContactParams {
+    pub n_hyp: u32,
+    pub n_samples: u32,
+    pub n_planes: u32,
+    pub n_grids: u32,
+    pub eps: f32,
+    pub support_cos: f32,
+    pub write_deltas: u32,
+    pub words: u32,
+    pub gravity: [f32; 4],
+    pub planes: [[f32; 4]; MAX_PLANES],
+}
+const _: () = assert!(std::mem::size_of::<ContactParams>() == 112);
+
+/// One placed grid (`Grid` in the shader).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuGrid {
+    pub inv: [[f32; 4]; 3],
+    pub origin: [f32; 4],
+    pub upper: [f32; 4],
+    pub dims: [u32; 4],
+}
+const _: () = assert!(std::mem::size_of::<GpuGrid>() == 96);
+
+/// Per-hypothesis result (`Record` in the shader).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ContactRecord {
+    pub intersecting: u32,
+    pub contact: u32,
+    pub supported: u32,
+    pub min_delta: f32,
+}
+const _: () = assert!(std::mem::size_of::<ContactRecord>() == 16);
+
+/// What one run returns.
+#[derive(Clone, Debug, Default)]
+pub struct ContactOutput {
+    pub records: Vec<ContactRecord>,
+    /// `2 · words` u32 per pose: first the supported bits (bit `j % 32` of
+    /// word `j / 32` = sample j supported), then the refine bits (sample j
+    /// left to the CPU: not counted in the record).
+    pub bits: Vec<u32>,
+    /// δ per pose and sample (pose-major), when asked for.
+    pub deltas: Vec<f32>,
+    /// Wall time of upload + dispatch until the GPU finished.
+    pub compute: Duration,
+    /// Wall time of the readback.
+    pub readback: Duration,
+}
+
+/// The contacts kernel for one body against one environment; reuse it for
+/// many batches of poses.
+pub struct GpuContacts {
+    ctx: Context,
+    body: Body,
+    env: Environment,
+    params: ContactParams,
+    pipeline: Arc<wgpu::ComputePipeline>,
+    samples: wgpu::Buffer,
+    grids: wgpu::Buffer,
+    nodes: wgpu::Buffer,
+    params_buf: wgpu::Buffer,
+    poses: wgpu::Buffer,
+    records: wgpu::Buffer,
+    bits: wgpu::Buffer,
+    deltas: wgpu::Buffer,
+    chunk: usize,
+    with_deltas: bool,
+}
+
+fn storage(ctx: &Context, label: &str, size: u64, extra: wgpu::BufferUsages) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size.max(16),
+        usage: wgpu::BufferUsages::STORAGE | extra,
+        mapped_at_creation: false,
+    })
+}
+
+impl GpuContacts {
+    /// Uploads the body's samples and the environment. At most `max_chunk`
+    /// poses go in one dispatch (fewer where the adapter's limits say so);
+    /// `with_deltas` also returns δ of every sample (for tests: N·M floats).
+    pub fn new(ctx: &Context, body: &Body, env: &Environment, max_chunk: usize, with_deltas: bool) -> Result<Self> {
+        if env.planes.len() > MAX_PLANES {
+            return Err(Error::InvalidInput(format!(
+                "the GPU contacts kernel takes at most {MAX_PLANES} planes, the scene has {}",
+                env.planes.len()
+            )));
+        }
+        env.check_epsilon(body.epsilon)?;
+        let m = body.samples.len();
+        if m == 0 {
+            return Err(Error::InvalidInput("the body has no surface samples".into()));
+        }
+        let words = m.div_ceil(32);
+        let g = env.gravity.normalize();
+        let mut planes = [[0.0f32; 4]; MAX_PLANES];
+        for (i, p) in env.planes.iter().enumerate() {
+            planes[i] = [p.normal.x as f32, p.normal.y as f32, p.normal.z as f32, p.normal.dot(p.point) as f32];
+        }
+        // Grids: each distinct grid's nodes once, one descriptor per placement.
+        let mut node_data: Vec<[f32; 4]> = Vec::new();
+        let mut offsets: Vec<(*const super::sdf::SdfGrid, u32)> = Vec::new();
+        let mut descs = Vec::new();
+        for o in &env.obstacles {
+            let key = Arc::as_ptr(&o.sdf);
+            let offset = match offsets.iter().find(|(k, _)| *k == key) {
+                Some((_, off)) => *off,
+                None => {
+                    let off = node_data.len() as u32;
+                    node_data.extend_from_slice(&o.sdf.nodes);
+                    offsets.push((key, off));
+                    off
+                }
+            };
+            let inv = o.pose.inverse();
+            let gp = GpuPose::from(&inv);
+            let s = &o.sdf;
+            let up = s.upper();
+            descs.push(GpuGrid {
+                inv: gp.rows,
+                origin: [s.origin.x as f32, s.origin.y as f32, s.origin.z as f32, s.h as f32],
+                upper: [up.x as f32, up.y as f32, up.z as f32, s.margin as f32],
+                dims: [s.dims[0] as u32, s.dims[1] as u32, s.dims[2] as u32, offset],
+            });
+        }
+        if (node_data.len() as u64) * 16 > ctx.limits.max_items(1) {
+            return Err(Error::Gpu(format!(
+                "the signed-distance grids need {} MiB, more than one storage binding holds on this adapter; lower the SDF resolution",
+                node_data.len() * 16 >> 20
+            )));
+        }
+        // Chunk: poses per dispatch within the binding limits.
+        let per_pose = if with_deltas { (m * 4) as u64 } else { (words * 8) as u64 };
+        let chunk = (ctx.limits.max_items(per_pose).min(ctx.limits.max_items(48)) as usize)
+            .min(max_chunk.max(1))
+            .min(ctx.limits.max_workgroups as usize * 64);
+        if chunk == 0 {
+            return Err(Error::Gpu("one pose's output does not fit a storage binding".into()));
+        }
+        let params = ContactParams {
+            n_hyp: 0,
+            n_samples: m as u32,
+            n_planes: env.planes.len() as u32,
+            n_grids: descs.len() as u32,
+            eps: body.epsilon as f32,
+            support_cos: SUPPORT_COS as f32,
+            write_deltas: with_deltas as u32,
+            words: words as u32,
+            gravity: [g.x as f32, g.y as f32, g.z as f32, env.error_bound() as f32],
+            planes,
+        };
+        let samples: Vec<[f32; 4]> = body.samples.iter().map(|s| [s.x as f32, s.y as f32, s.z as f32, 0.0]).collect();
+        let init = |label: &str, bytes: &[u8]| {
+            ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let dummy_grid = [GpuGrid::zeroed()];
+        let dummy_node = [[0.0f32; 4]];
+        let samples_buf = init("contacts samples", bytemuck::cast_slice(&samples));
+        let grids = init("contacts grids", bytemuck::cast_slice(if descs.is_empty() { &dummy_grid[..] } else { &descs[..] }));
+        let nodes = init("contacts nodes", bytemuck::cast_slice(if node_data.is_empty() { &dummy_node[..] } else { &node_data[..] }));
+        let params_buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("contacts params"),
+            size: std::mem::size_of::<ContactParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let poses = storage(ctx, "contacts poses", (chunk * 48) as u64, wgpu::BufferUsages::COPY_DST);
+        let records = storage(ctx, "contacts records", (chunk * 16) as u64, wgpu::BufferUsages::COPY_SRC);
+        let bits = storage(ctx, "contacts bits", (chunk * words * 8) as u64, wgpu::BufferUsages::COPY_SRC);
+        let deltas = storage(ctx, "contacts deltas", if with_deltas { (chunk * m * 4) as u64 } else { 16 }, wgpu::BufferUsages::COPY_SRC);
+        let pipeline = ctx.pipeline("contacts", CONTACTS_WGSL, "contacts_main");
+        Ok(GpuContacts {
+            ctx: ctx.clone(),
+            body: body.clone(),
+            env: env.clone(),
+            params,
+            pipeline,
+            samples: samples_buf,
+            grids,
+            nodes,
+            params_buf,
+            poses,
+            records,
+            bits,
+            deltas,
+            chunk,
+            with_deltas,
+        })
+    }
+
+    /// Poses per dispatch.
+    pub fn chunk_size(&self) -> usize {
+        self.chunk
+    }
+
+    /// Classifies every sample of every pose; returns the raw records, bits
+    /// (and δ when enabled).
+    pub fn run(&self, poses: &[Pose]) -> Result<ContactOutput> {
+        let mut out = ContactOutput::default();
+        for chunk in poses.chunks(self.chunk) {
+            self.run_chunk(chunk, &mut out)?;
+        }
+        Ok(out)
+    }
+
+    fn run_chunk(&self, chunk: &[Pose], out: &mut ContactOutput) -> Result<()> {
+        let ctx = &self.ctx;
+        let t0 = Instant::now();
+        let n = chunk.len();
+        let mut params = self.params;
+        params.n_hyp = n as u32;
+        let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
+        ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
+        ctx.queue.write_buffer(&self.poses, 0, bytemuck::cast_slice(&gp));
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("contacts"),
+            layout: &self.pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: self.params_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: self.samples.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: self.grids.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: self.nodes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: self.bits.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 7, resource: self.deltas.as_entire_binding() },
+            ],
+        });
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("contacts"), timestamp_writes: None });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups((n as u32).min(self.ctx.limits.max_workgroups), 1, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        ctx.wait()?;
+        out.compute += t0.elapsed();
+        let t1 = Instant::now();
+        let words = self.params.words as usize;
+        let rec = ctx.read_buffer(&self.records, (n * 16) as u64)?;
+        out.records.extend_from_slice(bytemuck::cast_slice(&rec));
+        let bits = ctx.read_buffer(&self.bits, (n * words * 8) as u64)?;
+        out.bits.extend_from_slice(bytemuck::cast_slice(&bits));
+        if self.with_deltas {
+            let d = ctx.read_buffer(&self.deltas, (n * self.body.samples.len() * 4) as u64)?;
+            out.deltas.extend_from_slice(bytemuck::cast_slice(&d));
+        }
+        out.readback += t1.elapsed();
+        Ok(())
+    }
+
+    /// Evaluations of `poses`: the GPU's classification, the support
+    /// polygon finished on the CPU.
+    pub fn evaluate(&self, poses: &[Pose]) -> Result<Vec<Evaluation>> {
+        let out = self.run(poses)?;
+        Ok(self.finish(poses, &out))
+    }
+
+    /// Completes evaluations from a run's output: refines the flagged
+    /// samples exactly and builds the support polygons.
+    pub fn finish(&self, poses: &[Pose], out: &ContactOutput) -> Vec<Evaluation> {
+        let words = self.params.words as usize;
+        let g = self.env.gravity.normalize();
+        let eps = self.body.epsilon;
+        poses
+            .par_iter()
+            .enumerate()
+            .map(|(i, pose)| {
+                let r = out.records[i];
+                let bits = &out.bits[2 * i * words..(2 * i + 1) * words];
+                let refine = &out.bits[(2 * i + 1) * words..(2 * i + 2) * words];
+                let (mut ni, mut nc, mut min) = (r.intersecting, r.contact, r.min_delta as f64);
+                let mut sup = Vec::new();
+                for (j, s) in self.body.samples.iter().enumerate() {
+                    let (w, b) = (j / 32, j % 32);
+                    if bits[w] >> b & 1 == 1 {
+                        sup.push(pose.transform_point(*s));
+                    } else if refine[w] >> b & 1 == 1 {
+                        let x = pose.transform_point(*s);
+                        let d = self.env.refined_distance(x, eps);
+                        min = min.min(d.delta);
+                        match classify(d.delta, d.normal, eps, g) {
+                            SampleClass::Intersecting => ni += 1,
+                            SampleClass::Contact => nc += 1,
+                            SampleClass::Supported => {
+                                nc += 1;
+                                sup.push(x);
+                            }
+                            SampleClass::Free => {}
+                        }
+                    }
+                }
+                finish(ni, nc, min, &sup, pose.transform_point(self.body.com), self.env.gravity).0
+            })
+            .collect()
+    }
+
+    /// Samples flagged for refinement in a run's output (for statistics).
+    pub fn refined_count(&self, out: &ContactOutput) -> usize {
+        let words = self.params.words as usize;
+        out.bits.chunks(2 * words).map(|c| c[words..].iter().map(|w| w.count_ones() as usize).sum::<usize>()).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The WGSL structs have the sizes of the Rust ones (naga's layouter).
+    #[test]
+    fn wgsl_structs_match_rust_sizes() {
+        let module = naga::front::wgsl::parse_str(CONTACTS_WGSL).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let size_of = |name: &str| {
+            let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
+            layouter[h].size as usize
+        };
+        assert_eq!(size_of("Params"), std::mem::size_of::<ContactParams>());
+        assert_eq!(size_of("Grid"), std::mem::size_of::<GpuGrid>());
+        assert_eq!(size_of("Pose"), std::mem::size_of::<GpuPose>());
+        assert_eq!(size_of("Record"), std::mem::size_of::<ContactRecord>());
+        assert!(CONTACTS_WGSL.contains(&format!("const WG: u32 = {WG}u;")));
+    }
+}
