@@ -24,6 +24,8 @@ enum Command {
     Bench(cli::bench::BenchArgs),
     /// Stable resting poses: drop tests, clustering, analytic cross-check, SQLite database.
     StablePoses(cli::stable::StableArgs),
+    /// Physical plausibility of a scene: intersecting, floating, unstable (eq. 6-13).
+    Check(cli::check::CheckArgs),
 }
 
 fn main() {
@@ -46,6 +48,7 @@ fn main() {
         Command::Demo(a) => cli::demo::run(a, cli.verbose),
         Command::Bench(a) => cli::bench::run(a, cli.verbose),
         Command::StablePoses(a) => cli::stable::stable_poses(a),
+        Command::Check(a) => cli::check::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -286,3 +286,30 @@ mod gpu {
         assert!(worst <= bound, "{worst} > {bound}");
     }
 }
+
+#[test]
+fn check_cli_reports_every_verdict_of_the_shipped_stack() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/stack.json");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(["check", scene, "--json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let objects = v["objects"].as_array().unwrap();
+    let verdict = |name: &str| objects.iter().find(|o| o["name"] == name).unwrap()["verdict"].as_str().unwrap().to_string();
+    assert_eq!(verdict("slab"), "plausible");
+    assert_eq!(verdict("cube_on_slab"), "plausible");
+    assert_eq!(verdict("cube_overhanging"), "unstable");
+    assert_eq!(verdict("cube_floating"), "floating");
+    assert_eq!(verdict("cube_sunk"), "intersecting");
+    let on = objects.iter().find(|o| o["name"] == "cube_on_slab").unwrap();
+    assert!((on["stability_margin"].as_f64().unwrap() - 0.025).abs() < 1e-6);
+    for key in ["intersecting", "contact", "supported", "min_distance", "stability_margin"] {
+        assert!(on.get(key).is_some(), "{key} missing");
+    }
+    // A bad scene: non-zero exit and the reason on stderr.
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.json");
+    std::fs::write(&bad, r#"{"planes": [{"point": [0,0,0], "normal": [0,0,0]}], "objects": [{"mesh": "x.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(["check", bad.to_str().unwrap()]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("normal has zero length"));
+}

@@ -2,6 +2,7 @@
 //! library).
 
 pub mod bench;
+pub mod check;
 pub mod demo;
 pub mod score;
 pub mod stable;
