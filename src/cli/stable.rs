@@ -170,13 +170,13 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.drops == 0 {
         bail!("--drops must be at least 1");
     }
-    if !(args.cluster_deg > 0.0 && args.cluster_deg < 90.0) {
+    if !(0.0..90.0).contains(&args.cluster_deg) || args.cluster_deg == 0.0 {
         bail!("--cluster-deg must be between 0 and 90 degrees");
     }
-    if !(args.max_time > 0.0) {
+    if !args.max_time.is_finite() || args.max_time <= 0.0 {
         bail!("--max-time must be positive");
     }
-    if !(args.step_hz >= 10.0 && args.step_hz <= 10_000.0) {
+    if !(10.0..=10_000.0).contains(&args.step_hz) {
         bail!("--step-hz must be between 10 and 10000");
     }
     let mut db = Db::open(&db_path)?;
@@ -324,7 +324,7 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
         )?;
         writeln!(
             out,
-            "  {:>3}  {:<9} {:>7}  {:>17}  {:>5}  {:<27} {:>9}   {}",
+            "  {:>3}  {:<9} {:>7}  {:>17}  {:>5}  {:<27} {:>9}   analytic match (angle, p_drop - p_analytic)",
             "#",
             "kind",
             "p",
@@ -332,7 +332,6 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
             "count",
             "gravity in model",
             "height m",
-            "analytic match (angle, p_drop - p_analytic)"
         )?;
         for (i, (c, m)) in clusters.iter().zip(&matches).enumerate() {
             let kind = match &c.kind {

@@ -77,7 +77,7 @@ struct Facet {
 /// Runs the analysis on `hull` with the centre of mass `com`.
 pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<Analytic> {
     let diag = hull.diagonal();
-    if !(diag > 0.0) || !com.is_finite() {
+    if !diag.is_finite() || diag <= 0.0 || !com.is_finite() {
         return Err(Error::InvalidInput(
             "quasi-static analysis: degenerate hull or centre of mass".into(),
         ));

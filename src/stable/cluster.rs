@@ -165,10 +165,7 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
 
     let mut out = Vec::new();
     // Rolling families on great circles.
-    loop {
-        let Some((axis, member_groups)) = find_circle(&groups, &dirs, params) else {
-            break;
-        };
+    while let Some((axis, member_groups)) = find_circle(&groups, &dirs, params) {
         let mut members: Vec<usize> = member_groups
             .iter()
             .flat_map(|&g| groups[g].members.iter().copied())
@@ -343,7 +340,7 @@ fn smallest_eigenvector(m: DMat3) -> Option<DVec3> {
     for _ in 0..200 {
         let w = shifted * v;
         let l = w.length();
-        if !(l > 0.0) {
+        if !l.is_finite() || l <= 0.0 {
             return None;
         }
         v = w / l;

@@ -590,14 +590,13 @@ impl Db {
                 .conn
                 .prepare(&format!("SELECT * FROM {table} ORDER BY {order}"))
                 .map_err(|e| self.e(e))?;
-            let ncol = st.column_count();
             let names: Vec<String> = st.column_names().iter().map(|s| s.to_string()).collect();
             let mut rows = st.query([]).map_err(|e| self.e(e))?;
             out.push_str(&format!("[{table}]\n"));
             while let Some(r) = rows.next().map_err(|e| self.e(e))? {
-                for c in 0..ncol {
+                for (c, name) in names.iter().enumerate() {
                     // Run ids are local row ids; runs are identified by their keys.
-                    if names[c] == "id" || names[c] == "run_id" {
+                    if name == "id" || name == "run_id" {
                         continue;
                     }
                     let v: rusqlite::types::Value = r.get(c).map_err(|e| self.e(e))?;
