@@ -4,10 +4,14 @@
 // CPU twin: src/physical/contacts.rs (Environment::grid_distance is this
 // arithmetic in f64; the twin also refines near ±ε exactly).
 //
-// One workgroup per hypothesis (grid-stride over hypotheses); each
-// invocation takes 32 consecutive samples, so the supported set leaves the
-// GPU as one bit per sample (the support polygon is finished on the CPU from
-// those bits). Per hypothesis: |I|, |C|, |S| and min δ in a 16-byte record.
+// One invocation per hypothesis (grid-stride): the invocations of a
+// workgroup walk the same samples in lockstep, so sample loads and loop
+// control are uniform and nothing needs a barrier or a workgroup reduction
+// (on lavapipe, where a workgroup is a loop over SIMD lanes, this is several
+// times faster than one workgroup per hypothesis). The supported set leaves
+// the GPU as one bit per sample (the support polygon is finished on the CPU
+// from those bits). Per hypothesis: |I|, |C|, |S| and min δ in a 16-byte
+// record.
 //
 // Samples whose class the trilinear values cannot decide are flagged for
 // exact refinement (a second bit set) and left out of the record: a grid
@@ -15,22 +19,15 @@
 // normal is not clearly facing up (near edges the interpolated normal blends
 // faces, so whether the point is supported is refined exactly).
 
-const WG: u32 = 32u;
+const WG: u32 = 64u;
+// Specialised per pipeline (the dispatch code sets them), so the loops over
+// the scene unroll and unused paths disappear.
+override N_PLANES: u32 = 1u;
+override N_GRIDS: u32 = 0u;
+override WRITE_DELTAS: bool = false;
 // A grid contact whose normal has n·ĝ above this (more than ~8° from
 // straight up) is refined exactly.
 const REFINE_COS: f32 = -0.99;
-
-struct Params {
-    n_hyp: u32, n_samples: u32, n_planes: u32, n_grids: u32,
-    eps: f32, support_cos: f32, write_deltas: u32, words: u32,
-    // Unit gravity direction (xyz), largest grid error bound (w).
-    gravity: vec4<f32>,
-    // Up to 4 planes: unit normal (xyz), offset (w): δ = n·x − w.
-    planes: array<vec4<f32>, 4>,
-}
-
-// Model -> world rows [R | t].
-struct Pose { rows: array<vec4<f32>, 3> }
 
 struct Grid {
     // World -> grid-model rows [Rᵀ | −Rᵀt] (row i of Rᵀ is column i of R).
@@ -43,94 +40,148 @@ struct Grid {
     dims: vec4<u32>,
 }
 
+struct Params {
+    n_hyp: u32, n_samples: u32, n_planes: u32, n_grids: u32,
+    eps: f32, support_cos: f32, write_deltas: u32, words: u32,
+    // Unit gravity direction (xyz), largest grid error bound (w).
+    gravity: vec4<f32>,
+    // Up to 4 planes: unit normal (xyz), offset (w): δ = n·x − w.
+    planes: array<vec4<f32>, 4>,
+    // Up to 16 placed grids (in the uniform block: read for every sample,
+    // and uniform loads are the cheapest kind on every adapter).
+    grids: array<Grid, 16>,
+}
+
+// Model -> world rows [R | t].
+struct Pose { rows: array<vec4<f32>, 3> }
+
+
 struct Record { intersecting: u32, contact: u32, supported: u32, min_delta: f32 }
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> samples: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> poses: array<Pose>;
-@group(0) @binding(3) var<storage, read> grids: array<Grid>;
-// Per node: closest-surface normal (xyz), signed distance (w).
-@group(0) @binding(4) var<storage, read> nodes: array<vec4<f32>>;
+// Per node: signed distance (the normals stay on the CPU; the GPU takes
+// them from the interpolant's gradient).
+@group(0) @binding(4) var<storage, read> dist: array<f32>;
 @group(0) @binding(5) var<storage, read_write> records: array<Record>;
 @group(0) @binding(6) var<storage, read_write> support_bits: array<u32>;
 @group(0) @binding(7) var<storage, read_write> deltas: array<f32>;
-
-var<workgroup> s_cnt: array<vec4<u32>, WG>;
-var<workgroup> s_min: array<f32, WG>;
 
 fn apply(r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32>, x: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(r0.xyz, x) + r0.w, dot(r1.xyz, x) + r1.w, dot(r2.xyz, x) + r2.w);
 }
 
-// Normal (xyz, world, unit or zero) and δ (w) of grid k at world point x.
-// Outside the grid box: the lower bound |to box| + margin, no normal.
-fn grid_query(k: u32, x: vec3<f32>) -> vec4<f32> {
-    let g = grids[k];
-    let q = apply(g.inv[0], g.inv[1], g.inv[2], x);
-    let out = max(max(g.origin.xyz - q, q - g.upper.xyz), vec3<f32>(0.0));
+// Grid k at world point x (q: model-frame point): the trilinear δ.
+// Outside the grid box: the lower bound |to box| + margin.
+fn grid_query(k: u32, q: vec3<f32>) -> f32 {
+    let o = params.grids[k].origin;
+    let up = params.grids[k].upper;
+    let out = max(max(o.xyz - q, q - up.xyz), vec3<f32>(0.0));
     if (any(out > vec3<f32>(0.0))) {
-        return vec4<f32>(0.0, 0.0, 0.0, length(out) + g.upper.w);
+        return length(out) + up.w;
     }
-    let u = (q - g.origin.xyz) / g.origin.w;
-    let i0 = min(vec3<u32>(floor(u)), g.dims.xyz - vec3<u32>(2u));
+    let dims = params.grids[k].dims;
+    let u = (q - o.xyz) / o.w;
+    let i0 = min(vec3<u32>(floor(u)), dims.xyz - vec3<u32>(2u));
     let f = u - vec3<f32>(i0);
-    let sy = g.dims.x;
-    let sz = g.dims.x * g.dims.y;
-    let b = g.dims.w + i0.x + sy * i0.y + sz * i0.z;
-    let c00 = mix(nodes[b], nodes[b + 1u], f.x);
-    let c10 = mix(nodes[b + sy], nodes[b + sy + 1u], f.x);
-    let c01 = mix(nodes[b + sz], nodes[b + sz + 1u], f.x);
-    let c11 = mix(nodes[b + sz + sy], nodes[b + sz + sy + 1u], f.x);
-    let v = mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
-    var nw = vec3<f32>(0.0);
-    let len = length(v.xyz);
-    if (len > 0.0) {
-        let n = v.xyz / len;
-        nw = n.x * g.inv[0].xyz + n.y * g.inv[1].xyz + n.z * g.inv[2].xyz;
+    let sy = dims.x;
+    let sz = dims.x * dims.y;
+    let b = dims.w + i0.x + sy * i0.y + sz * i0.z;
+    let c00 = mix(dist[b], dist[b + 1u], f.x);
+    let c10 = mix(dist[b + sy], dist[b + sy + 1u], f.x);
+    let c01 = mix(dist[b + sz], dist[b + sz + 1u], f.x);
+    let c11 = mix(dist[b + sz + sy], dist[b + sz + sy + 1u], f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+// The closest-surface normal of grid k at model point q (inside the grid
+// box), in the world frame: the normalised gradient of the trilinear
+// interpolant (zero outside the box). Only contacts need it.
+fn grid_normal(k: u32, q: vec3<f32>) -> vec3<f32> {
+    let o = params.grids[k].origin;
+    let up = params.grids[k].upper;
+    if (any(q < o.xyz) || any(q > up.xyz)) {
+        return vec3<f32>(0.0);
     }
-    return vec4<f32>(nw, v.w);
+    let dims = params.grids[k].dims;
+    let u = (q - o.xyz) / o.w;
+    let i0 = min(vec3<u32>(floor(u)), dims.xyz - vec3<u32>(2u));
+    let f = u - vec3<f32>(i0);
+    let sy = dims.x;
+    let sz = dims.x * dims.y;
+    let b = dims.w + i0.x + sy * i0.y + sz * i0.z;
+    let c000 = dist[b];
+    let c100 = dist[b + 1u];
+    let c010 = dist[b + sy];
+    let c110 = dist[b + sy + 1u];
+    let c001 = dist[b + sz];
+    let c101 = dist[b + sz + 1u];
+    let c011 = dist[b + sz + sy];
+    let c111 = dist[b + sz + sy + 1u];
+    let gx = mix(mix(c100 - c000, c110 - c010, f.y), mix(c101 - c001, c111 - c011, f.y), f.z);
+    let gy = mix(mix(c010 - c000, c110 - c100, f.x), mix(c011 - c001, c111 - c101, f.x), f.z);
+    let gz = mix(mix(c001 - c000, c101 - c100, f.x), mix(c011 - c010, c111 - c110, f.x), f.y);
+    let n = vec3<f32>(gx, gy, gz);
+    let len = length(n);
+    if (len <= 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let m = n / len;
+    return m.x * params.grids[k].inv[0].xyz + m.y * params.grids[k].inv[1].xyz + m.z * params.grids[k].inv[2].xyz;
 }
 
 @compute @workgroup_size(WG)
 fn contacts_main(
-    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(global_invocation_id) gid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
 ) {
     let g = params.gravity.xyz;
     let eps = params.eps;
     let bound = params.gravity.w;
-    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
+    for (var h = gid.x; h < params.n_hyp; h += nwg.x * WG) {
         let p = poses[h];
-        var cnt = vec4<u32>(0u);
+        var cnt = vec3<u32>(0u);
         var mn = 3.0e38;
-        for (var w = lid; w < params.words; w += WG) {
+        for (var w = 0u; w < params.words; w += 1u) {
             var bits = 0u;
             var rbits = 0u;
             let j0 = w * 32u;
             let j1 = min(j0 + 32u, params.n_samples);
             for (var j = j0; j < j1; j += 1u) {
                 let x = apply(p.rows[0], p.rows[1], p.rows[2], samples[j].xyz);
-                var best = vec4<f32>(0.0, 0.0, 0.0, 3.0e38);
+                // Closest component: its δ and world unit normal (grids:
+                // computed only for candidates in the contact band).
+                var d = 3.0e38;
+                var n = vec3<f32>(0.0);
                 var refine = false;
-                for (var k = 0u; k < params.n_planes; k += 1u) {
+                for (var k = 0u; k < N_PLANES; k += 1u) {
                     let pl = params.planes[k];
-                    let d = dot(pl.xyz, x) - pl.w;
-                    if (d < best.w) {
-                        best = vec4<f32>(pl.xyz, d);
+                    let dk = dot(pl.xyz, x) - pl.w;
+                    if (dk < d) {
+                        d = dk;
+                        n = pl.xyz;
                     }
                 }
-                for (var k = 0u; k < params.n_grids; k += 1u) {
-                    let c = grid_query(k, x);
-                    if (abs(c.w) < eps + bound && (abs(abs(c.w) - eps) <= bound || dot(c.xyz, g) > REFINE_COS)) {
-                        refine = true;
-                    }
-                    if (c.w < best.w) {
-                        best = c;
+                for (var k = 0u; k < N_GRIDS; k += 1u) {
+                    let q = apply(params.grids[k].inv[0], params.grids[k].inv[1], params.grids[k].inv[2], x);
+                    let c = grid_query(k, q);
+                    if (abs(c) < eps + bound) {
+                        // Only candidates in the contact band need a normal.
+                        let nk = grid_normal(k, q);
+                        if (abs(abs(c) - eps) <= bound || dot(nk, g) > REFINE_COS) {
+                            refine = true;
+                        }
+                        if (c < d) {
+                            d = c;
+                            n = nk;
+                        }
+                    } else if (c < d) {
+                        d = c;
+                        n = vec3<f32>(0.0);
                     }
                 }
-                let d = best.w;
-                if (params.write_deltas != 0u) {
+                if (WRITE_DELTAS) {
                     deltas[h * params.n_samples + j] = d;
                 }
                 if (refine) {
@@ -142,7 +193,7 @@ fn contacts_main(
                     cnt.x += 1u;
                 } else if (abs(d) < eps) {
                     cnt.y += 1u;
-                    if (dot(best.xyz, g) < -params.support_cos) {
+                    if (dot(n, g) < -params.support_cos) {
                         cnt.z += 1u;
                         bits |= 1u << (j - j0);
                     }
@@ -151,19 +202,6 @@ fn contacts_main(
             support_bits[2u * h * params.words + w] = bits;
             support_bits[(2u * h + 1u) * params.words + w] = rbits;
         }
-        s_cnt[lid] = cnt;
-        s_min[lid] = mn;
-        workgroupBarrier();
-        for (var s = WG / 2u; s > 0u; s >>= 1u) {
-            if (lid < s) {
-                s_cnt[lid] += s_cnt[lid + s];
-                s_min[lid] = min(s_min[lid], s_min[lid + s]);
-            }
-            workgroupBarrier();
-        }
-        if (lid == 0u) {
-            records[h] = Record(s_cnt[0].x, s_cnt[0].y, s_cnt[0].z, s_min[0]);
-        }
-        workgroupBarrier();
+        records[h] = Record(cnt.x, cnt.y, cnt.z, mn);
     }
 }

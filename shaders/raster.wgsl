@@ -1,8 +1,10 @@
 // Compute-shader rasterizer shared by the visual kernels (render, score).
 //
-// One workgroup owns one hypothesis at a time and a private "slot" of the
-// visibility buffer (one u32 per pixel). Its invocations stride over the
-// triangles; each covered pixel gets atomicMax of the key
+// One workgroup owns one hypothesis and a private "slot" of the visibility
+// buffer (one u32 per pixel); a dispatch runs one wave of hypotheses, one
+// per slot (a workgroup never loops over hypotheses: lavapipe caps the total
+// loop iterations of an invocation, see BIG_PIXELS). Its invocations take
+// the triangles in rounds; each covered pixel gets atomicMax of the key
 // (quantized inverse depth << id_bits) | triangle id, so the nearest triangle
 // wins and 0 means "nothing drawn". Inverse depth is quantized over the
 // hypothesis' own depth range [t.z - radius, t.z + radius], so 32 - id_bits
@@ -22,7 +24,7 @@ struct Params {
     fx: f32, fy: f32, cx: f32, cy: f32,
     width: u32, height: u32, n_hyp: u32, n_tri: u32,
     id_bits: u32, cull: u32, radius: f32, tau: f32,
-    alpha: f32, near: f32, n_obs: u32, pad1: u32,
+    alpha: f32, near: f32, n_obs: u32, first: u32,
 }
 
 struct Tri { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
@@ -104,8 +106,80 @@ fn take_key(at: u32) -> u32 {
     return atomicExchange(&vis[at], 0u);
 }
 
+// A triangle set up for rasterization: its clipped pixel bounds and the
+// barycentric weights' start value and steps (weights are affine in the
+// pixel position, and so is inverse depth).
+struct Setup {
+    ok: bool,
+    lo: vec2<f32>,
+    hi: vec2<f32>,
+    w0: vec3<f32>,
+    dw_dx: vec3<f32>,
+    dw_dy: vec3<f32>,
+    iz: vec3<f32>,
+}
+
+fn setup_triangle(p: Pose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
+    var s: Setup;
+    s.ok = false;
+    let plane = tris[t].plane;
+    if (params.cull != 0u && dot(plane.xyz, cam) <= plane.w) {
+        return s; // back face of a closed mesh
+    }
+    let a = transform(p, tris[t].v0.xyz);
+    let b = transform(p, tris[t].v1.xyz);
+    let c = transform(p, tris[t].v2.xyz);
+    if (min(a.z, min(b.z, c.z)) < params.near) {
+        return s;
+    }
+    let sa = project(a);
+    let sb = project(b);
+    let sc = project(c);
+    let area = cross2(sb - sa, sc - sa);
+    if (abs(area) < 1e-12) {
+        return s;
+    }
+    s.lo = max(ceil(min(sa, min(sb, sc))), first);
+    s.hi = min(floor(max(sa, max(sb, sc))), last);
+    if (s.lo.x > s.hi.x || s.lo.y > s.hi.y) {
+        return s;
+    }
+    let inv = 1.0 / area;
+    s.iz = vec3<f32>(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
+    s.dw_dx = vec3<f32>(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
+    s.dw_dy = vec3<f32>(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
+    s.w0 = vec3<f32>(cross2(sc - sb, s.lo - sb), cross2(sa - sc, s.lo - sc), cross2(sb - sa, s.lo - sa)) * inv;
+    s.ok = true;
+    return s;
+}
+
+// Depth test of pixel (i, j) of the triangle's bounds.
+fn shade(s: Setup, t: u32, i: u32, j: u32, base: u32, izfar: f32, izscale: f32, max_code: f32) {
+    let w = s.w0 + s.dw_dx * f32(i) + s.dw_dy * f32(j);
+    if (min(w.x, min(w.y, w.z)) < 0.0) {
+        return;
+    }
+    let code = u32(clamp((dot(w, s.iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
+    let at = base + (u32(s.lo.y) + j) * params.width + u32(s.lo.x) + i;
+    atomicMax(&vis[at], (code << params.id_bits) | t);
+}
+
+// Triangles whose bounds exceed this many pixels are rasterized by the
+// whole workgroup together. Besides balancing the work this keeps every
+// invocation's loop trip count small: lavapipe (llvmpipe) stops a shader's
+// loops after 65535 iterations in total, which a single invocation filling a
+// large triangle would exceed.
+const BIG_PIXELS: u32 = 256u;
+// Triangles per invocation per round: rounds end with a barrier (to draw
+// the queued big triangles), so fewer, larger rounds are cheaper.
+const PER_ROUND: u32 = 64u;
+var<workgroup> big_count: atomic<u32>;
+var<workgroup> big_list: array<u32, WG * PER_ROUND>;
+
 // Rasterizes hypothesis p into the slot at `base`; returns (after a barrier,
 // so every invocation sees it) the tight rectangle of the drawn triangles.
+// Triangles are taken in rounds of WG * PER_ROUND: small ones are drawn by the
+// invocation that set them up, big ones queued and drawn cooperatively.
 fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
     if (lid == 0u) {
         atomicStore(&drawn[0], BIG);
@@ -113,7 +187,6 @@ fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
         atomicStore(&drawn[2], -1);
         atomicStore(&drawn[3], -1);
     }
-    workgroupBarrier();
     let rect = screen_rect(p);
     // Keys quantize inverse depth (affine in screen space, no division per
     // pixel; larger = nearer) over the hypothesis' range. Code 0 is reserved
@@ -130,51 +203,50 @@ fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
     // one dot product, before any vertex is transformed.
     let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
     let cam = -(p.r0.xyz * tr.x + p.r1.xyz * tr.y + p.r2.xyz * tr.z);
-    for (var t = lid; t < params.n_tri; t += WG) {
-        let plane = tris[t].plane;
-        if (params.cull != 0u && dot(plane.xyz, cam) <= plane.w) {
-            continue; // back face of a closed mesh
+    for (var round = 0u; round < params.n_tri; round += WG * PER_ROUND) {
+        if (lid == 0u) {
+            atomicStore(&big_count, 0u);
         }
-        let a = transform(p, tris[t].v0.xyz);
-        let b = transform(p, tris[t].v1.xyz);
-        let c = transform(p, tris[t].v2.xyz);
-        if (min(a.z, min(b.z, c.z)) < params.near) {
-            continue;
-        }
-        let sa = project(a);
-        let sb = project(b);
-        let sc = project(c);
-        let area = cross2(sb - sa, sc - sa);
-        if (abs(area) < 1e-12) {
-            continue;
-        }
-        let lo = max(ceil(min(sa, min(sb, sc))), first);
-        let hi = min(floor(max(sa, max(sb, sc))), last);
-        if (lo.x > hi.x || lo.y > hi.y) {
-            continue;
-        }
-        lo_all = min(lo_all, vec2<i32>(lo));
-        hi_all = max(hi_all, vec2<i32>(hi));
-        let inv = 1.0 / area;
-        let iz = vec3<f32>(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
-        // Barycentric weights are affine in the pixel position: step them.
-        let dw_dx = vec3<f32>(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
-        let dw_dy = vec3<f32>(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
-        let w_row0 = vec3<f32>(cross2(sc - sb, lo - sb), cross2(sa - sc, lo - sc), cross2(sb - sa, lo - sa)) * inv;
-        let nx = u32(hi.x - lo.x) + 1u;
-        let ny = u32(hi.y - lo.y) + 1u;
-        let x0 = u32(lo.x);
-        let y0 = u32(lo.y);
-        for (var j = 0u; j < ny; j++) {
-            let w_row = w_row0 + dw_dy * f32(j);
-            let row = base + (y0 + j) * params.width + x0;
-            for (var i = 0u; i < nx; i++) {
-                let w = w_row + dw_dx * f32(i);
-                if (min(w.x, min(w.y, w.z)) < 0.0) {
-                    continue;
+        workgroupBarrier();
+        for (var k = 0u; k < PER_ROUND; k++) {
+            let t = round + k * WG + lid;
+            if (t >= params.n_tri) {
+                break;
+            }
+            let s = setup_triangle(p, t, cam, first, last);
+            if (!s.ok) {
+                continue;
+            }
+            lo_all = min(lo_all, vec2<i32>(s.lo));
+            hi_all = max(hi_all, vec2<i32>(s.hi));
+            let nx = u32(s.hi.x - s.lo.x) + 1u;
+            let ny = u32(s.hi.y - s.lo.y) + 1u;
+            if (nx * ny > BIG_PIXELS) {
+                big_list[atomicAdd(&big_count, 1u)] = t;
+                continue;
+            }
+            let key_t = t;
+            for (var j = 0u; j < ny; j++) {
+                let w_row = s.w0 + s.dw_dy * f32(j);
+                let row = base + (u32(s.lo.y) + j) * params.width + u32(s.lo.x);
+                for (var i = 0u; i < nx; i++) {
+                    let w = w_row + s.dw_dx * f32(i);
+                    if (min(w.x, min(w.y, w.z)) < 0.0) {
+                        continue;
+                    }
+                    let code = u32(clamp((dot(w, s.iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
+                    atomicMax(&vis[row + i], (code << params.id_bits) | key_t);
                 }
-                let code = u32(clamp((dot(w, iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
-                atomicMax(&vis[row + i], (code << params.id_bits) | t);
+            }
+        }
+        let n_big = workgroupUniformLoad(&big_count);
+        for (var k = 0u; k < n_big; k++) {
+            let tb = big_list[k];
+            let s = setup_triangle(p, tb, cam, first, last);
+            let nx = u32(s.hi.x - s.lo.x) + 1u;
+            let n = nx * (u32(s.hi.y - s.lo.y) + 1u);
+            for (var q = lid; q < n; q += WG) {
+                shade(s, tb, q % nx, q / nx, base, izfar, izscale, max_code);
             }
         }
     }

@@ -7,24 +7,25 @@
 @compute @workgroup_size(WG)
 fn render_main(
     @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
+    // One hypothesis per workgroup and slot; a dispatch is one wave of
+    // hypotheses starting at params.first.
+    let h = params.first + wid.x;
+    if (h >= params.n_hyp) {
+        return;
+    }
     let npix = params.width * params.height;
     let base = wid.x * npix;
-    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
-        let p = poses[h];
-        let rect = raster_slot(p, base, lid);
-        for (var i = lid; i < npix; i += WG) {
-            let x = i32(i % params.width);
-            let y = i32(i / params.width);
-            var key = EMPTY;
-            if (x >= rect.x && x <= rect.z && y >= rect.y && y <= rect.w) {
-                key = take_key(base + i);
-            }
-            images[h * npix + i] = resolve(p, key, f32(x), f32(y));
+    let p = poses[h];
+    let rect = raster_slot(p, base, lid);
+    for (var i = lid; i < npix; i += WG) {
+        let x = i32(i % params.width);
+        let y = i32(i / params.width);
+        var key = EMPTY;
+        if (x >= rect.x && x <= rect.z && y >= rect.y && y <= rect.w) {
+            key = take_key(base + i);
         }
-        storageBarrier();
-        workgroupBarrier();
+        images[h * npix + i] = resolve(p, key, f32(x), f32(y));
     }
 }

@@ -27,12 +27,16 @@ var<workgroup> s_behind: array<u32, WG>;
 @compute @workgroup_size(WG)
 fn score_main(
     @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let npix = params.width * params.height;
-    let base = wid.x * npix;
-    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
+    // One hypothesis per workgroup and slot; a dispatch is one wave of
+    // hypotheses starting at params.first.
+    let h = params.first + wid.x;
+    if (h >= params.n_hyp) {
+        return;
+    }
+    let base = wid.x * params.width * params.height;
+    {
         let p = poses[h];
         let rect = raster_slot(p, base, lid);
         var sum = vec2<f32>(0.0);
@@ -96,7 +100,6 @@ fn score_main(
             }
             records[h] = rec;
         }
-        workgroupBarrier();
     }
 }
 
@@ -105,18 +108,16 @@ fn score_main(
 @compute @workgroup_size(WG)
 fn raster_main(
     @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let npix = params.width * params.height;
-    let base = wid.x * npix;
-    for (var h = wid.x; h < params.n_hyp; h += nwg.x) {
-        let rect = raster_slot(poses[h], base, lid);
-        let n = rect_pixels(rect);
-        for (var j = lid; j < n; j += WG) {
-            atomicStore(&vis[base + rect_index(rect, j)], 0u);
-        }
-        storageBarrier();
-        workgroupBarrier();
+    let h = params.first + wid.x;
+    if (h >= params.n_hyp) {
+        return;
+    }
+    let base = wid.x * params.width * params.height;
+    let rect = raster_slot(poses[h], base, lid);
+    let n = rect_pixels(rect);
+    for (var j = lid; j < n; j += WG) {
+        atomicStore(&vis[base + rect_index(rect, j)], 0u);
     }
 }

@@ -124,6 +124,35 @@ fn forced_small_limits_split_batches_with_same_results() {
     }
 }
 
+/// Regression: lavapipe stops an invocation's loops after 65535 iterations
+/// in total. Long batches (many hypotheses per workgroup) and big triangles
+/// (one invocation filling a large area) used to be cut short silently.
+#[test]
+fn long_batches_and_big_triangles_match_the_cpu_twin() {
+    let Some(ctx) = test_context() else { return };
+    let mesh = RenderMesh::new(&duck()).unwrap();
+    let target = demo_target(&mesh, SensorNoise::default());
+    let poses = around_and_random(&true_pose(), 4096, 9);
+    let params = ScoreParams::default();
+    let (gpu, _) = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap().score(&poses).unwrap();
+    let cpu = score_cpu(&mesh, &target, &poses, &params);
+    let bad = gpu.iter().zip(&cpu).filter(|(g, c)| (g.score - c.score).abs() > 1e-3).count();
+    assert_eq!(bad, 0, "{bad} of 4096 hypotheses differ");
+
+    // A box filling most of a 640x480 frame: faces of ~100k pixels each.
+    let cube = RenderMesh::new(&shapes::cuboid(DVec3::new(0.2, 0.15, 0.1))).unwrap();
+    let k = linemod_camera();
+    let poses: Vec<Pose> = (0..3)
+        .map(|i| Pose::new(axis_angle(DVec3::new(1.0, 0.5, 0.2), 0.2 * i as f64), DVec3::new(0.0, 0.0, 0.6)))
+        .collect();
+    let gpu = render_gpu(&ctx, &cube, &poses, &k).unwrap();
+    for (p, g) in poses.iter().zip(&gpu) {
+        let c = render_cpu(&cube, p, &k);
+        assert!(c.depth.iter().filter(|&&d| d > 0.0).count() > 100_000);
+        assert_renders_match(&c, g);
+    }
+}
+
 /// Depth of a sphere of radius `r` centred at `c` along the pixel's ray.
 fn sphere_depth(k: &Intrinsics, c: DVec3, r: f64, u: f64, v: f64) -> Option<f64> {
     let d = k.ray(u, v);

@@ -115,7 +115,8 @@ pub struct RasterParams {
     pub near: f32,
     /// Observed pixels of the whole region (score kernel).
     pub n_obs: u32,
-    pub _pad: u32,
+    /// First hypothesis of this dispatch's wave.
+    pub first: u32,
 }
 const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
 

@@ -168,7 +168,7 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
         alpha,
         near: NEAR_M,
         n_obs,
-        _pad: 0,
+        first: 0,
     }
 }
 
@@ -210,14 +210,15 @@ impl RasterBuffers {
             .min(lim.max_items(per_hyp_bytes.max(1)))
             .min(max_chunk.max(1) as u64)
             .max(1) as usize;
-        // Workgroups in flight. A software adapter runs one per CPU thread,
-        // so a few dozen slots keep it busy; GPUs get as many as the memory
-        // budget allows.
-        let max_slots: u64 = if ctx.is_software() { 64 } else { u64::MAX };
+        // Hypotheses per wave (one workgroup and visibility slot each). A
+        // software adapter runs one workgroup per CPU thread, so a few
+        // hundred per wave keep it busy and its memory small; GPUs get as
+        // many as the memory budget allows.
+        let (max_slots, budget) = if ctx.is_software() { (256, 64 << 20) } else { (u64::MAX, VIS_BUDGET_BYTES) };
         let slots = (chunk as u64)
             .min(max_slots)
             .min(lim.max_workgroups as u64)
-            .min((lim.max_storage_binding.min(lim.max_buffer).min(VIS_BUDGET_BYTES) / (pix * 4)).max(1))
+            .min((lim.max_storage_binding.min(lim.max_buffer).min(budget) / (pix * 4)).max(1))
             .max(1) as u32;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let tris = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -225,9 +226,11 @@ impl RasterBuffers {
             contents: bytemuck::cast_slice(&mesh.triangles),
             usage: storage,
         });
+        // One parameter block per wave, each at a uniform-offset boundary.
+        let waves = (chunk as u64).div_ceil(slots as u64);
         let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
-            size: std::mem::size_of::<RasterParams>() as u64,
+            size: waves * PARAMS_STRIDE,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -246,15 +249,62 @@ impl RasterBuffers {
         Ok(RasterBuffers { params, tris, poses, vis, chunk, slots })
     }
 
-    pub fn entries(&self) -> [wgpu::BindGroupEntry<'_>; 4] {
-        [
-            wgpu::BindGroupEntry { binding: 0, resource: self.params.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
-        ]
+    /// Runs a kernel over `n` hypotheses (already uploaded to `poses`) in
+    /// waves of `slots` workgroups, one hypothesis per workgroup: one
+    /// parameter block per wave (`params.first` = the wave's first
+    /// hypothesis) and one dispatch per wave in a single compute pass. wgpu
+    /// orders the dispatches, since each writes the visibility buffer.
+    pub fn dispatch_waves(
+        &self,
+        ctx: &Context,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        extra: &[wgpu::BindGroupEntry<'_>],
+        params: RasterParams,
+        n: usize,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let slots = self.slots as usize;
+        let waves = n.div_ceil(slots);
+        let mut blocks = vec![0u8; waves * PARAMS_STRIDE as usize];
+        for w in 0..waves {
+            let p = RasterParams { n_hyp: n as u32, first: (w * slots) as u32, ..params };
+            let at = w * PARAMS_STRIDE as usize;
+            blocks[at..at + std::mem::size_of::<RasterParams>()].copy_from_slice(bytemuck::bytes_of(&p));
+        }
+        ctx.queue.write_buffer(&self.params, 0, &blocks);
+        let layout = pipeline.get_bind_group_layout(0);
+        let groups: Vec<wgpu::BindGroup> = (0..waves)
+            .map(|w| {
+                let mut entries = vec![
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                            buffer: &self.params,
+                            offset: w as u64 * PARAMS_STRIDE,
+                            size: std::num::NonZeroU64::new(std::mem::size_of::<RasterParams>() as u64),
+                        }),
+                    },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
+                ];
+                entries.extend(extra.iter().cloned());
+                ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("wave"), layout: &layout, entries: &entries })
+            })
+            .collect();
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("waves"), timestamp_writes: timestamps });
+        pass.set_pipeline(pipeline);
+        for (w, group) in groups.iter().enumerate() {
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups((n - w * slots).min(slots) as u32, 1, 1);
+        }
     }
 }
+
+/// Byte stride of the per-wave parameter blocks (the largest uniform-offset
+/// alignment wgpu allows).
+const PARAMS_STRIDE: u64 = 256;
 
 /// GPU `render` kernel: depth and normals of every pose (for tests and
 /// pictures; scoring uses the fused `score` kernel instead).
@@ -269,26 +319,14 @@ pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsi
         usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         mapped_at_creation: false,
     });
-    let mut entries = bufs.entries().to_vec();
-    entries.push(wgpu::BindGroupEntry { binding: 4, resource: images.as_entire_binding() });
-    let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("render"),
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &entries,
-    });
     let mut out = Vec::with_capacity(poses.len());
     for chunk in poses.chunks(bufs.chunk) {
         let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
-        let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0, 0);
-        ctx.queue.write_buffer(&bufs.params, 0, bytemuck::bytes_of(&params));
         ctx.queue.write_buffer(&bufs.poses, 0, bytemuck::cast_slice(&gp));
+        let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0, 0);
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(bufs.slots.min(chunk.len() as u32), 1, 1);
-        }
+        let extra = [wgpu::BindGroupEntry { binding: 4, resource: images.as_entire_binding() }];
+        bufs.dispatch_waves(ctx, &mut enc, &pipeline, &extra, params, chunk.len(), None);
         ctx.queue.submit([enc.finish()]);
         let bytes = ctx.read_buffer(&images, (chunk.len() * pix * 16) as u64)?;
         let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);

@@ -187,8 +187,7 @@ pub struct GpuScorer {
     bufs: RasterBuffers,
     records: wgpu::Buffer,
     staging: wgpu::Buffer,
-    bind: wgpu::BindGroup,
-    raster_bind: wgpu::BindGroup,
+    observed: wgpu::Buffer,
     pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     raster_pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     /// Timestamp query set and its resolve buffer, when enabled.
@@ -244,19 +243,6 @@ impl GpuScorer {
         let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"));
         let pipeline = ctx.pipeline("score", &src, "score_main");
         let raster_pipeline = ctx.pipeline("score/raster", &src, "raster_main");
-        let mut entries = bufs.entries().to_vec();
-        entries.push(wgpu::BindGroupEntry { binding: 4, resource: observed.as_entire_binding() });
-        entries.push(wgpu::BindGroupEntry { binding: 5, resource: records.as_entire_binding() });
-        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("score"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        });
-        let raster_bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("score/raster"),
-            layout: &raster_pipeline.get_bind_group_layout(0),
-            entries: &bufs.entries(),
-        });
         Ok(GpuScorer {
             ctx: ctx.clone(),
             mesh: mesh.clone(),
@@ -266,8 +252,7 @@ impl GpuScorer {
             bufs,
             records,
             staging,
-            bind,
-            raster_bind,
+            observed,
             pipeline,
             raster_pipeline,
             timestamps: None,
@@ -343,7 +328,6 @@ impl GpuScorer {
             self.params.alpha,
             self.n_obs,
         );
-        ctx.queue.write_buffer(&self.bufs.params, 0, bytemuck::bytes_of(&params));
         ctx.queue.write_buffer(&self.bufs.poses, 0, bytemuck::cast_slice(&gp));
         ctx.queue.submit([]);
         ctx.wait()?;
@@ -351,23 +335,19 @@ impl GpuScorer {
 
         let t1 = Instant::now();
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("score"),
-                timestamp_writes: self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
-                    query_set: set,
-                    beginning_of_pass_write_index: Some(0),
-                    end_of_pass_write_index: Some(1),
-                }),
-            });
-            if raster_only {
-                pass.set_pipeline(&self.raster_pipeline);
-                pass.set_bind_group(0, &self.raster_bind, &[]);
-            } else {
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &self.bind, &[]);
-            }
-            pass.dispatch_workgroups(self.bufs.slots.min(chunk.len() as u32), 1, 1);
+        let timestamp_writes = self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+            query_set: set,
+            beginning_of_pass_write_index: Some(0),
+            end_of_pass_write_index: Some(1),
+        });
+        if raster_only {
+            self.bufs.dispatch_waves(ctx, &mut enc, &self.raster_pipeline, &[], params, chunk.len(), timestamp_writes);
+        } else {
+            let extra = [
+                wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
+            ];
+            self.bufs.dispatch_waves(ctx, &mut enc, &self.pipeline, &extra, params, chunk.len(), timestamp_writes);
         }
         if let Some((set, buf)) = &self.timestamps {
             enc.resolve_query_set(set, 0..2, buf, 0);
