@@ -313,3 +313,25 @@ fn check_cli_reports_every_verdict_of_the_shipped_stack() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("normal has zero length"));
 }
+
+#[test]
+fn bench_physics_reports_gpu_and_cpu_queries_per_second() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible"))
+        .args(["bench", "physics", "--json", "--n", "64", "--samples", "256", "--repeat", "1"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Vec<serde_json::Value> =
+        String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.len(), 2);
+    assert_eq!(rows[0]["scene"], "plane");
+    assert_eq!(rows[1]["scene"], "plane+mesh");
+    for r in &rows {
+        assert_eq!(r["n"], 64);
+        assert_eq!(r["samples"], 256);
+        assert!(r["cpu_queries_per_s"].as_f64().unwrap() > 0.0);
+        // GPU figures are present exactly when an adapter was found.
+        assert_eq!(r["gpu_queries_per_s"].is_null(), r["adapter"] == "none", "{r}");
+    }
+    assert!(rows[1]["grid_nodes"].as_u64().unwrap() > 1000);
+}

@@ -29,6 +29,8 @@ pub enum BenchKind {
     Score(BenchScoreArgs),
     /// Stable-pose drop tests: drops/s, steps per drop, settle rate, clusters.
     Stable(super::stable::BenchStableArgs),
+    /// Physical plausibility: signed-distance queries/s against a plane and a mesh grid.
+    Physics(super::bench_physics::BenchPhysicsArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -74,6 +76,7 @@ pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
     match a.kind {
         BenchKind::Score(s) => bench_score(s, verbose),
         BenchKind::Stable(s) => super::stable::bench_stable(s),
+        BenchKind::Physics(p) => super::bench_physics::bench_physics(p, verbose),
     }
 }
 

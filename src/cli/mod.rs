@@ -2,6 +2,7 @@
 //! library).
 
 pub mod bench;
+pub mod bench_physics;
 pub mod check;
 pub mod demo;
 pub mod score;

@@ -32,10 +32,11 @@ pub const CONTACTS_WGSL: &str = include_str!("../../shaders/contacts.wgsl");
 
 /// Most planes the kernel takes (they live in the uniform block).
 pub const MAX_PLANES: usize = 4;
+/// Most placed grids (other objects) the kernel takes (uniform block too).
+pub const MAX_GRIDS: usize = 16;
 
 /// Invocations per workgroup (`WG` in the shader; checked by a test).
-#[cfg(test)]
-const WG: u32 = 32;
+const WG: u32 = 64;
 
 /// Uniform parameters (`Params` in the shader).
 #[repr(C)]
@@ -51,8 +52,9 @@ pub struct ContactParams {
     pub words: u32,
     pub gravity: [f32; 4],
     pub planes: [[f32; 4]; MAX_PLANES],
+    pub grids: [GpuGrid; MAX_GRIDS],
 }
-const _: () = assert!(std::mem::size_of::<ContactParams>() == 112);
+const _: () = assert!(std::mem::size_of::<ContactParams>() == 112 + 96 * MAX_GRIDS);
 
 /// One placed grid (`Grid` in the shader).
 #[repr(C)]
@@ -101,7 +103,6 @@ pub struct GpuContacts {
     params: ContactParams,
     pipeline: Arc<wgpu::ComputePipeline>,
     samples: wgpu::Buffer,
-    grids: wgpu::Buffer,
     nodes: wgpu::Buffer,
     params_buf: wgpu::Buffer,
     poses: wgpu::Buffer,
@@ -132,6 +133,12 @@ impl GpuContacts {
                 env.planes.len()
             )));
         }
+        if env.obstacles.len() > MAX_GRIDS {
+            return Err(Error::InvalidInput(format!(
+                "the GPU contacts kernel takes at most {MAX_GRIDS} other objects, the scene has {}",
+                env.obstacles.len()
+            )));
+        }
         env.check_epsilon(body.epsilon)?;
         let m = body.samples.len();
         if m == 0 {
@@ -144,7 +151,7 @@ impl GpuContacts {
             planes[i] = [p.normal.x as f32, p.normal.y as f32, p.normal.z as f32, p.normal.dot(p.point) as f32];
         }
         // Grids: each distinct grid's nodes once, one descriptor per placement.
-        let mut node_data: Vec<[f32; 4]> = Vec::new();
+        let mut node_data: Vec<f32> = Vec::new();
         let mut offsets: Vec<(*const super::sdf::SdfGrid, u32)> = Vec::new();
         let mut descs = Vec::new();
         for o in &env.obstacles {
@@ -153,7 +160,7 @@ impl GpuContacts {
                 Some((_, off)) => *off,
                 None => {
                     let off = node_data.len() as u32;
-                    node_data.extend_from_slice(&o.sdf.nodes);
+                    node_data.extend(o.sdf.nodes.iter().map(|n| n[3]));
                     offsets.push((key, off));
                     off
                 }
@@ -169,21 +176,24 @@ impl GpuContacts {
                 dims: [s.dims[0] as u32, s.dims[1] as u32, s.dims[2] as u32, offset],
             });
         }
-        if (node_data.len() as u64) * 16 > ctx.limits.max_items(1) {
+        if (node_data.len() as u64) * 4 > ctx.limits.max_items(1) {
             return Err(Error::Gpu(format!(
                 "the signed-distance grids need {} MiB, more than one storage binding holds on this adapter; lower the SDF resolution",
-                node_data.len() * 16 >> 20
+                node_data.len() * 4 >> 20
             )));
         }
         // Chunk: poses per dispatch within the binding limits.
         let per_pose = if with_deltas { (m * 4) as u64 } else { (words * 8) as u64 };
         let chunk = (ctx.limits.max_items(per_pose).min(ctx.limits.max_items(48)) as usize)
             .min(max_chunk.max(1))
-            .min(ctx.limits.max_workgroups as usize * 64);
+            .min(ctx.limits.max_workgroups as usize * WG as usize);
         if chunk == 0 {
             return Err(Error::Gpu("one pose's output does not fit a storage binding".into()));
         }
+        let mut grid_block = [GpuGrid::zeroed(); MAX_GRIDS];
+        grid_block[..descs.len()].copy_from_slice(&descs);
         let params = ContactParams {
+            grids: grid_block,
             n_hyp: 0,
             n_samples: m as u32,
             n_planes: env.planes.len() as u32,
@@ -203,10 +213,8 @@ impl GpuContacts {
                 usage: wgpu::BufferUsages::STORAGE,
             })
         };
-        let dummy_grid = [GpuGrid::zeroed()];
-        let dummy_node = [[0.0f32; 4]];
+        let dummy_node = [0.0f32; 4];
         let samples_buf = init("contacts samples", bytemuck::cast_slice(&samples));
-        let grids = init("contacts grids", bytemuck::cast_slice(if descs.is_empty() { &dummy_grid[..] } else { &descs[..] }));
         let nodes = init("contacts nodes", bytemuck::cast_slice(if node_data.is_empty() { &dummy_node[..] } else { &node_data[..] }));
         let params_buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("contacts params"),
@@ -218,7 +226,25 @@ impl GpuContacts {
         let records = storage(ctx, "contacts records", (chunk * 16) as u64, wgpu::BufferUsages::COPY_SRC);
         let bits = storage(ctx, "contacts bits", (chunk * words * 8) as u64, wgpu::BufferUsages::COPY_SRC);
         let deltas = storage(ctx, "contacts deltas", if with_deltas { (chunk * m * 4) as u64 } else { 16 }, wgpu::BufferUsages::COPY_SRC);
-        let pipeline = ctx.pipeline("contacts", CONTACTS_WGSL, "contacts_main");
+        // Own pipeline (not the context's cache): the scene's shape is baked
+        // in through override constants.
+        let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("contacts"),
+            source: wgpu::ShaderSource::Wgsl(CONTACTS_WGSL.into()),
+        });
+        let constants = [
+            ("N_PLANES", env.planes.len() as f64),
+            ("N_GRIDS", descs.len() as f64),
+            ("WRITE_DELTAS", if with_deltas { 1.0 } else { 0.0 }),
+        ];
+        let pipeline = Arc::new(ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("contacts"),
+            layout: None,
+            module: &module,
+            entry_point: Some("contacts_main"),
+            compilation_options: wgpu::PipelineCompilationOptions { constants: &constants, zero_initialize_workgroup_memory: false },
+            cache: None,
+        }));
         Ok(GpuContacts {
             ctx: ctx.clone(),
             body: body.clone(),
@@ -226,7 +252,6 @@ impl GpuContacts {
             params,
             pipeline,
             samples: samples_buf,
-            grids,
             nodes,
             params_buf,
             poses,
@@ -269,7 +294,6 @@ impl GpuContacts {
                 wgpu::BindGroupEntry { binding: 0, resource: self.params_buf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: self.samples.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: self.grids.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 4, resource: self.nodes.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 6, resource: self.bits.as_entire_binding() },
@@ -281,7 +305,7 @@ impl GpuContacts {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("contacts"), timestamp_writes: None });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups((n as u32).min(self.ctx.limits.max_workgroups), 1, 1);
+            pass.dispatch_workgroups((n as u32).div_ceil(WG).min(self.ctx.limits.max_workgroups), 1, 1);
         }
         ctx.queue.submit([enc.finish()]);
         ctx.wait()?;

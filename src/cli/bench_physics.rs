@@ -1,0 +1,198 @@
+//! `plausible bench physics`: sample-hypothesis signed-distance queries per
+//! second, GPU kernel and CPU twin side by side in the same run, for a
+//! plane alone and for a plane plus one mesh grid.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use glam::{DMat3, DQuat, DVec3};
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::physical::contacts::{distances_batch, evaluate_batch, Body, Environment, Obstacle};
+use plausible::physical::gpu::GpuContacts;
+use plausible::physical::scene::Plane;
+use plausible::physical::sdf::{SdfGrid, DEFAULT_RESOLUTION};
+use plausible::pose::Pose;
+use plausible::visual::Device;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use super::DeviceArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct BenchPhysicsArgs {
+    /// Print JSON (one object per configuration) instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Hypotheses per batch.
+    #[arg(long, default_value_t = 4096)]
+    pub n: usize,
+    /// Surface samples per hypothesis.
+    #[arg(long, default_value_t = 1024)]
+    pub samples: usize,
+    /// Timed runs per configuration (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Seed of the samples and the hypotheses.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+}
+
+#[derive(Serialize, Debug)]
+pub struct PhysicsBenchRow {
+    pub adapter: String,
+    pub backend: String,
+    /// "plane" or "plane+mesh".
+    pub scene: String,
+    pub n: usize,
+    pub samples: usize,
+    pub grid_nodes: usize,
+    /// Sample-hypothesis signed-distance queries (classified and reduced
+    /// per hypothesis) per second: the GPU kernel, upload to completion.
+    pub gpu_queries_per_s: Option<f64>,
+    /// The same queries on the CPU twin (grid + exact refinement near ±ε).
+    pub cpu_queries_per_s: f64,
+    /// Complete evaluations per second (queries, readback, exact
+    /// refinement of flagged samples, support polygons).
+    pub gpu_hyps_per_s: Option<f64>,
+    pub cpu_hyps_per_s: f64,
+    /// Fraction of samples the GPU left to exact refinement on the CPU.
+    pub refined_fraction: Option<f64>,
+    pub cpu_threads: usize,
+    pub timing: &'static str,
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+fn random_rotation(rng: &mut ChaCha8Rng) -> DMat3 {
+    loop {
+        let q = DQuat::from_xyzw(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let l = q.length();
+        if l > 0.1 && l <= 1.0 {
+            return DMat3::from_quat(q / l);
+        }
+    }
+}
+
+pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
+    let device = a.device.open(verbose, true)?;
+    let (adapter, backend) = match &device {
+        Device::Gpu(c) => (c.info.name.clone(), format!("{:?}", c.info.backend)),
+        Device::Cpu => ("none".to_string(), "none".to_string()),
+    };
+    let repeat = a.repeat.max(1);
+    // The body: a 5 cm cube. The obstacle: the duck scaled to a 0.15 m
+    // diagonal, resting on the plane.
+    let cube = plausible::shapes::cuboid(DVec3::splat(0.025));
+    let body = Body::new(&cube, a.samples, a.seed, None)?;
+    let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj"), MeshUnits::Metres)?.0.normalized(0.15);
+    let grid = Arc::new(SdfGrid::bake(&duck, DEFAULT_RESOLUTION)?);
+    let (lo, hi) = duck.bounds();
+    let duck_pose = Pose::new(DMat3::IDENTITY, DVec3::new(0.0, 0.0, -lo.z));
+    let plane = Plane { point: DVec3::ZERO, normal: DVec3::Z };
+    let g = DVec3::new(0.0, 0.0, -9.81);
+    // Hypotheses: random rotations, positions over and around the duck
+    // (its bounding box grown by 2 cm), so most samples query the grid.
+    let mut rng = ChaCha8Rng::seed_from_u64(a.seed);
+    let poses: Vec<Pose> = (0..a.n)
+        .map(|_| {
+            let r = random_rotation(&mut rng);
+            let p = DVec3::new(
+                rng.random_range(lo.x - 0.02..hi.x + 0.02),
+                rng.random_range(lo.y - 0.02..hi.y + 0.02),
+                rng.random_range(0.0..(hi.z - lo.z) + 0.02),
+            );
+            Pose::new(r, p)
+        })
+        .collect();
+    let configs = [
+        ("plane", Environment { planes: vec![plane], obstacles: vec![], gravity: g }),
+        (
+            "plane+mesh",
+            Environment { planes: vec![plane], obstacles: vec![Obstacle { sdf: grid.clone(), pose: duck_pose }], gravity: g },
+        ),
+    ];
+    let queries = (a.n * body.samples.len()) as f64;
+    let mut rows = Vec::new();
+    if !a.json {
+        println!(
+            "adapter: {adapter} ({backend}); CPU twin on {} threads; N = {} x {} samples; wall clock, median of {repeat}",
+            rayon::current_num_threads(),
+            a.n,
+            body.samples.len()
+        );
+        println!(
+            "{:>11} {:>14} {:>14} {:>8} {:>11} {:>11} {:>9}",
+            "scene", "gpu queries/s", "cpu queries/s", "gpu/cpu", "gpu hyp/s", "cpu hyp/s", "refined"
+        );
+    }
+    for (name, env) in &configs {
+        let mut row = PhysicsBenchRow {
+            adapter: adapter.clone(),
+            backend: backend.clone(),
+            scene: name.to_string(),
+            n: a.n,
+            samples: body.samples.len(),
+            grid_nodes: env.obstacles.iter().map(|o| o.sdf.nodes.len()).sum(),
+            gpu_queries_per_s: None,
+            cpu_queries_per_s: 0.0,
+            gpu_hyps_per_s: None,
+            cpu_hyps_per_s: 0.0,
+            refined_fraction: None,
+            cpu_threads: rayon::current_num_threads(),
+            timing: "wall clock, median of repeats after a warm-up",
+        };
+        if let Device::Gpu(ctx) = &device {
+            let gpu = GpuContacts::new(ctx, &body, env, a.n, false)?;
+            let warm = gpu.run(&poses)?; // first submit compiles and is slower
+            row.refined_fraction = Some(gpu.refined_count(&warm) as f64 / queries);
+            let mut kernel = Vec::new();
+            let mut full = Vec::new();
+            for _ in 0..repeat {
+                let t = Instant::now();
+                let out = gpu.run(&poses)?;
+                let ev = gpu.finish(&poses, &out);
+                full.push(t.elapsed());
+                kernel.push(out.compute);
+                std::hint::black_box(ev);
+            }
+            row.gpu_queries_per_s = Some(queries / median(kernel).as_secs_f64());
+            row.gpu_hyps_per_s = Some(a.n as f64 / median(full).as_secs_f64());
+        }
+        let mut cq = Vec::new();
+        let mut ch = Vec::new();
+        for _ in 0..repeat {
+            let t = Instant::now();
+            std::hint::black_box(distances_batch(&body, &poses, env));
+            cq.push(t.elapsed());
+            let t = Instant::now();
+            std::hint::black_box(evaluate_batch(&body, &poses, env));
+            ch.push(t.elapsed());
+        }
+        row.cpu_queries_per_s = queries / median(cq).as_secs_f64();
+        row.cpu_hyps_per_s = a.n as f64 / median(ch).as_secs_f64();
+        if a.json {
+            println!("{}", serde_json::to_string(&row)?);
+        } else {
+            let opt = |v: Option<f64>, unit: f64| v.map(|x| format!("{:.1}", x / unit)).unwrap_or_else(|| "-".into());
+            println!(
+                "{:>11} {:>13}M {:>13}M {:>8} {:>11} {:>11.0} {:>8}%",
+                name,
+                opt(row.gpu_queries_per_s, 1e6),
+                format!("{:.1}", row.cpu_queries_per_s / 1e6),
+                row.gpu_queries_per_s.map(|g| format!("{:.1}x", g / row.cpu_queries_per_s)).unwrap_or_else(|| "-".into()),
+                opt(row.gpu_hyps_per_s, 1.0),
+                row.cpu_hyps_per_s,
+                opt(row.refined_fraction.map(|f| f * 100.0), 1.0),
+            );
+        }
+        rows.push(row);
+    }
+    Ok(())
+}
