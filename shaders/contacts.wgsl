@@ -72,37 +72,16 @@ fn apply(r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32>, x: vec3<f32>) -> vec3<f32>
     return vec3<f32>(dot(r0.xyz, x) + r0.w, dot(r1.xyz, x) + r1.w, dot(r2.xyz, x) + r2.w);
 }
 
-// Grid k at world point x (q: model-frame point): the trilinear δ.
-// Outside the grid box: the lower bound |to box| + margin.
-fn grid_query(k: u32, q: vec3<f32>) -> f32 {
+// Grid k at model-frame point q: the gradient of the trilinear interpolant
+// (xyz, model frame, not unit: the closest-surface normal direction) and
+// the trilinear δ (w), from the same eight loads. Outside the grid box: the
+// lower bound |to box| + margin and no gradient.
+fn grid_query(k: u32, q: vec3<f32>) -> vec4<f32> {
     let o = params.grids[k].origin;
     let up = params.grids[k].upper;
     let out = max(max(o.xyz - q, q - up.xyz), vec3<f32>(0.0));
     if (any(out > vec3<f32>(0.0))) {
-        return length(out) + up.w;
-    }
-    let dims = params.grids[k].dims;
-    let u = (q - o.xyz) / o.w;
-    let i0 = min(vec3<u32>(floor(u)), dims.xyz - vec3<u32>(2u));
-    let f = u - vec3<f32>(i0);
-    let sy = dims.x;
-    let sz = dims.x * dims.y;
-    let b = dims.w + i0.x + sy * i0.y + sz * i0.z;
-    let c00 = mix(dist[b], dist[b + 1u], f.x);
-    let c10 = mix(dist[b + sy], dist[b + sy + 1u], f.x);
-    let c01 = mix(dist[b + sz], dist[b + sz + 1u], f.x);
-    let c11 = mix(dist[b + sz + sy], dist[b + sz + sy + 1u], f.x);
-    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
-}
-
-// The closest-surface normal of grid k at model point q (inside the grid
-// box), in the world frame: the normalised gradient of the trilinear
-// interpolant (zero outside the box). Only contacts need it.
-fn grid_normal(k: u32, q: vec3<f32>) -> vec3<f32> {
-    let o = params.grids[k].origin;
-    let up = params.grids[k].upper;
-    if (any(q < o.xyz) || any(q > up.xyz)) {
-        return vec3<f32>(0.0);
+        return vec4<f32>(0.0, 0.0, 0.0, length(out) + up.w);
     }
     let dims = params.grids[k].dims;
     let u = (q - o.xyz) / o.w;
@@ -122,12 +101,17 @@ fn grid_normal(k: u32, q: vec3<f32>) -> vec3<f32> {
     let gx = mix(mix(c100 - c000, c110 - c010, f.y), mix(c101 - c001, c111 - c011, f.y), f.z);
     let gy = mix(mix(c010 - c000, c110 - c100, f.x), mix(c011 - c001, c111 - c101, f.x), f.z);
     let gz = mix(mix(c001 - c000, c101 - c100, f.x), mix(c011 - c010, c111 - c110, f.x), f.y);
-    let n = vec3<f32>(gx, gy, gz);
-    let len = length(n);
+    let d = mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
+    return vec4<f32>(gx, gy, gz, d);
+}
+
+// A model-frame gradient of grid k as a world-frame unit normal (or zero).
+fn grid_normal(k: u32, gm: vec3<f32>) -> vec3<f32> {
+    let len = length(gm);
     if (len <= 0.0) {
         return vec3<f32>(0.0);
     }
-    let m = n / len;
+    let m = gm / len;
     return m.x * params.grids[k].inv[0].xyz + m.y * params.grids[k].inv[1].xyz + m.z * params.grids[k].inv[2].xyz;
 }
 
@@ -165,10 +149,11 @@ fn contacts_main(
                 }
                 for (var k = 0u; k < N_GRIDS; k += 1u) {
                     let q = apply(params.grids[k].inv[0], params.grids[k].inv[1], params.grids[k].inv[2], x);
-                    let c = grid_query(k, q);
+                    let r = grid_query(k, q);
+                    let c = r.w;
                     if (abs(c) < eps + bound) {
                         // Only candidates in the contact band need a normal.
-                        let nk = grid_normal(k, q);
+                        let nk = grid_normal(k, r.xyz);
                         if (abs(abs(c) - eps) <= bound || dot(nk, g) > REFINE_COS) {
                             refine = true;
                         }
