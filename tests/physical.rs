@@ -169,6 +169,33 @@ fn camera_frame_scene_matches_the_world_frame() {
     assert!((e.stability_margin.unwrap() - SIDE / 2.0).abs() < 1e-6, "{e:?}");
 }
 
+#[test]
+fn friction_equilibrium_agrees_with_the_support_polygon_on_planar_contacts() {
+    let d = assets();
+    let tilt = axis_angle(DVec3::Y, 30f64.to_radians());
+    let low = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)).vertices.iter().map(|v| (tilt * *v).z).fold(f64::INFINITY, f64::min);
+    let slab = object("slab", "slab.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, 0.02), false);
+    let on = |x: f64| object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(x, 0.0, 0.04 + SIDE / 2.0), false);
+    let scenes = vec![
+        vec![object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0), false)],
+        vec![object("cube", "cube.obj", tilt, DVec3::new(0.0, 0.0, -low), false)],
+        vec![object("cube", "cube.obj", axis_angle(DVec3::Z, 0.7), DVec3::new(0.1, 0.0, SIDE / 2.0), false)],
+        vec![slab.clone(), on(0.0)],
+        vec![slab.clone(), on(0.03)],
+        vec![slab, on(0.06)],
+    ];
+    let mut seen = [0, 0];
+    for objects in scenes {
+        for o in check(d.path(), &objects) {
+            let f = o.friction_equilibrium.unwrap_or_else(|| panic!("{}: no friction result", o.name));
+            assert_eq!(f, o.evaluation.stable, "{}: friction {f} vs support polygon {:?}", o.name, o.evaluation);
+            assert!(!o.methods_disagree());
+            seen[f as usize] += 1;
+        }
+    }
+    assert!(seen[0] >= 2 && seen[1] >= 4, "{seen:?}");
+}
+
 fn load_err(dir: &Path, text: &str) -> String {
     Scene::from_json(text, dir, Path::new("bad.json")).unwrap_err().to_string()
 }
@@ -302,7 +329,10 @@ fn check_cli_reports_every_verdict_of_the_shipped_stack() {
     assert_eq!(verdict("cube_sunk"), "intersecting");
     let on = objects.iter().find(|o| o["name"] == "cube_on_slab").unwrap();
     assert!((on["stability_margin"].as_f64().unwrap() - 0.025).abs() < 1e-6);
-    for key in ["intersecting", "contact", "supported", "min_distance", "stability_margin"] {
+    assert_eq!(on["friction_equilibrium"], true);
+    assert_eq!(objects.iter().find(|o| o["name"] == "cube_overhanging").unwrap()["friction_equilibrium"], false);
+    assert!(objects.iter().find(|o| o["name"] == "cube_floating").unwrap()["friction_equilibrium"].is_null());
+    for key in ["intersecting", "contact", "supported", "min_distance", "stability_margin", "friction_equilibrium"] {
         assert!(on.get(key).is_some(), "{key} missing");
     }
     // A bad scene: non-zero exit and the reason on stderr.

@@ -28,6 +28,9 @@ pub struct CheckArgs {
     /// Signed-distance grid cells across each mesh's longest side.
     #[arg(long, default_value_t = plausible::physical::sdf::DEFAULT_RESOLUTION)]
     pub sdf_resolution: usize,
+    /// Friction coefficient μ of the static-equilibrium check (eq. 10-12).
+    #[arg(long, default_value_t = plausible::physical::friction::DEFAULT_FRICTION)]
+    pub friction: f64,
 }
 
 #[derive(Serialize)]
@@ -41,6 +44,11 @@ struct ObjectJson<'a> {
     supported: u32,
     min_distance: f64,
     stability_margin: Option<f64>,
+    /// Static equilibrium with friction: true / false, null when not
+    /// feasible, static or undecided.
+    friction_equilibrium: Option<bool>,
+    /// The friction check and the support polygon disagree.
+    methods_disagree: bool,
     feasible: bool,
     stable: bool,
     epsilon: f64,
@@ -55,6 +63,7 @@ struct Report<'a> {
     scene: String,
     samples: usize,
     seed: u64,
+    friction: f64,
     objects: Vec<ObjectJson<'a>>,
 }
 
@@ -69,6 +78,8 @@ fn to_json(o: &ObjectCheck) -> ObjectJson<'_> {
         supported: e.supported,
         min_distance: e.min_distance,
         stability_margin: e.stability_margin,
+        friction_equilibrium: o.friction_equilibrium,
+        methods_disagree: o.methods_disagree(),
         feasible: e.feasible,
         stable: e.stable,
         epsilon: o.epsilon,
@@ -80,7 +91,13 @@ fn to_json(o: &ObjectCheck) -> ObjectJson<'_> {
 
 pub fn run(a: CheckArgs) -> Result<()> {
     let scene = Scene::load(&a.scene).with_context(|| format!("reading scene {}", a.scene.display()))?;
-    let opts = CheckOptions { samples: a.samples, seed: a.seed, epsilon: a.epsilon, sdf_resolution: a.sdf_resolution };
+    let opts = CheckOptions {
+        samples: a.samples,
+        seed: a.seed,
+        epsilon: a.epsilon,
+        sdf_resolution: a.sdf_resolution,
+        friction: a.friction,
+    };
     let checks = check_scene(&scene, &opts)?;
     if a.json {
         let report = Report {
@@ -88,20 +105,21 @@ pub fn run(a: CheckArgs) -> Result<()> {
             scene: a.scene.display().to_string(),
             samples: a.samples,
             seed: a.seed,
+            friction: a.friction,
             objects: checks.iter().map(to_json).collect(),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!(
-        "{:<16} {:<13} {:>5} {:>5} {:>5} {:>10} {:>11} {:>6}",
-        "object", "verdict", "|I|", "|C|", "|S|", "min δ mm", "margin mm", "ε mm"
+        "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10} {:>11} {:>6}  friction (μ = {})",
+        "object", "verdict", "|I|", "|C|", "|S|", "min δ mm", "margin mm", "ε mm", a.friction
     );
     for o in &checks {
         let e = &o.evaluation;
         let verdict = if o.is_static { format!("{} (static)", e.verdict.as_str()) } else { e.verdict.as_str().to_string() };
         println!(
-            "{:<16} {:<13} {:>5} {:>5} {:>5} {:>10.2} {:>11} {:>6.2}",
+            "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10.2} {:>11} {:>6.2}  {}",
             o.name,
             verdict,
             e.intersecting,
@@ -109,7 +127,14 @@ pub fn run(a: CheckArgs) -> Result<()> {
             e.supported,
             e.min_distance * 1e3,
             e.stability_margin.map(|m| format!("{:.2}", m * 1e3)).unwrap_or_else(|| "-".into()),
-            o.epsilon * 1e3
+            o.epsilon * 1e3,
+            match o.friction_equilibrium {
+                Some(true) if o.methods_disagree() => "balanced (disagrees with the support polygon)",
+                Some(false) if o.methods_disagree() => "not balanced (disagrees with the support polygon)",
+                Some(true) => "balanced",
+                Some(false) => "not balanced",
+                None => "-",
+            }
         );
     }
     Ok(())

@@ -6,7 +6,8 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::contacts::{evaluate_detailed, Body, Detail, Environment, Evaluation, Obstacle, Verdict};
+use super::contacts::{evaluate_detailed, Body, Detail, Environment, Evaluation, Obstacle, SampleClass, Verdict};
+use super::friction::static_equilibrium;
 use super::scene::Scene;
 use super::sdf::{SdfGrid, DEFAULT_RESOLUTION};
 use super::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
@@ -25,11 +26,19 @@ pub struct CheckOptions {
     pub epsilon: Option<f64>,
     /// SDF grid cells across each mesh's longest side.
     pub sdf_resolution: usize,
+    /// Friction coefficient μ of the static-equilibrium check.
+    pub friction: f64,
 }
 
 impl Default for CheckOptions {
     fn default() -> Self {
-        CheckOptions { samples: DEFAULT_SAMPLES, seed: DEFAULT_SEED, epsilon: None, sdf_resolution: DEFAULT_RESOLUTION }
+        CheckOptions {
+            samples: DEFAULT_SAMPLES,
+            seed: DEFAULT_SEED,
+            epsilon: None,
+            sdf_resolution: DEFAULT_RESOLUTION,
+            friction: super::friction::DEFAULT_FRICTION,
+        }
     }
 }
 
@@ -44,7 +53,19 @@ pub struct ObjectCheck {
     pub mass_kg: f64,
     pub com_world: DVec3,
     pub evaluation: Evaluation,
+    /// Static equilibrium with friction (eq. 10-12) over all contacts, for
+    /// feasible dynamic objects: `Some(true)` balanced, `Some(false)` not;
+    /// `None` when not feasible, static, or undecided by the solver.
+    pub friction_equilibrium: Option<bool>,
     pub detail: Detail,
+}
+
+impl ObjectCheck {
+    /// The friction check and the support polygon disagree (typically an
+    /// object leaning on another: contacts that are not on one plane).
+    pub fn methods_disagree(&self) -> bool {
+        self.friction_equilibrium.is_some_and(|f| f != self.evaluation.stable)
+    }
 }
 
 /// A scene's objects with their prepared bodies and grids (shared between
@@ -106,14 +127,31 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
         if o.is_static {
             e.verdict = if e.intersecting > 0 { Verdict::Intersecting } else { Verdict::Plausible };
         }
+        let com_world = o.pose.transform_point(prep.mass[i].com);
+        let friction_equilibrium = if e.feasible && !o.is_static {
+            if !(opts.friction.is_finite() && opts.friction >= 0.0) {
+                return Err(crate::Error::InvalidInput(format!("friction coefficient must be ≥ 0, got {}", opts.friction)));
+            }
+            let (mut pts, mut normals) = (Vec::new(), Vec::new());
+            for (j, c) in detail.classes.iter().enumerate() {
+                if matches!(c, SampleClass::Contact | SampleClass::Supported) {
+                    pts.push(detail.world[j]);
+                    normals.push(detail.normal[j]);
+                }
+            }
+            static_equilibrium(&pts, &normals, com_world, scene.gravity, opts.friction, o.mesh.diagonal())
+        } else {
+            None
+        };
         out.push(ObjectCheck {
             name: o.name.clone(),
             is_static: o.is_static,
             epsilon: body.epsilon,
             grid_error_bound: env.error_bound(),
             mass_kg: prep.mass[i].mass(o.density),
-            com_world: o.pose.transform_point(prep.mass[i].com),
+            com_world,
             evaluation: e,
+            friction_equilibrium,
             detail,
         });
     }

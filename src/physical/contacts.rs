@@ -189,6 +189,8 @@ pub struct Evaluation {
 pub struct Detail {
     pub world: Vec<DVec3>,
     pub delta: Vec<f64>,
+    /// Unit normal of the closest scene point (world frame).
+    pub normal: Vec<DVec3>,
     pub classes: Vec<SampleClass>,
     /// Support polygon and projected centre of mass in the support-plane
     /// basis of [`support::support_basis`].
@@ -239,6 +241,7 @@ pub fn evaluate_detailed(body: &Body, pose: &Pose, env: &Environment) -> (Evalua
     let mut det = Detail {
         world: Vec::with_capacity(body.samples.len()),
         delta: Vec::with_capacity(body.samples.len()),
+        normal: Vec::with_capacity(body.samples.len()),
         classes: Vec::with_capacity(body.samples.len()),
         hull: Vec::new(),
         com: DVec2::ZERO,
@@ -262,6 +265,7 @@ pub fn evaluate_detailed(body: &Body, pose: &Pose, env: &Environment) -> (Evalua
         min = min.min(d.delta);
         det.world.push(x);
         det.delta.push(d.delta);
+        det.normal.push(d.normal);
         det.classes.push(c);
     }
     let (e, hull, c) = finish(ni, nc, min, &sup, det.com_world, env.gravity);

@@ -17,9 +17,11 @@
 //! - [`contacts`]: the classifier: the CPU twin (exact near ±ε) and the GPU
 //!   kernel (`shaders/contacts.wgsl`, trilinear grid values).
 //! - [`support`]: 2D convex hull and signed stability margin.
+//! - [`friction`]: static equilibrium with friction cones (eq. 10-12).
 
 pub mod check;
 pub mod contacts;
+pub mod friction;
 pub mod gpu;
 pub mod samples;
 pub mod scene;
