@@ -335,6 +335,13 @@ fn check_cli_reports_every_verdict_of_the_shipped_stack() {
     for key in ["intersecting", "contact", "supported", "min_distance", "stability_margin", "friction_equilibrium"] {
         assert!(on.get(key).is_some(), "{key} missing");
     }
+    assert!(on["displacement"].is_null(), "no --sim, no displacement");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(["check", scene, "--json", "--sim"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let d = &v["objects"][1]["displacement"];
+    assert!(d["translation"].as_f64().unwrap() < 0.002 && d["rotation_deg"].as_f64().unwrap() < 1.0, "{d}");
+    assert_eq!(d["series"].as_array().unwrap().len(), 10);
     // A bad scene: non-zero exit and the reason on stderr.
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.json");
@@ -364,4 +371,30 @@ fn bench_physics_reports_gpu_and_cpu_queries_per_second() {
         assert_eq!(r["gpu_queries_per_s"].is_null(), r["adapter"] == "none", "{r}");
     }
     assert!(rows[1]["grid_nodes"].as_u64().unwrap() > 1000);
+}
+
+#[test]
+fn simulated_displacement_separates_resting_from_falling_objects() {
+    use plausible::physical::simulate::{displacement, SimSettings};
+    let scene = Scene::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/stack.json"))).unwrap();
+    let settings = SimSettings::default();
+    let d = displacement(&scene, &settings).unwrap();
+    let last = |name: &str| {
+        let i = scene.objects.iter().position(|o| o.name == name).unwrap();
+        let v = d[i].as_ref().unwrap();
+        assert_eq!(v.len(), settings.rounds);
+        assert!((v[v.len() - 1].time_s - settings.rounds as f64 * settings.steps as f64 * settings.dt).abs() < 1e-12);
+        *v.last().unwrap()
+    };
+    for name in ["slab", "cube_on_slab"] {
+        let l = last(name);
+        assert!(l.translation < 0.002 && l.rotation_deg < 1.0, "{name}: {l:?}");
+    }
+    let l = last("cube_overhanging");
+    assert!(l.rotation_deg > 10.0, "overhanging: {l:?}");
+    // The floating cube falls its 1 cm onto the plane and stays there.
+    let l = last("cube_floating");
+    assert!((l.translation - 0.01).abs() < 0.002, "floating: {l:?}");
+    // Deterministic.
+    assert_eq!(displacement(&scene, &settings).unwrap(), d);
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
 use plausible::physical::check::{check_scene, CheckOptions, ObjectCheck};
+use plausible::physical::simulate::{displacement, Displacement, SimSettings};
 use plausible::physical::Scene;
 use serde::Serialize;
 
@@ -31,6 +32,29 @@ pub struct CheckArgs {
     /// Friction coefficient μ of the static-equilibrium check (eq. 10-12).
     #[arg(long, default_value_t = plausible::physical::friction::DEFAULT_FRICTION)]
     pub friction: f64,
+    /// Also simulate (rapier): rounds of a few steps with velocities reset
+    /// to zero after each, reporting every dynamic object's displacement.
+    #[arg(long)]
+    pub sim: bool,
+    /// Simulation time step (s).
+    #[arg(long, default_value_t = 1.0 / 60.0)]
+    pub sim_dt: f64,
+    /// Steps per round.
+    #[arg(long, default_value_t = 3)]
+    pub sim_steps: usize,
+    /// Rounds (velocities reset to zero after each).
+    #[arg(long, default_value_t = 10)]
+    pub sim_rounds: usize,
+}
+
+#[derive(Serialize)]
+struct DisplacementJson {
+    /// After the last round: distance the origin moved (m) ...
+    translation: f64,
+    /// ... and rotation angle (degrees).
+    rotation_deg: f64,
+    /// After every round.
+    series: Vec<Displacement>,
 }
 
 #[derive(Serialize)]
@@ -49,6 +73,8 @@ struct ObjectJson<'a> {
     friction_equilibrium: Option<bool>,
     /// The friction check and the support polygon disagree.
     methods_disagree: bool,
+    /// With --sim (dynamic objects): displacement over time.
+    displacement: Option<DisplacementJson>,
     feasible: bool,
     stable: bool,
     epsilon: f64,
@@ -67,7 +93,7 @@ struct Report<'a> {
     objects: Vec<ObjectJson<'a>>,
 }
 
-fn to_json(o: &ObjectCheck) -> ObjectJson<'_> {
+fn to_json<'a>(o: &'a ObjectCheck, sim: Option<&Vec<Displacement>>) -> ObjectJson<'a> {
     let e = &o.evaluation;
     ObjectJson {
         name: &o.name,
@@ -80,6 +106,9 @@ fn to_json(o: &ObjectCheck) -> ObjectJson<'_> {
         stability_margin: e.stability_margin,
         friction_equilibrium: o.friction_equilibrium,
         methods_disagree: o.methods_disagree(),
+        displacement: sim.and_then(|v| {
+            v.last().map(|l| DisplacementJson { translation: l.translation, rotation_deg: l.rotation_deg, series: v.clone() })
+        }),
         feasible: e.feasible,
         stable: e.stable,
         epsilon: o.epsilon,
@@ -99,6 +128,12 @@ pub fn run(a: CheckArgs) -> Result<()> {
         friction: a.friction,
     };
     let checks = check_scene(&scene, &opts)?;
+    let sim: Vec<Option<Vec<Displacement>>> = if a.sim {
+        let settings = SimSettings { dt: a.sim_dt, steps: a.sim_steps, rounds: a.sim_rounds, ..SimSettings::default() };
+        displacement(&scene, &settings)?
+    } else {
+        vec![None; checks.len()]
+    };
     if a.json {
         let report = Report {
             version: env!("CARGO_PKG_VERSION"),
@@ -106,20 +141,29 @@ pub fn run(a: CheckArgs) -> Result<()> {
             samples: a.samples,
             seed: a.seed,
             friction: a.friction,
-            objects: checks.iter().map(to_json).collect(),
+            objects: checks.iter().zip(&sim).map(|(c, d)| to_json(c, d.as_ref())).collect(),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!(
-        "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10} {:>11} {:>6}  friction (μ = {})",
-        "object", "verdict", "|I|", "|C|", "|S|", "min δ mm", "margin mm", "ε mm", a.friction
+        "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10} {:>11} {:>6} {:>17}  friction (μ = {})",
+        "object",
+        "verdict",
+        "|I|",
+        "|C|",
+        "|S|",
+        "min δ mm",
+        "margin mm",
+        "ε mm",
+        if a.sim { "moved mm / deg" } else { "" },
+        a.friction
     );
-    for o in &checks {
+    for (o, d) in checks.iter().zip(&sim) {
         let e = &o.evaluation;
         let verdict = if o.is_static { format!("{} (static)", e.verdict.as_str()) } else { e.verdict.as_str().to_string() };
         println!(
-            "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10.2} {:>11} {:>6.2}  {}",
+            "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10.2} {:>11} {:>6.2} {:>17}  {}",
             o.name,
             verdict,
             e.intersecting,
@@ -128,6 +172,10 @@ pub fn run(a: CheckArgs) -> Result<()> {
             e.min_distance * 1e3,
             e.stability_margin.map(|m| format!("{:.2}", m * 1e3)).unwrap_or_else(|| "-".into()),
             o.epsilon * 1e3,
+            d.as_ref()
+                .and_then(|v| v.last())
+                .map(|l| format!("{:.2} / {:.2}", l.translation * 1e3, l.rotation_deg))
+                .unwrap_or_default(),
             match o.friction_equilibrium {
                 Some(true) if o.methods_disagree() => "balanced (disagrees with the support polygon)",
                 Some(false) if o.methods_disagree() => "not balanced (disagrees with the support polygon)",

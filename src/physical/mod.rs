@@ -18,6 +18,7 @@
 //!   kernel (`shaders/contacts.wgsl`, trilinear grid values).
 //! - [`support`]: 2D convex hull and signed stability margin.
 //! - [`friction`]: static equilibrium with friction cones (eq. 10-12).
+//! - [`simulate`]: displacement over a few simulated steps (rapier).
 
 pub mod check;
 pub mod contacts;
@@ -26,6 +27,7 @@ pub mod gpu;
 pub mod samples;
 pub mod scene;
 pub mod sdf;
+pub mod simulate;
 pub mod support;
 
 pub use contacts::{Evaluation, SampleClass, Verdict};
