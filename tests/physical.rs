@@ -398,3 +398,22 @@ fn simulated_displacement_separates_resting_from_falling_objects() {
     // Deterministic.
     assert_eq!(displacement(&scene, &settings).unwrap(), d);
 }
+
+#[test]
+fn explain_draws_classes_support_polygons_and_centres_of_mass() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/stack.json");
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("explain.png");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible"))
+        .args(["check", scene, "--explain", png.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let img = image::open(&png).unwrap().to_rgb8();
+    assert_eq!((img.width(), img.height()), (1024, 512));
+    let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+    assert!(count([220, 30, 30]) > 100, "intersecting samples (red)");
+    assert!(count([0, 190, 210]) > 100, "supported samples (cyan)");
+    assert!(count([20, 40, 160]) > 100, "support polygons (blue)");
+    assert!(count([220, 0, 0]) > 20 && count([0, 0, 0]) > 20, "unstable and stable centres of mass");
+}

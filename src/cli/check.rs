@@ -45,6 +45,10 @@ pub struct CheckArgs {
     /// Rounds (velocities reset to zero after each).
     #[arg(long, default_value_t = 10)]
     pub sim_rounds: usize,
+    /// Write a picture (PNG): samples by class, support polygons and
+    /// centres of mass from above, and a side view (see docs/physics.md).
+    #[arg(long)]
+    pub explain: Option<PathBuf>,
 }
 
 #[derive(Serialize)]
@@ -128,6 +132,11 @@ pub fn run(a: CheckArgs) -> Result<()> {
         friction: a.friction,
     };
     let checks = check_scene(&scene, &opts)?;
+    if let Some(path) = &a.explain {
+        plausible::physical::explain::explain_image(&scene, &checks)
+            .save(path)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     let sim: Vec<Option<Vec<Displacement>>> = if a.sim {
         let settings = SimSettings { dt: a.sim_dt, steps: a.sim_steps, rounds: a.sim_rounds, ..SimSettings::default() };
         displacement(&scene, &settings)?

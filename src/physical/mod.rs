@@ -19,9 +19,11 @@
 //! - [`support`]: 2D convex hull and signed stability margin.
 //! - [`friction`]: static equilibrium with friction cones (eq. 10-12).
 //! - [`simulate`]: displacement over a few simulated steps (rapier).
+//! - [`explain`]: a top and a side view of a checked scene.
 
 pub mod check;
 pub mod contacts;
+pub mod explain;
 pub mod friction;
 pub mod gpu;
 pub mod samples;
