@@ -24,14 +24,26 @@ fn write_obj(path: &Path, mesh: &plausible::mesh::Mesh) {
 /// A temp folder with `cube.obj` (5 cm) and `slab.obj` (10 x 10 x 4 cm).
 fn assets() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
-    write_obj(&dir.path().join("cube.obj"), &plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)));
-    write_obj(&dir.path().join("slab.obj"), &plausible::shapes::cuboid(DVec3::new(0.05, 0.05, 0.02)));
+    write_obj(
+        &dir.path().join("cube.obj"),
+        &plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)),
+    );
+    write_obj(
+        &dir.path().join("slab.obj"),
+        &plausible::shapes::cuboid(DVec3::new(0.05, 0.05, 0.02)),
+    );
     dir
 }
 
 fn rows(r: DMat3) -> String {
     let a = r.transpose().to_cols_array();
-    format!("[{}]", a.iter().map(|v| format!("{v:.17}")).collect::<Vec<_>>().join(", "))
+    format!(
+        "[{}]",
+        a.iter()
+            .map(|v| format!("{v:.17}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
 }
 
 fn object(name: &str, mesh: &str, r: DMat3, t: DVec3, is_static: bool) -> String {
@@ -61,7 +73,16 @@ fn check(dir: &Path, objects: &[String]) -> Vec<ObjectCheck> {
 #[test]
 fn cube_resting_on_the_plane_is_plausible_with_half_side_margin() {
     let d = assets();
-    let r = check(d.path(), &[object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.3, -0.2, SIDE / 2.0), false)]);
+    let r = check(
+        d.path(),
+        &[object(
+            "cube",
+            "cube.obj",
+            DMat3::IDENTITY,
+            DVec3::new(0.3, -0.2, SIDE / 2.0),
+            false,
+        )],
+    );
     let e = &r[0].evaluation;
     assert_eq!(e.verdict, Verdict::Plausible, "{e:?}");
     assert_eq!(e.intersecting, 0);
@@ -77,13 +98,31 @@ fn cube_resting_on_the_plane_is_plausible_with_half_side_margin() {
 #[test]
 fn cube_lifted_1cm_floats_and_sunk_1cm_intersects() {
     let d = assets();
-    let up = check(d.path(), &[object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0 + 0.01), false)]);
+    let up = check(
+        d.path(),
+        &[object(
+            "cube",
+            "cube.obj",
+            DMat3::IDENTITY,
+            DVec3::new(0.0, 0.0, SIDE / 2.0 + 0.01),
+            false,
+        )],
+    );
     let e = &up[0].evaluation;
     assert_eq!(e.verdict, Verdict::Floating, "{e:?}");
     assert_eq!((e.intersecting, e.contact, e.supported), (0, 0, 0));
     assert!((e.min_distance - 0.01).abs() < 1e-8);
     assert_eq!(e.stability_margin, None);
-    let down = check(d.path(), &[object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0 - 0.01), false)]);
+    let down = check(
+        d.path(),
+        &[object(
+            "cube",
+            "cube.obj",
+            DMat3::IDENTITY,
+            DVec3::new(0.0, 0.0, SIDE / 2.0 - 0.01),
+            false,
+        )],
+    );
     let e = &down[0].evaluation;
     assert_eq!(e.verdict, Verdict::Intersecting, "{e:?}");
     assert!(e.intersecting > 150, "{e:?}");
@@ -95,30 +134,77 @@ fn cube_tilted_30_degrees_onto_an_edge_has_contacts_but_is_unstable() {
     let d = assets();
     let r = axis_angle(DVec3::Y, 30f64.to_radians());
     // Lowest corner height of the rotated cube, put exactly on the plane.
-    let low = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)).vertices.iter().map(|v| (r * *v).z).fold(f64::INFINITY, f64::min);
-    let res = check(d.path(), &[object("cube", "cube.obj", r, DVec3::new(0.0, 0.0, -low), false)]);
+    let low = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0))
+        .vertices
+        .iter()
+        .map(|v| (r * *v).z)
+        .fold(f64::INFINITY, f64::min);
+    let res = check(
+        d.path(),
+        &[object(
+            "cube",
+            "cube.obj",
+            r,
+            DVec3::new(0.0, 0.0, -low),
+            false,
+        )],
+    );
     let e = &res[0].evaluation;
     assert_eq!(e.verdict, Verdict::Unstable, "{e:?}");
-    assert!(e.contact >= 5 && e.supported == e.contact && e.intersecting == 0, "{e:?}");
+    assert!(
+        e.contact >= 5 && e.supported == e.contact && e.intersecting == 0,
+        "{e:?}"
+    );
     // The resting edge is a (cos 30° - sin 30°) = 9.15 mm beside the centre of mass. Samples
     // within ε above the plane reach ε / tan 30° up the lower face towards it, so the margin
     // lies between -9.15 mm and -9.15 mm + ε / tan 30°.
-    let edge_x = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)).vertices.iter().map(|v| r * *v).fold(DVec3::INFINITY, |m, v| if v.z < m.z { v } else { m }).x;
+    let edge_x = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0))
+        .vertices
+        .iter()
+        .map(|v| r * *v)
+        .fold(DVec3::INFINITY, |m, v| if v.z < m.z { v } else { m })
+        .x;
     let m = e.stability_margin.unwrap();
     let eps = res[0].epsilon;
-    assert!(m >= -edge_x.abs() - 1e-8 && m <= -edge_x.abs() + eps / 30f64.to_radians().tan(), "margin {m} vs {}", -edge_x.abs());
+    assert!(
+        m >= -edge_x.abs() - 1e-8 && m <= -edge_x.abs() + eps / 30f64.to_radians().tan(),
+        "margin {m} vs {}",
+        -edge_x.abs()
+    );
 }
 
 #[test]
 fn box_on_a_box_centred_is_stable_and_shifted_past_the_edge_is_not() {
     let d = assets();
-    let slab = object("slab", "slab.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, 0.02), false);
-    let on = |x: f64| object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(x, 0.0, 0.04 + SIDE / 2.0), false);
+    let slab = object(
+        "slab",
+        "slab.obj",
+        DMat3::IDENTITY,
+        DVec3::new(0.0, 0.0, 0.02),
+        false,
+    );
+    let on = |x: f64| {
+        object(
+            "cube",
+            "cube.obj",
+            DMat3::IDENTITY,
+            DVec3::new(x, 0.0, 0.04 + SIDE / 2.0),
+            false,
+        )
+    };
     let centred = check(d.path(), &[slab.clone(), on(0.0)]);
-    assert_eq!(centred[0].evaluation.verdict, Verdict::Plausible, "{:?}", centred[0].evaluation);
+    assert_eq!(
+        centred[0].evaluation.verdict,
+        Verdict::Plausible,
+        "{:?}",
+        centred[0].evaluation
+    );
     let e = &centred[1].evaluation;
     assert_eq!(e.verdict, Verdict::Plausible, "{e:?}");
-    assert!((e.stability_margin.unwrap() - SIDE / 2.0).abs() < 2e-3, "{e:?}");
+    assert!(
+        (e.stability_margin.unwrap() - SIDE / 2.0).abs() < 2e-3,
+        "{e:?}"
+    );
     // The slab's top-face contacts touch the cube's bottom (normal down): not support.
     let s = &centred[0].evaluation;
     assert!(s.contact > s.supported, "{s:?}");
@@ -135,11 +221,29 @@ fn box_on_a_box_centred_is_stable_and_shifted_past_the_edge_is_not() {
 #[test]
 fn interpenetrating_objects_are_intersecting() {
     let d = assets();
-    let a = object("a", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0), false);
-    let b = object("b", "cube.obj", axis_angle(DVec3::Z, 0.3), DVec3::new(0.03, 0.0, SIDE / 2.0), false);
+    let a = object(
+        "a",
+        "cube.obj",
+        DMat3::IDENTITY,
+        DVec3::new(0.0, 0.0, SIDE / 2.0),
+        false,
+    );
+    let b = object(
+        "b",
+        "cube.obj",
+        axis_angle(DVec3::Z, 0.3),
+        DVec3::new(0.03, 0.0, SIDE / 2.0),
+        false,
+    );
     let r = check(d.path(), &[a, b]);
     for o in &r {
-        assert_eq!(o.evaluation.verdict, Verdict::Intersecting, "{}: {:?}", o.name, o.evaluation);
+        assert_eq!(
+            o.evaluation.verdict,
+            Verdict::Intersecting,
+            "{}: {:?}",
+            o.name,
+            o.evaluation
+        );
         assert!(o.evaluation.min_distance < -0.005);
     }
 }
@@ -152,34 +256,85 @@ fn camera_frame_scene_matches_the_world_frame() {
         axis_angle(DVec3::X, 3.0 * std::f64::consts::FRAC_PI_4),
         DVec3::new(0.0, 0.1, 0.6),
     );
-    let cube_world = plausible::pose::Pose::new(axis_angle(DVec3::Z, 0.4), DVec3::new(0.02, 0.01, SIDE / 2.0));
+    let cube_world = plausible::pose::Pose::new(
+        axis_angle(DVec3::Z, 0.4),
+        DVec3::new(0.02, 0.01, SIDE / 2.0),
+    );
     let c = cam_from_world.compose(&cube_world);
     let n = cam_from_world.r * DVec3::Z;
     let p = cam_from_world.t * 1000.0;
     let text = format!(
         r#"{{"frame": "camera", "planes": [{{"point": [{}, {}, {}], "normal": [{}, {}, {}]}}],
             "objects": [{{"mesh": "cube.obj", "units": "m", "cam_R_m2c": {}, "cam_t_m2c": [{}, {}, {}]}}]}}"#,
-        p.x, p.y, p.z, -n.x, -n.y, -n.z, rows(c.r), c.t.x * 1000.0, c.t.y * 1000.0, c.t.z * 1000.0
+        p.x,
+        p.y,
+        p.z,
+        -n.x,
+        -n.y,
+        -n.z,
+        rows(c.r),
+        c.t.x * 1000.0,
+        c.t.y * 1000.0,
+        c.t.z * 1000.0
     );
     let s = Scene::from_json(&text, d.path(), Path::new("camera.json")).unwrap();
     assert_eq!(s.objects[0].name, "cube");
     let r = check_scene(&s, &CheckOptions::default()).unwrap();
     let e = &r[0].evaluation;
     assert_eq!(e.verdict, Verdict::Plausible, "{e:?}");
-    assert!((e.stability_margin.unwrap() - SIDE / 2.0).abs() < 1e-6, "{e:?}");
+    assert!(
+        (e.stability_margin.unwrap() - SIDE / 2.0).abs() < 1e-6,
+        "{e:?}"
+    );
 }
 
 #[test]
 fn friction_equilibrium_agrees_with_the_support_polygon_on_planar_contacts() {
     let d = assets();
     let tilt = axis_angle(DVec3::Y, 30f64.to_radians());
-    let low = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0)).vertices.iter().map(|v| (tilt * *v).z).fold(f64::INFINITY, f64::min);
-    let slab = object("slab", "slab.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, 0.02), false);
-    let on = |x: f64| object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(x, 0.0, 0.04 + SIDE / 2.0), false);
+    let low = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0))
+        .vertices
+        .iter()
+        .map(|v| (tilt * *v).z)
+        .fold(f64::INFINITY, f64::min);
+    let slab = object(
+        "slab",
+        "slab.obj",
+        DMat3::IDENTITY,
+        DVec3::new(0.0, 0.0, 0.02),
+        false,
+    );
+    let on = |x: f64| {
+        object(
+            "cube",
+            "cube.obj",
+            DMat3::IDENTITY,
+            DVec3::new(x, 0.0, 0.04 + SIDE / 2.0),
+            false,
+        )
+    };
     let scenes = vec![
-        vec![object("cube", "cube.obj", DMat3::IDENTITY, DVec3::new(0.0, 0.0, SIDE / 2.0), false)],
-        vec![object("cube", "cube.obj", tilt, DVec3::new(0.0, 0.0, -low), false)],
-        vec![object("cube", "cube.obj", axis_angle(DVec3::Z, 0.7), DVec3::new(0.1, 0.0, SIDE / 2.0), false)],
+        vec![object(
+            "cube",
+            "cube.obj",
+            DMat3::IDENTITY,
+            DVec3::new(0.0, 0.0, SIDE / 2.0),
+            false,
+        )],
+        vec![object(
+            "cube",
+            "cube.obj",
+            tilt,
+            DVec3::new(0.0, 0.0, -low),
+            false,
+        )],
+        vec![object(
+            "cube",
+            "cube.obj",
+            axis_angle(DVec3::Z, 0.7),
+            DVec3::new(0.1, 0.0, SIDE / 2.0),
+            false,
+        )],
         vec![slab.clone(), on(0.0)],
         vec![slab.clone(), on(0.03)],
         vec![slab, on(0.06)],
@@ -187,8 +342,14 @@ fn friction_equilibrium_agrees_with_the_support_polygon_on_planar_contacts() {
     let mut seen = [0, 0];
     for objects in scenes {
         for o in check(d.path(), &objects) {
-            let f = o.friction_equilibrium.unwrap_or_else(|| panic!("{}: no friction result", o.name));
-            assert_eq!(f, o.evaluation.stable, "{}: friction {f} vs support polygon {:?}", o.name, o.evaluation);
+            let f = o
+                .friction_equilibrium
+                .unwrap_or_else(|| panic!("{}: no friction result", o.name));
+            assert_eq!(
+                f, o.evaluation.stable,
+                "{}: friction {f} vs support polygon {:?}",
+                o.name, o.evaluation
+            );
             assert!(!o.methods_disagree());
             seen[f as usize] += 1;
         }
@@ -197,14 +358,18 @@ fn friction_equilibrium_agrees_with_the_support_polygon_on_planar_contacts() {
 }
 
 fn load_err(dir: &Path, text: &str) -> String {
-    Scene::from_json(text, dir, Path::new("bad.json")).unwrap_err().to_string()
+    Scene::from_json(text, dir, Path::new("bad.json"))
+        .unwrap_err()
+        .to_string()
 }
 
 #[test]
 fn bad_inputs_each_get_their_error() {
     let d = assets();
     let p = d.path();
-    let obj = |r: &str, t: &str, mesh: &str| format!(r#"{{"objects": [{{"mesh": "{mesh}", "R": {r}, "t": {t}}}]}}"#);
+    let obj = |r: &str, t: &str, mesh: &str| {
+        format!(r#"{{"objects": [{{"mesh": "{mesh}", "R": {r}, "t": {t}}}]}}"#)
+    };
     let id = "[1,0,0,0,1,0,0,0,1]";
     let e = load_err(p, &obj(id, "[0,0,0]", "missing.obj"));
     assert!(e.contains("mesh 'missing.obj' not found"), "{e}");
@@ -214,24 +379,34 @@ fn bad_inputs_each_get_their_error() {
     assert!(e.contains("not orthonormal"), "{e}");
     let e = load_err(p, &obj("[1,0,0,0,1,0,0,0,-1]", "[0,0,0]", "cube.obj"));
     assert!(e.contains("determinant"), "{e}");
-    let e = load_err(p, r#"{"planes": [{"point": [0,0,0], "normal": [0,0,0]}], "objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#);
+    let e = load_err(
+        p,
+        r#"{"planes": [{"point": [0,0,0], "normal": [0,0,0]}], "objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#,
+    );
     assert!(e.contains("plane 0: normal has zero length"), "{e}");
     let e = load_err(p, &obj(id, "[0,0]", "cube.obj"));
     assert!(e.contains("t must have 3 numbers"), "{e}");
     let e = load_err(p, r#"{"objects": []}"#);
     assert!(e.contains("no objects"), "{e}");
-    let e = load_err(p, r#"{"objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0], "colour": 1}]}"#);
+    let e = load_err(
+        p,
+        r#"{"objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0], "colour": 1}]}"#,
+    );
     assert!(e.contains("unknown field"), "{e}");
-    let e = load_err(p, r#"{"gravity": [0,0,0], "objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#);
+    let e = load_err(
+        p,
+        r#"{"gravity": [0,0,0], "objects": [{"mesh": "cube.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#,
+    );
     assert!(e.contains("gravity has zero length"), "{e}");
 }
-
 
 mod gpu {
     use std::sync::Arc;
 
     use glam::{DMat3, DQuat, DVec3};
-    use plausible::physical::contacts::{distances_batch, evaluate_batch, Body, Environment, Obstacle};
+    use plausible::physical::contacts::{
+        distances_batch, evaluate_batch, Body, Environment, Obstacle,
+    };
     use plausible::physical::gpu::GpuContacts;
     use plausible::physical::scene::Plane;
     use plausible::physical::sdf::{SdfGrid, DEFAULT_RESOLUTION};
@@ -248,34 +423,66 @@ mod gpu {
         (0..n)
             .map(|_| {
                 let r = if rng.random::<f64>() < 0.25 {
-                    DMat3::from_quat(DQuat::from_xyzw(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)).normalize())
+                    DMat3::from_quat(
+                        DQuat::from_xyzw(
+                            rng.random_range(-1.0..1.0),
+                            rng.random_range(-1.0..1.0),
+                            rng.random_range(-1.0..1.0),
+                            rng.random_range(-1.0..1.0),
+                        )
+                        .normalize(),
+                    )
                 } else {
-                    let axis = DVec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0);
-                    axis_angle(DVec3::Z, rng.random_range(0.0..6.3)) * axis_angle(axis, rng.random_range(0.0..25f64.to_radians()))
+                    let axis = DVec3::new(
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                        0.0,
+                    );
+                    axis_angle(DVec3::Z, rng.random_range(0.0..6.3))
+                        * axis_angle(axis, rng.random_range(0.0..25f64.to_radians()))
                 };
                 let (x, y, support) = if rng.random::<bool>() {
-                    (rng.random_range(-0.05..0.05), rng.random_range(-0.05..0.05), 0.04)
+                    (
+                        rng.random_range(-0.05..0.05),
+                        rng.random_range(-0.05..0.05),
+                        0.04,
+                    )
                 } else {
                     let a: f64 = rng.random_range(0.0..6.3);
                     let d = rng.random_range(0.06..0.09);
                     (d * a.cos(), d * a.sin(), 0.0)
                 };
-                let low = cube.vertices.iter().map(|v| (r * *v).z).fold(f64::INFINITY, f64::min);
-                Pose::new(r, DVec3::new(x, y, support - low + rng.random_range(-0.004..0.004)))
+                let low = cube
+                    .vertices
+                    .iter()
+                    .map(|v| (r * *v).z)
+                    .fold(f64::INFINITY, f64::min);
+                Pose::new(
+                    r,
+                    DVec3::new(x, y, support - low + rng.random_range(-0.004..0.004)),
+                )
             })
             .collect()
     }
 
     #[test]
     fn gpu_agrees_with_the_cpu_twin_on_10000_poses_near_contact() {
-        let Some(ctx) = plausible::gpu::test_context() else { return };
+        let Some(ctx) = plausible::gpu::test_context() else {
+            return;
+        };
         let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
         let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
         let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());
         let (lo, _) = cyl.bounds();
         let env = Environment {
-            planes: vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }],
-            obstacles: vec![Obstacle { sdf: grid.clone(), pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.0, 0.0, -lo.z)) }],
+            planes: vec![Plane {
+                point: DVec3::ZERO,
+                normal: DVec3::Z,
+            }],
+            obstacles: vec![Obstacle {
+                sdf: grid.clone(),
+                pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.0, 0.0, -lo.z)),
+            }],
             gravity: DVec3::new(0.0, 0.0, -9.81),
         };
         let body = Body::new(&cube, 1024, 5, None).unwrap();
@@ -292,15 +499,26 @@ mod gpu {
             if c.verdict == g.verdict {
                 agree += 1;
             }
-            assert!((c.min_distance - g.min_distance).abs() <= bound, "min δ {} vs {}", c.min_distance, g.min_distance);
+            assert!(
+                (c.min_distance - g.min_distance).abs() <= bound,
+                "min δ {} vs {}",
+                c.min_distance,
+                g.min_distance
+            );
         }
         eprintln!(
             "verdicts (CPU twin): {kinds:?}; agreement {agree}/10000; grid bound {bound:.2e} m; {} samples refined on the CPU",
             gpu.refined_count(&out)
         );
-        assert!(agree >= 9990, "GPU and CPU agree on {agree} of 10000 verdicts");
+        assert!(
+            agree >= 9990,
+            "GPU and CPU agree on {agree} of 10000 verdicts"
+        );
         // Every verdict kind is exercised.
-        assert!(kinds.len() == 4 && kinds.values().all(|&k| k >= 100), "{kinds:?}");
+        assert!(
+            kinds.len() == 4 && kinds.values().all(|&k| k >= 100),
+            "{kinds:?}"
+        );
         // Per-sample δ of the first 1000 poses within the bound.
         let m = body.samples.len();
         let exact = distances_batch(&body, &poses[..1000], &env);
@@ -317,36 +535,81 @@ mod gpu {
 #[test]
 fn check_cli_reports_every_verdict_of_the_shipped_stack() {
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/stack.json");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(["check", scene, "--json"]).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible"))
+        .args(["check", scene, "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let objects = v["objects"].as_array().unwrap();
-    let verdict = |name: &str| objects.iter().find(|o| o["name"] == name).unwrap()["verdict"].as_str().unwrap().to_string();
+    let verdict = |name: &str| {
+        objects.iter().find(|o| o["name"] == name).unwrap()["verdict"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
     assert_eq!(verdict("slab"), "plausible");
     assert_eq!(verdict("cube_on_slab"), "plausible");
     assert_eq!(verdict("cube_overhanging"), "unstable");
     assert_eq!(verdict("cube_floating"), "floating");
     assert_eq!(verdict("cube_sunk"), "intersecting");
-    let on = objects.iter().find(|o| o["name"] == "cube_on_slab").unwrap();
+    let on = objects
+        .iter()
+        .find(|o| o["name"] == "cube_on_slab")
+        .unwrap();
     assert!((on["stability_margin"].as_f64().unwrap() - 0.025).abs() < 1e-6);
     assert_eq!(on["friction_equilibrium"], true);
-    assert_eq!(objects.iter().find(|o| o["name"] == "cube_overhanging").unwrap()["friction_equilibrium"], false);
-    assert!(objects.iter().find(|o| o["name"] == "cube_floating").unwrap()["friction_equilibrium"].is_null());
-    for key in ["intersecting", "contact", "supported", "min_distance", "stability_margin", "friction_equilibrium"] {
+    assert_eq!(
+        objects
+            .iter()
+            .find(|o| o["name"] == "cube_overhanging")
+            .unwrap()["friction_equilibrium"],
+        false
+    );
+    assert!(objects
+        .iter()
+        .find(|o| o["name"] == "cube_floating")
+        .unwrap()["friction_equilibrium"]
+        .is_null());
+    for key in [
+        "intersecting",
+        "contact",
+        "supported",
+        "min_distance",
+        "stability_margin",
+        "friction_equilibrium",
+    ] {
         assert!(on.get(key).is_some(), "{key} missing");
     }
     assert!(on["displacement"].is_null(), "no --sim, no displacement");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(["check", scene, "--json", "--sim"]).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible"))
+        .args(["check", scene, "--json", "--sim"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let d = &v["objects"][1]["displacement"];
-    assert!(d["translation"].as_f64().unwrap() < 0.002 && d["rotation_deg"].as_f64().unwrap() < 1.0, "{d}");
+    assert!(
+        d["translation"].as_f64().unwrap() < 0.002 && d["rotation_deg"].as_f64().unwrap() < 1.0,
+        "{d}"
+    );
     assert_eq!(d["series"].as_array().unwrap().len(), 10);
     // A bad scene: non-zero exit and the reason on stderr.
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.json");
     std::fs::write(&bad, r#"{"planes": [{"point": [0,0,0], "normal": [0,0,0]}], "objects": [{"mesh": "x.obj", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0]}]}"#).unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(["check", bad.to_str().unwrap()]).output().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible"))
+        .args(["check", bad.to_str().unwrap()])
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("normal has zero length"));
 }
@@ -354,12 +617,28 @@ fn check_cli_reports_every_verdict_of_the_shipped_stack() {
 #[test]
 fn bench_physics_reports_gpu_and_cpu_queries_per_second() {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_plausible"))
-        .args(["bench", "physics", "--json", "--n", "64", "--samples", "256", "--repeat", "1"])
+        .args([
+            "bench",
+            "physics",
+            "--json",
+            "--n",
+            "64",
+            "--samples",
+            "256",
+            "--repeat",
+            "1",
+        ])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let rows: Vec<serde_json::Value> =
-        String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rows: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     assert_eq!(rows.len(), 2);
     assert_eq!(rows[0]["scene"], "plane");
     assert_eq!(rows[1]["scene"], "plane+mesh");
@@ -368,7 +647,11 @@ fn bench_physics_reports_gpu_and_cpu_queries_per_second() {
         assert_eq!(r["samples"], 256);
         assert!(r["cpu_queries_per_s"].as_f64().unwrap() > 0.0);
         // GPU figures are present exactly when an adapter was found.
-        assert_eq!(r["gpu_queries_per_s"].is_null(), r["adapter"] == "none", "{r}");
+        assert_eq!(
+            r["gpu_queries_per_s"].is_null(),
+            r["adapter"] == "none",
+            "{r}"
+        );
     }
     assert!(rows[1]["grid_nodes"].as_u64().unwrap() > 1000);
 }
@@ -376,19 +659,30 @@ fn bench_physics_reports_gpu_and_cpu_queries_per_second() {
 #[test]
 fn simulated_displacement_separates_resting_from_falling_objects() {
     use plausible::physical::simulate::{displacement, SimSettings};
-    let scene = Scene::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/stack.json"))).unwrap();
+    let scene = Scene::load(Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/assets/physics/stack.json"
+    )))
+    .unwrap();
     let settings = SimSettings::default();
     let d = displacement(&scene, &settings).unwrap();
     let last = |name: &str| {
         let i = scene.objects.iter().position(|o| o.name == name).unwrap();
         let v = d[i].as_ref().unwrap();
         assert_eq!(v.len(), settings.rounds);
-        assert!((v[v.len() - 1].time_s - settings.rounds as f64 * settings.steps as f64 * settings.dt).abs() < 1e-12);
+        assert!(
+            (v[v.len() - 1].time_s - settings.rounds as f64 * settings.steps as f64 * settings.dt)
+                .abs()
+                < 1e-12
+        );
         *v.last().unwrap()
     };
     for name in ["slab", "cube_on_slab"] {
         let l = last(name);
-        assert!(l.translation < 0.002 && l.rotation_deg < 1.0, "{name}: {l:?}");
+        assert!(
+            l.translation < 0.002 && l.rotation_deg < 1.0,
+            "{name}: {l:?}"
+        );
     }
     let l = last("cube_overhanging");
     assert!(l.rotation_deg > 10.0, "overhanging: {l:?}");
@@ -408,12 +702,19 @@ fn explain_draws_classes_support_polygons_and_centres_of_mass() {
         .args(["check", scene, "--explain", png.to_str().unwrap()])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let img = image::open(&png).unwrap().to_rgb8();
     assert_eq!((img.width(), img.height()), (1024, 512));
     let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
     assert!(count([220, 30, 30]) > 100, "intersecting samples (red)");
     assert!(count([0, 190, 210]) > 100, "supported samples (cyan)");
     assert!(count([20, 40, 160]) > 100, "support polygons (blue)");
-    assert!(count([220, 0, 0]) > 20 && count([0, 0, 0]) > 20, "unstable and stable centres of mass");
+    assert!(
+        count([220, 0, 0]) > 20 && count([0, 0, 0]) > 20,
+        "unstable and stable centres of mass"
+    );
 }

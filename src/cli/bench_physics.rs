@@ -72,7 +72,12 @@ fn median(mut v: Vec<Duration>) -> Duration {
 
 fn random_rotation(rng: &mut ChaCha8Rng) -> DMat3 {
     loop {
-        let q = DQuat::from_xyzw(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let q = DQuat::from_xyzw(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
         let l = q.length();
         if l > 0.1 && l <= 1.0 {
             return DMat3::from_quat(q / l);
@@ -91,11 +96,16 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
     // diagonal, resting on the plane.
     let cube = plausible::shapes::cuboid(DVec3::splat(0.025));
     let body = Body::new(&cube, a.samples, a.seed, None)?;
-    let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj"), MeshUnits::Metres)?.0.normalized(0.15);
+    let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj"), MeshUnits::Metres)?
+        .0
+        .normalized(0.15);
     let grid = Arc::new(SdfGrid::bake(&duck, DEFAULT_RESOLUTION)?);
     let (lo, hi) = duck.bounds();
     let duck_pose = Pose::new(DMat3::IDENTITY, DVec3::new(0.0, 0.0, -lo.z));
-    let plane = Plane { point: DVec3::ZERO, normal: DVec3::Z };
+    let plane = Plane {
+        point: DVec3::ZERO,
+        normal: DVec3::Z,
+    };
     let g = DVec3::new(0.0, 0.0, -9.81);
     // Hypotheses: random rotations, positions over and around the duck
     // (its bounding box grown by 2 cm), so most samples query the grid.
@@ -112,10 +122,24 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         })
         .collect();
     let configs = [
-        ("plane", Environment { planes: vec![plane], obstacles: vec![], gravity: g }),
+        (
+            "plane",
+            Environment {
+                planes: vec![plane],
+                obstacles: vec![],
+                gravity: g,
+            },
+        ),
         (
             "plane+mesh",
-            Environment { planes: vec![plane], obstacles: vec![Obstacle { sdf: grid.clone(), pose: duck_pose }], gravity: g },
+            Environment {
+                planes: vec![plane],
+                obstacles: vec![Obstacle {
+                    sdf: grid.clone(),
+                    pose: duck_pose,
+                }],
+                gravity: g,
+            },
         ),
     ];
     let queries = (a.n * body.samples.len()) as f64;
@@ -129,7 +153,13 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         );
         println!(
             "{:>11} {:>14} {:>14} {:>8} {:>11} {:>11} {:>9}",
-            "scene", "gpu queries/s", "cpu queries/s", "gpu/cpu", "gpu hyp/s", "cpu hyp/s", "refined"
+            "scene",
+            "gpu queries/s",
+            "cpu queries/s",
+            "gpu/cpu",
+            "gpu hyp/s",
+            "cpu hyp/s",
+            "refined"
         );
     }
     for (name, env) in &configs {
@@ -180,13 +210,18 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         if a.json {
             println!("{}", serde_json::to_string(&row)?);
         } else {
-            let opt = |v: Option<f64>, unit: f64| v.map(|x| format!("{:.1}", x / unit)).unwrap_or_else(|| "-".into());
+            let opt = |v: Option<f64>, unit: f64| {
+                v.map(|x| format!("{:.1}", x / unit))
+                    .unwrap_or_else(|| "-".into())
+            };
             println!(
                 "{:>11} {:>13}M {:>13}M {:>8} {:>11} {:>11.0} {:>8}%",
                 name,
                 opt(row.gpu_queries_per_s, 1e6),
                 format!("{:.1}", row.cpu_queries_per_s / 1e6),
-                row.gpu_queries_per_s.map(|g| format!("{:.1}x", g / row.cpu_queries_per_s)).unwrap_or_else(|| "-".into()),
+                row.gpu_queries_per_s
+                    .map(|g| format!("{:.1}x", g / row.cpu_queries_per_s))
+                    .unwrap_or_else(|| "-".into()),
                 opt(row.gpu_hyps_per_s, 1.0),
                 row.cpu_hyps_per_s,
                 opt(row.refined_fraction.map(|f| f * 100.0), 1.0),

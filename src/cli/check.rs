@@ -111,7 +111,11 @@ fn to_json<'a>(o: &'a ObjectCheck, sim: Option<&Vec<Displacement>>) -> ObjectJso
         friction_equilibrium: o.friction_equilibrium,
         methods_disagree: o.methods_disagree(),
         displacement: sim.and_then(|v| {
-            v.last().map(|l| DisplacementJson { translation: l.translation, rotation_deg: l.rotation_deg, series: v.clone() })
+            v.last().map(|l| DisplacementJson {
+                translation: l.translation,
+                rotation_deg: l.rotation_deg,
+                series: v.clone(),
+            })
         }),
         feasible: e.feasible,
         stable: e.stable,
@@ -123,7 +127,8 @@ fn to_json<'a>(o: &'a ObjectCheck, sim: Option<&Vec<Displacement>>) -> ObjectJso
 }
 
 pub fn run(a: CheckArgs) -> Result<()> {
-    let scene = Scene::load(&a.scene).with_context(|| format!("reading scene {}", a.scene.display()))?;
+    let scene =
+        Scene::load(&a.scene).with_context(|| format!("reading scene {}", a.scene.display()))?;
     let opts = CheckOptions {
         samples: a.samples,
         seed: a.seed,
@@ -138,7 +143,12 @@ pub fn run(a: CheckArgs) -> Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     let sim: Vec<Option<Vec<Displacement>>> = if a.sim {
-        let settings = SimSettings { dt: a.sim_dt, steps: a.sim_steps, rounds: a.sim_rounds, ..SimSettings::default() };
+        let settings = SimSettings {
+            dt: a.sim_dt,
+            steps: a.sim_steps,
+            rounds: a.sim_rounds,
+            ..SimSettings::default()
+        };
         displacement(&scene, &settings)?
     } else {
         vec![None; checks.len()]
@@ -150,7 +160,11 @@ pub fn run(a: CheckArgs) -> Result<()> {
             samples: a.samples,
             seed: a.seed,
             friction: a.friction,
-            objects: checks.iter().zip(&sim).map(|(c, d)| to_json(c, d.as_ref())).collect(),
+            objects: checks
+                .iter()
+                .zip(&sim)
+                .map(|(c, d)| to_json(c, d.as_ref()))
+                .collect(),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
@@ -170,7 +184,11 @@ pub fn run(a: CheckArgs) -> Result<()> {
     );
     for (o, d) in checks.iter().zip(&sim) {
         let e = &o.evaluation;
-        let verdict = if o.is_static { format!("{} (static)", e.verdict.as_str()) } else { e.verdict.as_str().to_string() };
+        let verdict = if o.is_static {
+            format!("{} (static)", e.verdict.as_str())
+        } else {
+            e.verdict.as_str().to_string()
+        };
         println!(
             "{:<16} {:<22} {:>5} {:>5} {:>5} {:>10.2} {:>11} {:>6.2} {:>17}  {}",
             o.name,
@@ -179,15 +197,19 @@ pub fn run(a: CheckArgs) -> Result<()> {
             e.contact,
             e.supported,
             e.min_distance * 1e3,
-            e.stability_margin.map(|m| format!("{:.2}", m * 1e3)).unwrap_or_else(|| "-".into()),
+            e.stability_margin
+                .map(|m| format!("{:.2}", m * 1e3))
+                .unwrap_or_else(|| "-".into()),
             o.epsilon * 1e3,
             d.as_ref()
                 .and_then(|v| v.last())
                 .map(|l| format!("{:.2} / {:.2}", l.translation * 1e3, l.rotation_deg))
                 .unwrap_or_default(),
             match o.friction_equilibrium {
-                Some(true) if o.methods_disagree() => "balanced (disagrees with the support polygon)",
-                Some(false) if o.methods_disagree() => "not balanced (disagrees with the support polygon)",
+                Some(true) if o.methods_disagree() =>
+                    "balanced (disagrees with the support polygon)",
+                Some(false) if o.methods_disagree() =>
+                    "not balanced (disagrees with the support polygon)",
                 Some(true) => "balanced",
                 Some(false) => "not balanced",
                 None => "-",

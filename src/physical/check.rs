@@ -6,11 +6,13 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::contacts::{evaluate_detailed, Body, Detail, Environment, Evaluation, Obstacle, SampleClass, Verdict};
+use super::contacts::{
+    evaluate_detailed, Body, Detail, Environment, Evaluation, Obstacle, SampleClass, Verdict,
+};
 use super::friction::static_equilibrium;
+use super::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use super::scene::Scene;
 use super::sdf::{SdfGrid, DEFAULT_RESOLUTION};
-use super::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use crate::error::Result;
 use crate::mesh::mass::MassProperties;
 use crate::mesh::Mesh;
@@ -64,7 +66,8 @@ impl ObjectCheck {
     /// The friction check and the support polygon disagree (typically an
     /// object leaning on another: contacts that are not on one plane).
     pub fn methods_disagree(&self) -> bool {
-        self.friction_equilibrium.is_some_and(|f| f != self.evaluation.stable)
+        self.friction_equilibrium
+            .is_some_and(|f| f != self.evaluation.stable)
     }
 }
 
@@ -96,7 +99,11 @@ pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
         grids.push(g);
         mass.push(mp);
     }
-    Ok(Prepared { bodies, grids, mass })
+    Ok(Prepared {
+        bodies,
+        grids,
+        mass,
+    })
 }
 
 /// The environment of object `i`: the planes and every other object.
@@ -108,7 +115,10 @@ pub fn environment_of(scene: &Scene, prep: &Prepared, i: usize) -> Environment {
             .iter()
             .enumerate()
             .filter(|(j, _)| *j != i)
-            .map(|(j, o)| Obstacle { sdf: prep.grids[j].clone(), pose: o.pose })
+            .map(|(j, o)| Obstacle {
+                sdf: prep.grids[j].clone(),
+                pose: o.pose,
+            })
             .collect(),
         gravity: scene.gravity,
     }
@@ -125,12 +135,19 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
         env.check_epsilon(body.epsilon)?;
         let (mut e, detail) = evaluate_detailed(body, &o.pose, &env);
         if o.is_static {
-            e.verdict = if e.intersecting > 0 { Verdict::Intersecting } else { Verdict::Plausible };
+            e.verdict = if e.intersecting > 0 {
+                Verdict::Intersecting
+            } else {
+                Verdict::Plausible
+            };
         }
         let com_world = o.pose.transform_point(prep.mass[i].com);
         let friction_equilibrium = if e.feasible && !o.is_static {
             if !(opts.friction.is_finite() && opts.friction >= 0.0) {
-                return Err(crate::Error::InvalidInput(format!("friction coefficient must be ≥ 0, got {}", opts.friction)));
+                return Err(crate::Error::InvalidInput(format!(
+                    "friction coefficient must be ≥ 0, got {}",
+                    opts.friction
+                )));
             }
             let (mut pts, mut normals) = (Vec::new(), Vec::new());
             for (j, c) in detail.classes.iter().enumerate() {
@@ -139,7 +156,14 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
                     normals.push(detail.normal[j]);
                 }
             }
-            static_equilibrium(&pts, &normals, com_world, scene.gravity, opts.friction, o.mesh.diagonal())
+            static_equilibrium(
+                &pts,
+                &normals,
+                com_world,
+                scene.gravity,
+                opts.friction,
+                o.mesh.diagonal(),
+            )
         } else {
             None
         };

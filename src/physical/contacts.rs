@@ -78,7 +78,10 @@ pub struct Environment {
 impl Environment {
     /// Largest trilinear error bound of the obstacles' grids (0 without).
     pub fn error_bound(&self) -> f64 {
-        self.obstacles.iter().map(|o| o.sdf.error_bound()).fold(0.0, f64::max)
+        self.obstacles
+            .iter()
+            .map(|o| o.sdf.error_bound())
+            .fold(0.0, f64::max)
     }
 
     /// Checks ε is usable with these grids: positive, and ε plus the error
@@ -86,7 +89,9 @@ impl Environment {
     /// be contacts the grid cannot see).
     pub fn check_epsilon(&self, eps: f64) -> Result<()> {
         if !(eps.is_finite() && eps > 0.0) {
-            return Err(Error::InvalidInput(format!("ε must be a positive number of metres, got {eps}")));
+            return Err(Error::InvalidInput(format!(
+                "ε must be a positive number of metres, got {eps}"
+            )));
         }
         for o in &self.obstacles {
             if eps + o.sdf.error_bound() > o.sdf.margin {
@@ -113,11 +118,17 @@ impl Environment {
     }
 
     fn distance(&self, x: DVec3, refine: Option<f64>) -> Distance {
-        let mut best = Distance { delta: f64::INFINITY, normal: DVec3::ZERO };
+        let mut best = Distance {
+            delta: f64::INFINITY,
+            normal: DVec3::ZERO,
+        };
         for p in &self.planes {
             let d = p.distance(x);
             if d < best.delta {
-                best = Distance { delta: d, normal: p.normal };
+                best = Distance {
+                    delta: d,
+                    normal: p.normal,
+                };
             }
         }
         for o in &self.obstacles {
@@ -127,9 +138,15 @@ impl Environment {
             let cand = match refine {
                 Some(eps) if d.abs() < eps + o.sdf.error_bound() => {
                     let e = o.sdf.exact(q);
-                    Distance { delta: e.delta, normal: o.pose.r * e.normal }
+                    Distance {
+                        delta: e.delta,
+                        normal: o.pose.r * e.normal,
+                    }
                 }
-                _ => Distance { delta: d, normal: o.pose.r * n.normalize_or_zero() },
+                _ => Distance {
+                    delta: d,
+                    normal: o.pose.r * n.normalize_or_zero(),
+                },
             };
             if cand.delta < best.delta {
                 best = cand;
@@ -289,7 +306,12 @@ pub fn evaluate_batch(body: &Body, poses: &[Pose], env: &Environment) -> Vec<Eva
 pub fn distances_batch(body: &Body, poses: &[Pose], env: &Environment) -> Vec<f64> {
     poses
         .par_iter()
-        .flat_map_iter(|p| body.samples.iter().map(move |s| env.refined_distance(p.transform_point(*s), body.epsilon).delta))
+        .flat_map_iter(|p| {
+            body.samples.iter().map(move |s| {
+                env.refined_distance(p.transform_point(*s), body.epsilon)
+                    .delta
+            })
+        })
         .collect()
 }
 
@@ -297,13 +319,26 @@ impl Body {
     /// Samples `mesh` (`count` points, `seed`), takes the volumetric centre
     /// of mass from the closed mesh, and ε from `epsilon` or the default
     /// for the sample spacing ([`super::samples::default_epsilon`]).
-    pub fn new(mesh: &crate::mesh::Mesh, count: usize, seed: u64, epsilon: Option<f64>) -> Result<Body> {
+    pub fn new(
+        mesh: &crate::mesh::Mesh,
+        count: usize,
+        seed: u64,
+        epsilon: Option<f64>,
+    ) -> Result<Body> {
         let samples = super::samples::surface_samples(mesh, count, seed)?;
         let (mass, _) = crate::mesh::mass::MassProperties::of_mesh(mesh)?;
-        let eps = epsilon.unwrap_or_else(|| super::samples::default_epsilon(super::samples::sample_spacing(mesh.area(), count)));
+        let eps = epsilon.unwrap_or_else(|| {
+            super::samples::default_epsilon(super::samples::sample_spacing(mesh.area(), count))
+        });
         if !(eps.is_finite() && eps > 0.0) {
-            return Err(Error::InvalidInput(format!("ε must be a positive number of metres, got {eps}")));
+            return Err(Error::InvalidInput(format!(
+                "ε must be a positive number of metres, got {eps}"
+            )));
         }
-        Ok(Body { samples, com: mass.com, epsilon: eps })
+        Ok(Body {
+            samples,
+            com: mass.com,
+            epsilon: eps,
+        })
     }
 }

@@ -35,7 +35,10 @@ struct View {
 impl View {
     fn px(&self, p: DVec2) -> (i64, i64) {
         let q = (p - self.lo) * self.scale;
-        (self.x0 as i64 + 16 + q.x as i64, SIZE as i64 - 16 - q.y as i64)
+        (
+            self.x0 as i64 + 16 + q.x as i64,
+            SIZE as i64 - 16 - q.y as i64,
+        )
     }
 }
 
@@ -54,7 +57,10 @@ fn line(img: &mut RgbImage, a: (i64, i64), b: (i64, i64), c: Rgb<u8>) {
     let n = (b.0 - a.0).abs().max((b.1 - a.1).abs()).max(1);
     for i in 0..=n {
         let t = i as f64 / n as f64;
-        let p = ((a.0 as f64 + (b.0 - a.0) as f64 * t).round() as i64, (a.1 as f64 + (b.1 - a.1) as f64 * t).round() as i64);
+        let p = (
+            (a.0 as f64 + (b.0 - a.0) as f64 * t).round() as i64,
+            (a.1 as f64 + (b.1 - a.1) as f64 * t).round() as i64,
+        );
         dot(img, p, 0, c);
     }
 }
@@ -66,7 +72,10 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
     let up = -scene.gravity.normalize();
     let top = |p: DVec3| DVec2::new(p.dot(u), p.dot(v));
     let side = |p: DVec3| DVec2::new(p.dot(u), p.dot(up));
-    let all: Vec<DVec3> = checks.iter().flat_map(|c| c.detail.world.iter().copied()).collect();
+    let all: Vec<DVec3> = checks
+        .iter()
+        .flat_map(|c| c.detail.world.iter().copied())
+        .collect();
     let fit = |f: &dyn Fn(DVec3) -> DVec2, x0: u32| {
         let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
         for p in &all {
@@ -75,18 +84,32 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
         }
         let span = (hi - lo).max_element().max(1e-6);
         let pad = 0.05 * span;
-        View { lo: lo - DVec2::splat(pad) - (DVec2::splat(span) - (hi - lo)) * 0.5, scale: (SIZE - 32) as f64 / (span + 2.0 * pad), x0 }
+        View {
+            lo: lo - DVec2::splat(pad) - (DVec2::splat(span) - (hi - lo)) * 0.5,
+            scale: (SIZE - 32) as f64 / (span + 2.0 * pad),
+            x0,
+        }
     };
     let tv = fit(&top, 0);
     let sv = fit(&side, SIZE);
     // Separator and planes (side view: the plane's trace).
-    line(&mut img, (SIZE as i64, 0), (SIZE as i64, SIZE as i64 - 1), Rgb([120, 120, 120]));
+    line(
+        &mut img,
+        (SIZE as i64, 0),
+        (SIZE as i64, SIZE as i64 - 1),
+        Rgb([120, 120, 120]),
+    );
     for p in &scene.planes {
         let h = p.point.dot(up);
         if p.normal.dot(up) > 0.99 {
             let a = sv.px(DVec2::new(sv.lo.x, h));
             let b = sv.px(DVec2::new(sv.lo.x + (SIZE - 32) as f64 / sv.scale, h));
-            line(&mut img, (a.0.max(SIZE as i64 + 1), a.1), b, Rgb([60, 60, 60]));
+            line(
+                &mut img,
+                (a.0.max(SIZE as i64 + 1), a.1),
+                b,
+                Rgb([60, 60, 60]),
+            );
         }
     }
     // Free samples first, then the classes on top.
@@ -108,7 +131,11 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
             let b = tv.px(hull[(i + 1) % hull.len()]);
             line(&mut img, a, b, Rgb([20, 40, 160]));
         }
-        let col = if c.evaluation.stable { Rgb([0, 0, 0]) } else { Rgb([220, 0, 0]) };
+        let col = if c.evaluation.stable {
+            Rgb([0, 0, 0])
+        } else {
+            Rgb([220, 0, 0])
+        };
         for (view, p) in [(&tv, c.detail.com), (&sv, side(c.com_world))] {
             let (x, y) = view.px(p);
             line(&mut img, (x - 6, y), (x + 6, y), col);

@@ -18,7 +18,9 @@
 //! axis there).
 
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
+use clarabel::solver::{
+    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+};
 use glam::DVec3;
 
 /// Default friction coefficient μ (the reference value 0.1: cautious, about
@@ -28,7 +30,14 @@ pub const DEFAULT_FRICTION: f64 = 0.1;
 /// Whether the contacts can hold the object: `Some(true)` balanced,
 /// `Some(false)` no admissible forces exist, `None` when there are no
 /// contacts or the solver could not decide (reported, never guessed).
-pub fn static_equilibrium(points: &[DVec3], normals: &[DVec3], com: DVec3, gravity: DVec3, mu: f64, scale: f64) -> Option<bool> {
+pub fn static_equilibrium(
+    points: &[DVec3],
+    normals: &[DVec3],
+    com: DVec3,
+    gravity: DVec3,
+    mu: f64,
+    scale: f64,
+) -> Option<bool> {
     let k = points.len();
     if k == 0 || normals.len() != k || !(mu >= 0.0) || !(scale > 0.0) {
         return None;
@@ -77,7 +86,11 @@ pub fn static_equilibrium(points: &[DVec3], normals: &[DVec3], com: DVec3, gravi
     b[2] = -g.z;
     let mut cones = vec![SupportedConeT::ZeroConeT(6)];
     cones.extend(std::iter::repeat_n(SupportedConeT::SecondOrderConeT(3), k));
-    let settings = DefaultSettingsBuilder::default().verbose(false).max_iter(200).build().ok()?;
+    let settings = DefaultSettingsBuilder::default()
+        .verbose(false)
+        .max_iter(200)
+        .build()
+        .ok()?;
     let mut solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings).ok()?;
     solver.solve();
     match solver.solution.status {
@@ -92,7 +105,12 @@ mod tests {
     use super::*;
 
     fn square(z: f64) -> Vec<DVec3> {
-        vec![DVec3::new(-1.0, -1.0, z), DVec3::new(1.0, -1.0, z), DVec3::new(1.0, 1.0, z), DVec3::new(-1.0, 1.0, z)]
+        vec![
+            DVec3::new(-1.0, -1.0, z),
+            DVec3::new(1.0, -1.0, z),
+            DVec3::new(1.0, 1.0, z),
+            DVec3::new(-1.0, 1.0, z),
+        ]
     }
 
     #[test]
@@ -100,17 +118,31 @@ mod tests {
         let pts = square(0.0);
         let up = vec![DVec3::Z; 4];
         let g = DVec3::new(0.0, 0.0, -9.81);
-        assert_eq!(static_equilibrium(&pts, &up, DVec3::new(0.3, -0.2, 1.0), g, 0.1, 1.0), Some(true));
-        assert_eq!(static_equilibrium(&pts, &up, DVec3::new(1.3, 0.0, 1.0), g, 0.1, 1.0), Some(false));
+        assert_eq!(
+            static_equilibrium(&pts, &up, DVec3::new(0.3, -0.2, 1.0), g, 0.1, 1.0),
+            Some(true)
+        );
+        assert_eq!(
+            static_equilibrium(&pts, &up, DVec3::new(1.3, 0.0, 1.0), g, 0.1, 1.0),
+            Some(false)
+        );
         // Even a lot of friction cannot help on a plane.
-        assert_eq!(static_equilibrium(&pts, &up, DVec3::new(1.3, 0.0, 1.0), g, 2.0, 1.0), Some(false));
+        assert_eq!(
+            static_equilibrium(&pts, &up, DVec3::new(1.3, 0.0, 1.0), g, 2.0, 1.0),
+            Some(false)
+        );
     }
 
     #[test]
     fn leaning_against_a_wall_needs_friction() {
         // A plank leaning on a vertical wall (x = 0, normal +x) with its
         // foot on the floor (normal +z), centre of mass halfway.
-        let pts = vec![DVec3::new(0.0, 0.0, 1.0), DVec3::new(0.0, 0.2, 1.0), DVec3::new(0.5, 0.0, 0.0), DVec3::new(0.5, 0.2, 0.0)];
+        let pts = vec![
+            DVec3::new(0.0, 0.0, 1.0),
+            DVec3::new(0.0, 0.2, 1.0),
+            DVec3::new(0.5, 0.0, 0.0),
+            DVec3::new(0.5, 0.2, 0.0),
+        ];
         let n = vec![DVec3::X, DVec3::X, DVec3::Z, DVec3::Z];
         let com = DVec3::new(0.25, 0.1, 0.5);
         let g = DVec3::new(0.0, 0.0, -9.81);

@@ -126,7 +126,13 @@ impl GpuContacts {
     /// Uploads the body's samples and the environment. At most `max_chunk`
     /// poses go in one dispatch (fewer where the adapter's limits say so);
     /// `with_deltas` also returns δ of every sample (for tests: N·M floats).
-    pub fn new(ctx: &Context, body: &Body, env: &Environment, max_chunk: usize, with_deltas: bool) -> Result<Self> {
+    pub fn new(
+        ctx: &Context,
+        body: &Body,
+        env: &Environment,
+        max_chunk: usize,
+        with_deltas: bool,
+    ) -> Result<Self> {
         if env.planes.len() > MAX_PLANES {
             return Err(Error::InvalidInput(format!(
                 "the GPU contacts kernel takes at most {MAX_PLANES} planes, the scene has {}",
@@ -142,13 +148,20 @@ impl GpuContacts {
         env.check_epsilon(body.epsilon)?;
         let m = body.samples.len();
         if m == 0 {
-            return Err(Error::InvalidInput("the body has no surface samples".into()));
+            return Err(Error::InvalidInput(
+                "the body has no surface samples".into(),
+            ));
         }
         let words = m.div_ceil(32);
         let g = env.gravity.normalize();
         let mut planes = [[0.0f32; 4]; MAX_PLANES];
         for (i, p) in env.planes.iter().enumerate() {
-            planes[i] = [p.normal.x as f32, p.normal.y as f32, p.normal.z as f32, p.normal.dot(p.point) as f32];
+            planes[i] = [
+                p.normal.x as f32,
+                p.normal.y as f32,
+                p.normal.z as f32,
+                p.normal.dot(p.point) as f32,
+            ];
         }
         // Grids: each distinct grid's nodes once, one descriptor per placement.
         let mut node_data: Vec<f32> = Vec::new();
@@ -171,7 +184,12 @@ impl GpuContacts {
             let up = s.upper();
             descs.push(GpuGrid {
                 inv: gp.rows,
-                origin: [s.origin.x as f32, s.origin.y as f32, s.origin.z as f32, s.h as f32],
+                origin: [
+                    s.origin.x as f32,
+                    s.origin.y as f32,
+                    s.origin.z as f32,
+                    s.h as f32,
+                ],
                 upper: [up.x as f32, up.y as f32, up.z as f32, s.margin as f32],
                 dims: [s.dims[0] as u32, s.dims[1] as u32, s.dims[2] as u32, offset],
             });
@@ -183,12 +201,18 @@ impl GpuContacts {
             )));
         }
         // Chunk: poses per dispatch within the binding limits.
-        let per_pose = if with_deltas { (m * 4) as u64 } else { (words * 8) as u64 };
+        let per_pose = if with_deltas {
+            (m * 4) as u64
+        } else {
+            (words * 8) as u64
+        };
         let chunk = (ctx.limits.max_items(per_pose).min(ctx.limits.max_items(48)) as usize)
             .min(max_chunk.max(1))
             .min(ctx.limits.max_workgroups as usize * WG as usize);
         if chunk == 0 {
-            return Err(Error::Gpu("one pose's output does not fit a storage binding".into()));
+            return Err(Error::Gpu(
+                "one pose's output does not fit a storage binding".into(),
+            ));
         }
         let mut grid_block = [GpuGrid::zeroed(); MAX_GRIDS];
         grid_block[..descs.len()].copy_from_slice(&descs);
@@ -205,46 +229,89 @@ impl GpuContacts {
             gravity: [g.x as f32, g.y as f32, g.z as f32, env.error_bound() as f32],
             planes,
         };
-        let samples: Vec<[f32; 4]> = body.samples.iter().map(|s| [s.x as f32, s.y as f32, s.z as f32, 0.0]).collect();
+        let samples: Vec<[f32; 4]> = body
+            .samples
+            .iter()
+            .map(|s| [s.x as f32, s.y as f32, s.z as f32, 0.0])
+            .collect();
         let init = |label: &str, bytes: &[u8]| {
-            ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytes,
-                usage: wgpu::BufferUsages::STORAGE,
-            })
+            ctx.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents: bytes,
+                    usage: wgpu::BufferUsages::STORAGE,
+                })
         };
         let dummy_node = [0.0f32; 4];
         let samples_buf = init("contacts samples", bytemuck::cast_slice(&samples));
-        let nodes = init("contacts nodes", bytemuck::cast_slice(if node_data.is_empty() { &dummy_node[..] } else { &node_data[..] }));
+        let nodes = init(
+            "contacts nodes",
+            bytemuck::cast_slice(if node_data.is_empty() {
+                &dummy_node[..]
+            } else {
+                &node_data[..]
+            }),
+        );
         let params_buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("contacts params"),
             size: std::mem::size_of::<ContactParams>() as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let poses = storage(ctx, "contacts poses", (chunk * 48) as u64, wgpu::BufferUsages::COPY_DST);
-        let records = storage(ctx, "contacts records", (chunk * 16) as u64, wgpu::BufferUsages::COPY_SRC);
-        let bits = storage(ctx, "contacts bits", (chunk * words * 8) as u64, wgpu::BufferUsages::COPY_SRC);
-        let deltas = storage(ctx, "contacts deltas", if with_deltas { (chunk * m * 4) as u64 } else { 16 }, wgpu::BufferUsages::COPY_SRC);
+        let poses = storage(
+            ctx,
+            "contacts poses",
+            (chunk * 48) as u64,
+            wgpu::BufferUsages::COPY_DST,
+        );
+        let records = storage(
+            ctx,
+            "contacts records",
+            (chunk * 16) as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let bits = storage(
+            ctx,
+            "contacts bits",
+            (chunk * words * 8) as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let deltas = storage(
+            ctx,
+            "contacts deltas",
+            if with_deltas {
+                (chunk * m * 4) as u64
+            } else {
+                16
+            },
+            wgpu::BufferUsages::COPY_SRC,
+        );
         // Own pipeline (not the context's cache): the scene's shape is baked
         // in through override constants.
-        let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("contacts"),
-            source: wgpu::ShaderSource::Wgsl(CONTACTS_WGSL.into()),
-        });
+        let module = ctx
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("contacts"),
+                source: wgpu::ShaderSource::Wgsl(CONTACTS_WGSL.into()),
+            });
         let constants = [
             ("N_PLANES", env.planes.len() as f64),
             ("N_GRIDS", descs.len() as f64),
             ("WRITE_DELTAS", if with_deltas { 1.0 } else { 0.0 }),
         ];
-        let pipeline = Arc::new(ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("contacts"),
-            layout: None,
-            module: &module,
-            entry_point: Some("contacts_main"),
-            compilation_options: wgpu::PipelineCompilationOptions { constants: &constants, zero_initialize_workgroup_memory: false },
-            cache: None,
-        }));
+        let pipeline = Arc::new(ctx.device.create_compute_pipeline(
+            &wgpu::ComputePipelineDescriptor {
+                label: Some("contacts"),
+                layout: None,
+                module: &module,
+                entry_point: Some("contacts_main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &constants,
+                    zero_initialize_workgroup_memory: false,
+                },
+                cache: None,
+            },
+        ));
         Ok(GpuContacts {
             ctx: ctx.clone(),
             body: body.clone(),
@@ -285,27 +352,57 @@ impl GpuContacts {
         let mut params = self.params;
         params.n_hyp = n as u32;
         let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
-        ctx.queue.write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
-        ctx.queue.write_buffer(&self.poses, 0, bytemuck::cast_slice(&gp));
+        ctx.queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
+        ctx.queue
+            .write_buffer(&self.poses, 0, bytemuck::cast_slice(&gp));
         let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("contacts"),
             layout: &self.pipeline.get_bind_group_layout(0),
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: self.params_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: self.samples.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: self.nodes.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: self.bits.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 7, resource: self.deltas.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.params_buf.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: self.samples.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: self.poses.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: self.nodes.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: self.records.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 6,
+                    resource: self.bits.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: self.deltas.as_entire_binding(),
+                },
             ],
         });
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("contacts"), timestamp_writes: None });
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("contacts"),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups((n as u32).div_ceil(WG).min(self.ctx.limits.max_workgroups), 1, 1);
+            pass.dispatch_workgroups(
+                (n as u32).div_ceil(WG).min(self.ctx.limits.max_workgroups),
+                1,
+                1,
+            );
         }
         ctx.queue.submit([enc.finish()]);
         ctx.wait()?;
@@ -365,7 +462,15 @@ impl GpuContacts {
                         }
                     }
                 }
-                finish(ni, nc, min, &sup, pose.transform_point(self.body.com), self.env.gravity).0
+                finish(
+                    ni,
+                    nc,
+                    min,
+                    &sup,
+                    pose.transform_point(self.body.com),
+                    self.env.gravity,
+                )
+                .0
             })
             .collect()
     }
@@ -373,7 +478,15 @@ impl GpuContacts {
     /// Samples flagged for refinement in a run's output (for statistics).
     pub fn refined_count(&self, out: &ContactOutput) -> usize {
         let words = self.params.words as usize;
-        out.bits.chunks(2 * words).map(|c| c[words..].iter().map(|w| w.count_ones() as usize).sum::<usize>()).sum()
+        out.bits
+            .chunks(2 * words)
+            .map(|c| {
+                c[words..]
+                    .iter()
+                    .map(|w| w.count_ones() as usize)
+                    .sum::<usize>()
+            })
+            .sum()
     }
 }
 
@@ -388,7 +501,11 @@ mod tests {
         let mut layouter = naga::proc::Layouter::default();
         layouter.update(module.to_ctx()).unwrap();
         let size_of = |name: &str| {
-            let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
+            let (h, _) = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap();
             layouter[h].size as usize
         };
         assert_eq!(size_of("Params"), std::mem::size_of::<ContactParams>());

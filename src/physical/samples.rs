@@ -29,7 +29,9 @@ pub const EPSILON_MAX: f64 = 0.005;
 /// coordinates), reproducible from `seed`.
 pub fn surface_samples(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<DVec3>> {
     if count == 0 {
-        return Err(Error::InvalidInput("the number of surface samples must be at least 1".into()));
+        return Err(Error::InvalidInput(
+            "the number of surface samples must be at least 1".into(),
+        ));
     }
     let mut cumulative = Vec::with_capacity(mesh.triangles.len());
     let mut total = 0.0;
@@ -39,13 +41,17 @@ pub fn surface_samples(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<DVec3
         cumulative.push(total);
     }
     if !(total > 0.0) || !total.is_finite() {
-        return Err(Error::InvalidInput("cannot sample a mesh with zero surface area".into()));
+        return Err(Error::InvalidInput(
+            "cannot sample a mesh with zero surface area".into(),
+        ));
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = Vec::with_capacity(count);
     for _ in 0..count {
         let r: f64 = rng.random::<f64>() * total;
-        let i = cumulative.partition_point(|&c| c <= r).min(cumulative.len() - 1);
+        let i = cumulative
+            .partition_point(|&c| c <= r)
+            .min(cumulative.len() - 1);
         let [a, b, c] = mesh.corners(i);
         // Uniform in the triangle: the square-root trick.
         let (u, v): (f64, f64) = (rng.random(), rng.random());
@@ -80,16 +86,25 @@ mod tests {
         assert_eq!(s, surface_samples(&m, 20000, 7).unwrap());
         let mut top = 0;
         for p in &s {
-            let on = (p.x.abs() - half.x).abs() < 1e-12 || (p.y.abs() - half.y).abs() < 1e-12 || (p.z.abs() - half.z).abs() < 1e-12;
+            let on = (p.x.abs() - half.x).abs() < 1e-12
+                || (p.y.abs() - half.y).abs() < 1e-12
+                || (p.z.abs() - half.z).abs() < 1e-12;
             assert!(on, "{p} not on the box surface");
-            assert!(p.x.abs() <= half.x + 1e-12 && p.y.abs() <= half.y + 1e-12 && p.z.abs() <= half.z + 1e-12);
+            assert!(
+                p.x.abs() <= half.x + 1e-12
+                    && p.y.abs() <= half.y + 1e-12
+                    && p.z.abs() <= half.z + 1e-12
+            );
             if (p.z - half.z).abs() < 1e-12 {
                 top += 1;
             }
         }
         // Top face: 0.1 * 0.04 of a total 2 (0.1*0.04 + 0.1*0.02 + 0.04*0.02) = 0.0136 m².
         let expect = 20000.0 * 0.004 / 0.0136;
-        assert!((top as f64 - expect).abs() < 4.0 * expect.sqrt(), "{top} vs {expect}");
+        assert!(
+            (top as f64 - expect).abs() < 4.0 * expect.sqrt(),
+            "{top} vs {expect}"
+        );
         assert!(surface_samples(&m, 0, 0).is_err());
     }
 

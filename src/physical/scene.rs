@@ -123,22 +123,34 @@ fn vec3(what: &str, v: &[f64]) -> std::result::Result<DVec3, String> {
 
 fn rotation(what: &str, v: &[f64]) -> std::result::Result<DMat3, String> {
     if v.len() != 9 {
-        return Err(format!("{what} must have 9 numbers (row-major 3x3), found {}", v.len()));
+        return Err(format!(
+            "{what} must have 9 numbers (row-major 3x3), found {}",
+            v.len()
+        ));
     }
     if v.iter().any(|x| !x.is_finite()) {
         return Err(format!("{what} contains NaN or infinity"));
     }
-    let r = DMat3::from_cols_array(&[v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]]).transpose();
+    let r =
+        DMat3::from_cols_array(&[v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]]).transpose();
     let det = r.determinant();
     if det <= 0.0 {
-        return Err(format!("{what} has determinant {det:.4}; a rotation must have determinant +1"));
+        return Err(format!(
+            "{what} has determinant {det:.4}; a rotation must have determinant +1"
+        ));
     }
     let e = r.transpose() * r - DMat3::IDENTITY;
     let err = e.to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs()));
     if err > ORTHONORMAL_TOL {
-        return Err(format!("{what} is not orthonormal (max |RᵀR − I| = {err:.2e} > {ORTHONORMAL_TOL:.0e})"));
+        return Err(format!(
+            "{what} is not orthonormal (max |RᵀR − I| = {err:.2e} > {ORTHONORMAL_TOL:.0e})"
+        ));
     }
-    Ok(if err > 1e-12 { orthonormalize_rotation(r) } else { r })
+    Ok(if err > 1e-12 {
+        orthonormalize_rotation(r)
+    } else {
+        r
+    })
 }
 
 impl Scene {
@@ -152,7 +164,10 @@ impl Scene {
     /// Parses and validates scene JSON; `base` resolves mesh paths and
     /// `name` labels errors.
     pub fn from_json(text: &str, base: &Path, name: &Path) -> Result<Scene> {
-        let bad = |reason: String| Error::BadJson { path: name.to_path_buf(), reason };
+        let bad = |reason: String| Error::BadJson {
+            path: name.to_path_buf(),
+            reason,
+        };
         let raw: RawScene = serde_json::from_str(text).map_err(|e| {
             let hint = if text.contains("NaN") || text.contains("Infinity") {
                 " (JSON has no NaN or Infinity: every number must be finite)"
@@ -164,7 +179,11 @@ impl Scene {
         let camera = match raw.frame.as_deref() {
             None | Some("world") => false,
             Some("camera") => true,
-            Some(f) => return Err(bad(format!("unknown frame '{f}' (expected \"world\" or \"camera\")"))),
+            Some(f) => {
+                return Err(bad(format!(
+                    "unknown frame '{f}' (expected \"world\" or \"camera\")"
+                )))
+            }
         };
         if raw.objects.is_empty() {
             return Err(bad("the scene has no objects".into()));
@@ -177,17 +196,26 @@ impl Scene {
             if !(len > 1e-12) {
                 return Err(bad(format!("plane {i}: normal has zero length")));
             }
-            planes.push(Plane { point, normal: normal / len });
+            planes.push(Plane {
+                point,
+                normal: normal / len,
+            });
         }
         let mut gravity = DVec3::new(0.0, 0.0, -9.81);
         // Camera frame: world = plane frame.
         let mut to_world = Pose::IDENTITY;
         if camera {
             if raw.gravity.is_some() {
-                return Err(bad("a camera-frame scene takes gravity from its support plane; remove \"gravity\"".into()));
+                return Err(bad(
+                    "a camera-frame scene takes gravity from its support plane; remove \"gravity\""
+                        .into(),
+                ));
             }
             if planes.len() != 1 {
-                return Err(bad(format!("a camera-frame scene needs exactly one support plane, found {}", planes.len())));
+                return Err(bad(format!(
+                    "a camera-frame scene needs exactly one support plane, found {}",
+                    planes.len()
+                )));
             }
             let p = planes[0];
             let point = p.point * 1e-3;
@@ -195,12 +223,19 @@ impl Scene {
             if up.dot(-point) < 0.0 {
                 up = -up; // the camera looks at the plane from above
             }
-            let helper = if DVec3::X.cross(up).length() > 0.1 { DVec3::X } else { DVec3::Z };
+            let helper = if DVec3::X.cross(up).length() > 0.1 {
+                DVec3::X
+            } else {
+                DVec3::Z
+            };
             let x = (helper - up * helper.dot(up)).normalize();
             let y = up.cross(x);
             let r = DMat3::from_cols(x, y, up).transpose(); // camera -> world
             to_world = Pose::new(r, -(r * point));
-            planes = vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }];
+            planes = vec![Plane {
+                point: DVec3::ZERO,
+                normal: DVec3::Z,
+            }];
         } else if let Some(g) = &raw.gravity {
             gravity = vec3("gravity", g).map_err(bad)?;
             if !(gravity.length() > 1e-9) {
@@ -211,16 +246,23 @@ impl Scene {
         let mut objects = Vec::new();
         for (i, o) in raw.objects.iter().enumerate() {
             let oname = o.name.clone().unwrap_or_else(|| {
-                Path::new(&o.mesh).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("object{i}"))
+                Path::new(&o.mesh)
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| format!("object{i}"))
             });
             let label = format!("object {i} ('{oname}')");
             let units: MeshUnits = match &o.units {
-                Some(u) => u.parse().map_err(|e: String| bad(format!("{label}: {e}")))?,
+                Some(u) => u
+                    .parse()
+                    .map_err(|e: String| bad(format!("{label}: {e}")))?,
                 None => MeshUnits::Auto,
             };
             let pose = if camera {
                 if o.r.is_some() || o.t.is_some() {
-                    return Err(bad(format!("{label}: a camera-frame scene gives poses as cam_R_m2c / cam_t_m2c")));
+                    return Err(bad(format!(
+                        "{label}: a camera-frame scene gives poses as cam_R_m2c / cam_t_m2c"
+                    )));
                 }
                 let (Some(r), Some(t)) = (&o.cam_r, &o.cam_t) else {
                     return Err(bad(format!("{label}: missing cam_R_m2c or cam_t_m2c")));
@@ -230,25 +272,40 @@ impl Scene {
                 to_world.compose(&Pose::new(r, t))
             } else {
                 if o.cam_r.is_some() || o.cam_t.is_some() {
-                    return Err(bad(format!("{label}: cam_R_m2c / cam_t_m2c need \"frame\": \"camera\"")));
+                    return Err(bad(format!(
+                        "{label}: cam_R_m2c / cam_t_m2c need \"frame\": \"camera\""
+                    )));
                 }
                 let (Some(r), Some(t)) = (&o.r, &o.t) else {
                     return Err(bad(format!("{label}: missing R or t")));
                 };
-                Pose::new(rotation(&format!("{label}: R"), r).map_err(bad)?, vec3(&format!("{label}: t"), t).map_err(bad)?)
+                Pose::new(
+                    rotation(&format!("{label}: R"), r).map_err(bad)?,
+                    vec3(&format!("{label}: t"), t).map_err(bad)?,
+                )
             };
             let density = o.density.unwrap_or(DEFAULT_DENSITY);
             if !(density.is_finite() && density > 0.0) {
-                return Err(bad(format!("{label}: density must be a positive number, got {density}")));
+                return Err(bad(format!(
+                    "{label}: density must be a positive number, got {density}"
+                )));
             }
             let mesh_path = base.join(&o.mesh);
-            let mesh = match cache.iter().find(|(p, u, _)| *p == mesh_path && *u == units) {
+            let mesh = match cache
+                .iter()
+                .find(|(p, u, _)| *p == mesh_path && *u == units)
+            {
                 Some((_, _, m)) => m.clone(),
                 None => {
                     if !mesh_path.is_file() {
-                        return Err(bad(format!("{label}: mesh '{}' not found (looked for {})", o.mesh, mesh_path.display())));
+                        return Err(bad(format!(
+                            "{label}: mesh '{}' not found (looked for {})",
+                            o.mesh,
+                            mesh_path.display()
+                        )));
                     }
-                    let (m, _) = Mesh::load(&mesh_path, units).map_err(|e| bad(format!("{label}: {e}")))?;
+                    let (m, _) =
+                        Mesh::load(&mesh_path, units).map_err(|e| bad(format!("{label}: {e}")))?;
                     let m = Arc::new(m);
                     cache.push((mesh_path.clone(), units, m.clone()));
                     m
@@ -264,6 +321,10 @@ impl Scene {
                 density,
             });
         }
-        Ok(Scene { gravity, planes, objects })
+        Ok(Scene {
+            gravity,
+            planes,
+            objects,
+        })
     }
 }

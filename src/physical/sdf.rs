@@ -76,12 +76,16 @@ impl SdfGrid {
     /// side of its bounding box.
     pub fn bake(mesh: &Mesh, resolution: usize) -> Result<SdfGrid> {
         if !(4..=1024).contains(&resolution) {
-            return Err(Error::InvalidInput(format!("SDF grid resolution {resolution} is outside 4..=1024")));
+            return Err(Error::InvalidInput(format!(
+                "SDF grid resolution {resolution} is outside 4..=1024"
+            )));
         }
         let (lo, hi) = mesh.bounds();
         let longest = (hi - lo).max_element();
         if !(longest > 0.0) || !longest.is_finite() {
-            return Err(Error::InvalidInput("cannot bake a signed-distance grid of a degenerate mesh".into()));
+            return Err(Error::InvalidInput(
+                "cannot bake a signed-distance grid of a degenerate mesh".into(),
+            ));
         }
         let h = longest / resolution as f64;
         let margin = (MIN_MARGIN_CELLS * h).max(MIN_MARGIN_M);
@@ -92,21 +96,32 @@ impl SdfGrid {
         let dims = [0, 1, 2].map(|a| (span[a] / h).ceil() as usize + 1);
         let total = dims[0] * dims[1] * dims[2];
         if total > 64_000_000 {
-            return Err(Error::InvalidInput(format!("SDF grid of {dims:?} nodes is too large; lower the resolution")));
+            return Err(Error::InvalidInput(format!(
+                "SDF grid of {dims:?} nodes is too large; lower the resolution"
+            )));
         }
         let trimesh = to_trimesh(mesh)?;
         let inside = inside_votes(mesh, origin, h, dims);
         let nodes: Vec<[f32; 4]> = (0..total)
             .into_par_iter()
             .map(|i| {
-                let (x, y, z) = (i % dims[0], (i / dims[0]) % dims[1], i / (dims[0] * dims[1]));
+                let (x, y, z) = (
+                    i % dims[0],
+                    (i / dims[0]) % dims[1],
+                    i / (dims[0] * dims[1]),
+                );
                 let p = origin + DVec3::new(x as f64, y as f64, z as f64) * h;
-                let (proj, (tri, _)) = trimesh.project_local_point_and_get_location(p.as_vec3(), false);
+                let (proj, (tri, _)) =
+                    trimesh.project_local_point_and_get_location(p.as_vec3(), false);
                 let y = proj.point.as_dvec3();
                 let d = (p - y).length();
                 let ins = inside[i];
                 let normal = if d > 1e-9 * longest {
-                    if ins { (y - p) / d } else { (p - y) / d }
+                    if ins {
+                        (y - p) / d
+                    } else {
+                        (p - y) / d
+                    }
                 } else {
                     face_normal(&trimesh, tri)
                 };
@@ -114,7 +129,14 @@ impl SdfGrid {
                 [normal.x as f32, normal.y as f32, normal.z as f32, sd as f32]
             })
             .collect();
-        Ok(SdfGrid { origin, h, dims, nodes, margin, trimesh })
+        Ok(SdfGrid {
+            origin,
+            h,
+            dims,
+            nodes,
+            margin,
+            trimesh,
+        })
     }
 
     /// Largest difference between a trilinear value and the true signed
@@ -124,12 +146,22 @@ impl SdfGrid {
     }
 
     fn extent(&self) -> f64 {
-        (DVec3::new(self.dims[0] as f64, self.dims[1] as f64, self.dims[2] as f64) * self.h).length()
+        (DVec3::new(
+            self.dims[0] as f64,
+            self.dims[1] as f64,
+            self.dims[2] as f64,
+        ) * self.h)
+            .length()
     }
 
     /// Upper corner of the grid box.
     pub fn upper(&self) -> DVec3 {
-        self.origin + DVec3::new((self.dims[0] - 1) as f64, (self.dims[1] - 1) as f64, (self.dims[2] - 1) as f64) * self.h
+        self.origin
+            + DVec3::new(
+                (self.dims[0] - 1) as f64,
+                (self.dims[1] - 1) as f64,
+                (self.dims[2] - 1) as f64,
+            ) * self.h
     }
 
     /// The trilinear value at model point `q`: `(normal (not unit), δ)`; the
@@ -168,7 +200,9 @@ impl SdfGrid {
     /// feature, or from the grid where the mesh has no consistent
     /// orientation) and the unit normal of the closest surface point.
     pub fn exact(&self, q: DVec3) -> Distance {
-        let (proj, (tri, loc)) = self.trimesh.project_local_point_and_get_location(q.as_vec3(), false);
+        let (proj, (tri, loc)) = self
+            .trimesh
+            .project_local_point_and_get_location(q.as_vec3(), false);
         let y = proj.point.as_dvec3();
         let d = (q - y).length();
         let inside = if self.trimesh.pseudo_normals_if_oriented().is_some() {
@@ -182,11 +216,18 @@ impl SdfGrid {
         // corners); on the surface only the face normal is defined.
         let _ = loc;
         let normal = if d > 1e-7 * scale {
-            if inside { (y - q) / d } else { (q - y) / d }
+            if inside {
+                (y - q) / d
+            } else {
+                (q - y) / d
+            }
         } else {
             face_normal(&self.trimesh, tri)
         };
-        Distance { delta: if inside { -d } else { d }, normal }
+        Distance {
+            delta: if inside { -d } else { d },
+            normal,
+        }
     }
 
     /// Whether the mesh point query finds the point inside (for tests).
@@ -196,7 +237,10 @@ impl SdfGrid {
 }
 
 fn face_normal(tm: &TriMesh, tri: u32) -> DVec3 {
-    tm.triangle(tri).normal().map(|n| n.as_dvec3()).unwrap_or(DVec3::Z)
+    tm.triangle(tri)
+        .normal()
+        .map(|n| n.as_dvec3())
+        .unwrap_or(DVec3::Z)
 }
 
 fn to_trimesh(mesh: &Mesh) -> Result<TriMesh> {
@@ -204,9 +248,15 @@ fn to_trimesh(mesh: &Mesh) -> Result<TriMesh> {
     TriMesh::with_flags(
         vertices,
         mesh.triangles.clone(),
-        TriMeshFlags::MERGE_DUPLICATE_VERTICES | TriMeshFlags::DELETE_DEGENERATE_TRIANGLES | TriMeshFlags::ORIENTED,
+        TriMeshFlags::MERGE_DUPLICATE_VERTICES
+            | TriMeshFlags::DELETE_DEGENERATE_TRIANGLES
+            | TriMeshFlags::ORIENTED,
     )
-    .map_err(|e| Error::InvalidInput(format!("cannot build a BVH for the signed-distance grid: {e}")))
+    .map_err(|e| {
+        Error::InvalidInput(format!(
+            "cannot build a BVH for the signed-distance grid: {e}"
+        ))
+    })
 }
 
 /// Inside/outside of every node by ray parity along each axis, majority of
@@ -223,7 +273,11 @@ fn inside_votes(mesh: &Mesh, origin: DVec3, h: f64, dims: [usize; 3]) -> Vec<boo
         let mut columns: Vec<Vec<f64>> = vec![Vec::new(); dims[a1] * dims[a2]];
         for i in 0..mesh.triangles.len() {
             let c = mesh.corners(i).map(|v| (v - origin) / h);
-            let (p, q, r) = ((c[0][a1], c[0][a2]), (c[1][a1], c[1][a2]), (c[2][a1], c[2][a2]));
+            let (p, q, r) = (
+                (c[0][a1], c[0][a2]),
+                (c[1][a1], c[1][a2]),
+                (c[2][a1], c[2][a2]),
+            );
             let det = (q.0 - p.0) * (r.1 - p.1) - (q.1 - p.1) * (r.0 - p.0);
             if det == 0.0 {
                 continue; // parallel to the ray: crossed by none
@@ -286,11 +340,24 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let bound = g.error_bound();
         for _ in 0..5000 {
-            let p = DVec3::new(rng.random_range(-0.04..0.04), rng.random_range(-0.03..0.03), rng.random_range(-0.02..0.02));
+            let p = DVec3::new(
+                rng.random_range(-0.04..0.04),
+                rng.random_range(-0.03..0.03),
+                rng.random_range(-0.02..0.02),
+            );
             let (_, d) = g.trilinear(p);
-            assert!((d - analytic(p)).abs() <= bound, "{p}: grid {d} analytic {}", analytic(p));
+            assert!(
+                (d - analytic(p)).abs() <= bound,
+                "{p}: grid {d} analytic {}",
+                analytic(p)
+            );
             let e = g.exact(p);
-            assert!((e.delta - analytic(p)).abs() < 1e-6, "{p}: exact {} analytic {}", e.delta, analytic(p));
+            assert!(
+                (e.delta - analytic(p)).abs() < 1e-6,
+                "{p}: exact {} analytic {}",
+                e.delta,
+                analytic(p)
+            );
         }
         // Normals: above the top face, +z; beside +x, +x.
         assert!((g.exact(DVec3::new(0.0, 0.0, 0.011)).normal - DVec3::Z).length() < 1e-6);

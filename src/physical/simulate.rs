@@ -34,7 +34,13 @@ pub struct SimSettings {
 
 impl Default for SimSettings {
     fn default() -> Self {
-        SimSettings { dt: 1.0 / 60.0, steps: 3, rounds: 10, friction: 0.5, solver_iterations: 10 }
+        SimSettings {
+            dt: 1.0 / 60.0,
+            steps: 3,
+            rounds: 10,
+            friction: 0.5,
+            solver_iterations: 10,
+        }
     }
 }
 
@@ -51,13 +57,22 @@ pub struct Displacement {
 
 /// Per object (in scene order): the displacement after every round, or
 /// `None` for static objects.
-pub fn displacement(scene: &Scene, settings: &SimSettings) -> Result<Vec<Option<Vec<Displacement>>>> {
-    if !(settings.dt > 0.0 && settings.dt.is_finite()) || settings.steps == 0 || settings.rounds == 0 {
-        return Err(Error::InvalidInput("simulation needs dt > 0, steps ≥ 1 and rounds ≥ 1".into()));
+pub fn displacement(
+    scene: &Scene,
+    settings: &SimSettings,
+) -> Result<Vec<Option<Vec<Displacement>>>> {
+    if !(settings.dt > 0.0 && settings.dt.is_finite())
+        || settings.steps == 0
+        || settings.rounds == 0
+    {
+        return Err(Error::InvalidInput(
+            "simulation needs dt > 0, steps ≥ 1 and rounds ≥ 1".into(),
+        ));
     }
     let mut world = PhysicsWorld::new();
     world.gravity = scene.gravity.as_vec3();
-    let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>() / scene.objects.len().max(1) as f64;
+    let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>()
+        / scene.objects.len().max(1) as f64;
     let ip = &mut world.integration_parameters;
     ip.dt = settings.dt as f32;
     ip.length_unit = diag.max(1e-3) as f32;
@@ -65,37 +80,65 @@ pub fn displacement(scene: &Scene, settings: &SimSettings) -> Result<Vec<Option<
     let mu = settings.friction as f32;
     for p in &scene.planes {
         world.colliders.insert(
-            ColliderBuilder::new(SharedShape::halfspace(p.normal.as_vec3())).translation(p.point.as_vec3()).friction(mu),
+            ColliderBuilder::new(SharedShape::halfspace(p.normal.as_vec3()))
+                .translation(p.point.as_vec3())
+                .friction(mu),
         );
     }
     let mut handles = Vec::new();
     for o in &scene.objects {
         let q = DQuat::from_mat3(&o.pose.r);
-        let pose = rapier3d::math::Pose::from_parts(o.pose.t.as_vec3(), Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize());
+        let pose = rapier3d::math::Pose::from_parts(
+            o.pose.t.as_vec3(),
+            Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize(),
+        );
         let verts: Vec<Vec3> = o.mesh.vertices.iter().map(|v| v.as_vec3()).collect();
         if o.is_static {
-            let shape = SharedShape::trimesh(verts, o.mesh.triangles.clone())
-                .map_err(|e| Error::InvalidInput(format!("{}: cannot build a collider: {e}", o.name)))?;
+            let shape = SharedShape::trimesh(verts, o.mesh.triangles.clone()).map_err(|e| {
+                Error::InvalidInput(format!("{}: cannot build a collider: {e}", o.name))
+            })?;
             let h = world.insert_body(RigidBodyBuilder::fixed().pose(pose));
-            world.colliders.insert_with_parent(ColliderBuilder::new(shape).friction(mu), h, &mut world.bodies);
+            world.colliders.insert_with_parent(
+                ColliderBuilder::new(shape).friction(mu),
+                h,
+                &mut world.bodies,
+            );
             handles.push(None);
         } else {
-            let shape = SharedShape::convex_hull(&verts)
-                .ok_or_else(|| Error::InvalidInput(format!("{}: the convex hull of the mesh is degenerate", o.name)))?;
+            let shape = SharedShape::convex_hull(&verts).ok_or_else(|| {
+                Error::InvalidInput(format!(
+                    "{}: the convex hull of the mesh is degenerate",
+                    o.name
+                ))
+            })?;
             let (m, _) = MassProperties::of_mesh(&o.mesh)?;
             let inertia = m.inertia(o.density);
-            let inertia32 = glam::Mat3::from_cols(inertia.x_axis.as_vec3(), inertia.y_axis.as_vec3(), inertia.z_axis.as_vec3());
+            let inertia32 = glam::Mat3::from_cols(
+                inertia.x_axis.as_vec3(),
+                inertia.y_axis.as_vec3(),
+                inertia.z_axis.as_vec3(),
+            );
             let mprops = rapier3d::parry::mass_properties::MassProperties::with_inertia_matrix(
                 m.com.as_vec3(),
                 m.mass(o.density) as f32,
                 inertia32,
             );
-            let h = world.insert_body(RigidBodyBuilder::dynamic().pose(pose).additional_mass_properties(mprops).can_sleep(false));
-            world.colliders.insert_with_parent(ColliderBuilder::new(shape).density(0.0).friction(mu), h, &mut world.bodies);
+            let h = world.insert_body(
+                RigidBodyBuilder::dynamic()
+                    .pose(pose)
+                    .additional_mass_properties(mprops)
+                    .can_sleep(false),
+            );
+            world.colliders.insert_with_parent(
+                ColliderBuilder::new(shape).density(0.0).friction(mu),
+                h,
+                &mut world.bodies,
+            );
             handles.push(Some(h));
         }
     }
-    let mut out: Vec<Option<Vec<Displacement>>> = handles.iter().map(|h| h.map(|_| Vec::new())).collect();
+    let mut out: Vec<Option<Vec<Displacement>>> =
+        handles.iter().map(|h| h.map(|_| Vec::new())).collect();
     for round in 0..settings.rounds {
         for _ in 0..settings.steps {
             world.step();
@@ -103,15 +146,25 @@ pub fn displacement(scene: &Scene, settings: &SimSettings) -> Result<Vec<Option<
         let time_s = ((round + 1) * settings.steps) as f64 * settings.dt;
         for (i, h) in handles.iter().enumerate() {
             let Some(h) = h else { continue };
-            let Some(b) = world.bodies.get_mut(*h) else { continue };
+            let Some(b) = world.bodies.get_mut(*h) else {
+                continue;
+            };
             let p = b.position();
-            let t = DVec3::new(p.translation.x as f64, p.translation.y as f64, p.translation.z as f64);
+            let t = DVec3::new(
+                p.translation.x as f64,
+                p.translation.y as f64,
+                p.translation.z as f64,
+            );
             let r = p.rotation;
             let q = DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
             let q0 = DQuat::from_mat3(&scene.objects[i].pose.r);
             let angle = q0.angle_between(q).to_degrees();
             if let Some(v) = out[i].as_mut() {
-                v.push(Displacement { time_s, translation: (t - scene.objects[i].pose.t).length(), rotation_deg: angle });
+                v.push(Displacement {
+                    time_s,
+                    translation: (t - scene.objects[i].pose.t).length(),
+                    rotation_deg: angle,
+                });
             }
             b.set_linvel(Vec3::ZERO, true);
             b.set_angvel(Vec3::ZERO, true);

@@ -28,9 +28,15 @@ pub fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     let mut hull: Vec<DVec2> = Vec::with_capacity(pts.len() + 1);
     for pass in 0..2 {
         let start = hull.len();
-        let seq: Box<dyn Iterator<Item = &DVec2>> = if pass == 0 { Box::new(pts.iter()) } else { Box::new(pts.iter().rev()) };
+        let seq: Box<dyn Iterator<Item = &DVec2>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
         for &q in seq {
-            while hull.len() >= start + 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0 {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0
+            {
                 hull.pop();
             }
             hull.push(q);
@@ -43,7 +49,11 @@ pub fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
 fn segment_distance(p: DVec2, a: DVec2, b: DVec2) -> f64 {
     let ab = b - a;
     let len2 = ab.length_squared();
-    let t = if len2 > 0.0 { ((p - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    let t = if len2 > 0.0 {
+        ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     (p - (a + ab * t)).length()
 }
 
@@ -73,7 +83,11 @@ pub fn signed_margin(hull: &[DVec2], p: DVec2) -> Option<f64> {
 
 /// The support polygon and margin for supported points and a centre of
 /// mass (world coordinates), projected along `gravity`.
-pub fn stability(supported: &[DVec3], com: DVec3, gravity: DVec3) -> (Vec<DVec2>, DVec2, Option<f64>) {
+pub fn stability(
+    supported: &[DVec3],
+    com: DVec3,
+    gravity: DVec3,
+) -> (Vec<DVec2>, DVec2, Option<f64>) {
     let (u, v) = support_basis(gravity);
     let proj = |p: DVec3| DVec2::new(p.dot(u), p.dot(v));
     let pts: Vec<DVec2> = supported.iter().map(|&p| proj(p)).collect();
@@ -89,7 +103,14 @@ mod tests {
 
     #[test]
     fn margin_inside_outside_and_degenerate() {
-        let sq = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::new(1.0, 1.0), DVec2::new(0.0, 1.0), DVec2::new(0.5, 0.5), DVec2::new(0.5, 0.0)];
+        let sq = [
+            DVec2::new(0.0, 0.0),
+            DVec2::new(1.0, 0.0),
+            DVec2::new(1.0, 1.0),
+            DVec2::new(0.0, 1.0),
+            DVec2::new(0.5, 0.5),
+            DVec2::new(0.5, 0.0),
+        ];
         let h = convex_hull(&sq);
         assert_eq!(h.len(), 4);
         assert!((signed_margin(&h, DVec2::new(0.5, 0.5)).unwrap() - 0.5).abs() < 1e-12);
@@ -105,7 +126,11 @@ mod tests {
 
     #[test]
     fn basis_is_orthonormal_and_orthogonal_to_gravity() {
-        for g in [DVec3::new(0.0, 0.0, -9.81), DVec3::new(-9.81, 0.0, 0.0), DVec3::new(0.3, -2.0, -5.0)] {
+        for g in [
+            DVec3::new(0.0, 0.0, -9.81),
+            DVec3::new(-9.81, 0.0, 0.0),
+            DVec3::new(0.3, -2.0, -5.0),
+        ] {
             let (u, v) = support_basis(g);
             assert!(u.dot(g).abs() < 1e-12 && v.dot(g).abs() < 1e-12 && u.dot(v).abs() < 1e-12);
             assert!((u.length() - 1.0).abs() < 1e-12 && (v.length() - 1.0).abs() < 1e-12);
