@@ -32,7 +32,7 @@ const REFINE_COS: f32 = -0.99;
 struct Grid {
     // World -> grid-model rows [Rᵀ | −Rᵀt] (row i of Rᵀ is column i of R).
     inv: array<vec4<f32>, 3>,
-    // Node (0,0,0) (xyz) and node spacing h (w).
+    // Node (0,0,0) (xyz) and the inverse node spacing 1/h (w).
     origin: vec4<f32>,
     // Last node (xyz) and the margin around the mesh (w).
     upper: vec4<f32>,
@@ -77,32 +77,38 @@ fn apply(r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32>, x: vec3<f32>) -> vec3<f32>
 // the trilinear δ (w), from the same eight loads. Outside the grid box: the
 // lower bound |to box| + margin and no gradient.
 fn grid_query(k: u32, q: vec3<f32>) -> vec4<f32> {
+    // Branch-free: look up at the point clamped into the box (SIMD lanes
+    // stay together), then take the lower bound for points outside.
     let o = params.grids[k].origin;
     let up = params.grids[k].upper;
-    let out = max(max(o.xyz - q, q - up.xyz), vec3<f32>(0.0));
-    if (any(out > vec3<f32>(0.0))) {
-        return vec4<f32>(0.0, 0.0, 0.0, length(out) + up.w);
-    }
+    let qc = clamp(q, o.xyz, up.xyz);
+    let out = q - qc;
     let dims = params.grids[k].dims;
-    let u = (q - o.xyz) / o.w;
-    let i0 = min(vec3<u32>(floor(u)), dims.xyz - vec3<u32>(2u));
-    let f = u - vec3<f32>(i0);
-    let sy = dims.x;
-    let sz = dims.x * dims.y;
-    let b = dims.w + i0.x + sy * i0.y + sz * i0.z;
+    let dimf = vec3<f32>(dims.xyz);
+    // Cell coordinates (o.w is 1/h); index arithmetic in f32 (exact below
+    // 2^24 nodes, checked on the CPU) avoids slow vector integer multiplies.
+    let u = (qc - o.xyz) * o.w;
+    let cell = min(floor(u), dimf - vec3<f32>(2.0));
+    let f = u - cell;
+    let sy = dimf.x;
+    let sz = dimf.x * dimf.y;
+    let b = u32(dot(cell, vec3<f32>(1.0, sy, sz))) + dims.w;
+    let iy = dims.x;
+    let iz = dims.x * dims.y;
     let c000 = dist[b];
     let c100 = dist[b + 1u];
-    let c010 = dist[b + sy];
-    let c110 = dist[b + sy + 1u];
-    let c001 = dist[b + sz];
-    let c101 = dist[b + sz + 1u];
-    let c011 = dist[b + sz + sy];
-    let c111 = dist[b + sz + sy + 1u];
+    let c010 = dist[b + iy];
+    let c110 = dist[b + iy + 1u];
+    let c001 = dist[b + iz];
+    let c101 = dist[b + iz + 1u];
+    let c011 = dist[b + iz + iy];
+    let c111 = dist[b + iz + iy + 1u];
     let gx = mix(mix(c100 - c000, c110 - c010, f.y), mix(c101 - c001, c111 - c011, f.y), f.z);
     let gy = mix(mix(c010 - c000, c110 - c100, f.x), mix(c011 - c001, c111 - c101, f.x), f.z);
     let gz = mix(mix(c001 - c000, c101 - c100, f.x), mix(c011 - c010, c111 - c110, f.x), f.y);
     let d = mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
-    return vec4<f32>(gx, gy, gz, d);
+    let outside = any(out != vec3<f32>(0.0));
+    return select(vec4<f32>(gx, gy, gz, d), vec4<f32>(0.0, 0.0, 0.0, length(out) + up.w), outside);
 }
 
 // A model-frame gradient of grid k as a world-frame unit normal (or zero).

@@ -188,11 +188,18 @@ impl GpuContacts {
                     s.origin.x as f32,
                     s.origin.y as f32,
                     s.origin.z as f32,
-                    s.h as f32,
+                    (1.0 / s.h) as f32,
                 ],
                 upper: [up.x as f32, up.y as f32, up.z as f32, s.margin as f32],
                 dims: [s.dims[0] as u32, s.dims[1] as u32, s.dims[2] as u32, offset],
             });
+        }
+        // Node indices are computed in f32 on the GPU: exact below 2^24.
+        if node_data.len() >= 1 << 24 {
+            return Err(Error::InvalidInput(format!(
+                "the signed-distance grids have {} nodes; the GPU kernel takes fewer than 2^24 (lower the SDF resolution)",
+                node_data.len()
+            )));
         }
         if (node_data.len() as u64) * 4 > ctx.limits.max_items(1) {
             return Err(Error::Gpu(format!(
