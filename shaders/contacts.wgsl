@@ -61,10 +61,9 @@ struct Record { intersecting: u32, contact: u32, supported: u32, min_delta: f32 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> samples: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> poses: array<Pose>;
-// Per node: its signed distance and that of its +x neighbour as two f16
-// (pack2x16float). The normals stay on the CPU; the GPU takes them from the
-// interpolant's gradient.
-@group(0) @binding(4) var<storage, read> dist: array<u32>;
+// Per node: signed distance (the normals stay on the CPU; the GPU takes
+// them from the interpolant's gradient).
+@group(0) @binding(4) var<storage, read> dist: array<f32>;
 @group(0) @binding(5) var<storage, read_write> records: array<Record>;
 @group(0) @binding(6) var<storage, read_write> support_bits: array<u32>;
 @group(0) @binding(7) var<storage, read_write> deltas: array<f32>;
@@ -96,20 +95,14 @@ fn grid_query(k: u32, q: vec3<f32>) -> vec4<f32> {
     let b = u32(dot(cell, vec3<f32>(1.0, sy, sz))) + dims.w;
     let iy = dims.x;
     let iz = dims.x * dims.y;
-    // Each word holds a node and its +x neighbour (two f16): four loads
-    // give the eight corners.
-    let w00 = unpack2x16float(dist[b]);
-    let w10 = unpack2x16float(dist[b + iy]);
-    let w01 = unpack2x16float(dist[b + iz]);
-    let w11 = unpack2x16float(dist[b + iz + iy]);
-    let c000 = w00.x;
-    let c100 = w00.y;
-    let c010 = w10.x;
-    let c110 = w10.y;
-    let c001 = w01.x;
-    let c101 = w01.y;
-    let c011 = w11.x;
-    let c111 = w11.y;
+    let c000 = dist[b];
+    let c100 = dist[b + 1u];
+    let c010 = dist[b + iy];
+    let c110 = dist[b + iy + 1u];
+    let c001 = dist[b + iz];
+    let c101 = dist[b + iz + 1u];
+    let c011 = dist[b + iz + iy];
+    let c111 = dist[b + iz + iy + 1u];
     let gx = mix(mix(c100 - c000, c110 - c010, f.y), mix(c101 - c001, c111 - c011, f.y), f.z);
     let gy = mix(mix(c010 - c000, c110 - c100, f.x), mix(c011 - c001, c111 - c101, f.x), f.z);
     let gz = mix(mix(c001 - c000, c101 - c100, f.x), mix(c011 - c010, c111 - c110, f.x), f.y);

@@ -78,44 +78,6 @@ pub struct ContactRecord {
 }
 const _: () = assert!(std::mem::size_of::<ContactRecord>() == 16);
 
-/// Relative rounding of the f16 grid values on the GPU (2^-11).
-pub const F16_RELATIVE: f64 = 1.0 / 2048.0;
-
-/// Bound on |δ_gpu − δ_exact| for a sample with |δ| ≤ `delta` near the
-/// environment's grids: the trilinear bound plus the f16 rounding.
-pub fn gpu_error_bound(env: &Environment, delta: f64) -> f64 {
-    if env.obstacles.is_empty() {
-        return 0.0;
-    }
-    env.error_bound() + F16_RELATIVE * delta.abs()
-}
-
-/// IEEE half-precision bits of `x`, rounded to nearest even (what WGSL's
-/// `unpack2x16float` reads); beyond ±65504 clamped.
-pub fn f16_bits(x: f32) -> u16 {
-    let b = x.to_bits();
-    let sign = ((b >> 16) & 0x8000) as u16;
-    let a = x.abs();
-    if a.is_nan() {
-        return sign | 0x7e00;
-    }
-    if a >= 65504.0 {
-        return sign | 0x7bff;
-    }
-    if a < 6.103_515_6e-5 {
-        // Subnormal: a multiple of 2^-24 (1024 rounds up to the smallest normal).
-        return sign | (a * 16_777_216.0).round_ties_even() as u16;
-    }
-    let e = ((b >> 23) & 0xff) as u32 + 15 - 127;
-    let mant = b & 0x7f_ffff;
-    let mut h = (e << 10) | (mant >> 13);
-    let rem = mant & 0x1fff;
-    if rem > 0x1000 || (rem == 0x1000 && h & 1 == 1) {
-        h += 1;
-    }
-    sign | h as u16
-}
-
 /// What one run returns.
 #[derive(Clone, Debug, Default)]
 pub struct ContactOutput {
@@ -202,7 +164,7 @@ impl GpuContacts {
             ];
         }
         // Grids: each distinct grid's nodes once, one descriptor per placement.
-        let mut node_data: Vec<u32> = Vec::new();
+        let mut node_data: Vec<f32> = Vec::new();
         let mut offsets: Vec<(*const super::sdf::SdfGrid, u32)> = Vec::new();
         let mut descs = Vec::new();
         for o in &env.obstacles {
@@ -211,12 +173,7 @@ impl GpuContacts {
                 Some((_, off)) => *off,
                 None => {
                     let off = node_data.len() as u32;
-                    let nx = o.sdf.dims[0];
-                    let n = &o.sdf.nodes;
-                    node_data.extend((0..n.len()).map(|i| {
-                        let next = if (i % nx) + 1 < nx { i + 1 } else { i };
-                        f16_bits(n[i][3]) as u32 | (f16_bits(n[next][3]) as u32) << 16
-                    }));
+                    node_data.extend(o.sdf.nodes.iter().map(|n| n[3]));
                     offsets.push((key, off));
                     off
                 }
@@ -276,7 +233,7 @@ impl GpuContacts {
             support_cos: SUPPORT_COS as f32,
             write_deltas: with_deltas as u32,
             words: words as u32,
-            gravity: [g.x as f32, g.y as f32, g.z as f32, gpu_error_bound(env, body.epsilon + 2.0 * env.error_bound()) as f32],
+            gravity: [g.x as f32, g.y as f32, g.z as f32, env.error_bound() as f32],
             planes,
         };
         let samples: Vec<[f32; 4]> = body
@@ -292,7 +249,7 @@ impl GpuContacts {
                     usage: wgpu::BufferUsages::STORAGE,
                 })
         };
-        let dummy_node = [0u32; 4];
+        let dummy_node = [0.0f32; 4];
         let samples_buf = init("contacts samples", bytemuck::cast_slice(&samples));
         let nodes = init(
             "contacts nodes",
@@ -543,22 +500,6 @@ impl GpuContacts {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn f16_conversion_rounds_to_nearest() {
-        let decode = |h: u16| -> f32 {
-            let s = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
-            let e = ((h >> 10) & 0x1f) as i32;
-            let m = (h & 0x3ff) as f32;
-            s * if e == 0 { m * 2f32.powi(-24) } else { (1.0 + m / 1024.0) * 2f32.powi(e - 15) }
-        };
-        for x in [0.0f32, 1.0, -1.0, 0.002, -0.0137, 3.0e-5, -7.1e-6, 0.049, 1.5e-3, 65000.0] {
-            let y = decode(f16_bits(x));
-            assert!((y - x).abs() <= x.abs() / 2048.0 + 2f32.powi(-25), "{x} -> {y}");
-        }
-        assert_eq!(f16_bits(1.0), 0x3c00);
-        assert_eq!(f16_bits(-2.0), 0xc000);
-    }
 
     /// The WGSL structs have the sizes of the Rust ones (naga's layouter).
     #[test]
