@@ -639,9 +639,10 @@ fn bench_physics_reports_gpu_and_cpu_queries_per_second() {
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
-    assert_eq!(rows.len(), 2);
+    assert_eq!(rows.len(), 3);
     assert_eq!(rows[0]["scene"], "plane");
     assert_eq!(rows[1]["scene"], "plane+mesh");
+    assert_eq!(rows[2]["scene"], "plane+mesh/near");
     for r in &rows {
         assert_eq!(r["n"], 64);
         assert_eq!(r["samples"], 256);

@@ -45,7 +45,9 @@ pub struct BenchPhysicsArgs {
 pub struct PhysicsBenchRow {
     pub adapter: String,
     pub backend: String,
-    /// "plane" or "plane+mesh".
+    /// "plane", "plane+mesh" (poses anywhere over and around the mesh: nearly
+    /// every sample queries the grid) or "plane+mesh/near" (poses resting
+    /// near the plane in and around the mesh's footprint).
     pub scene: String,
     pub n: usize,
     pub samples: usize,
@@ -121,9 +123,27 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
             Pose::new(r, p)
         })
         .collect();
+    // Near contact (the ranking use case): the cube resting on the plane in
+    // and around the duck's footprint, tilted up to 25°, lowest corner
+    // within ±4 mm of the plane.
+    let near: Vec<Pose> = (0..a.n)
+        .map(|_| {
+            let axis = DVec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0);
+            let r = plausible::pose::axis_angle(DVec3::Z, rng.random_range(0.0..std::f64::consts::TAU))
+                * plausible::pose::axis_angle(axis, rng.random_range(0.0..25f64.to_radians()));
+            let low = cube.vertices.iter().map(|v| (r * *v).z).fold(f64::INFINITY, f64::min);
+            let p = DVec3::new(
+                rng.random_range(lo.x - 0.04..hi.x + 0.04),
+                rng.random_range(lo.y - 0.04..hi.y + 0.04),
+                -low + rng.random_range(-0.004..0.004),
+            );
+            Pose::new(r, p)
+        })
+        .collect();
     let configs = [
         (
             "plane",
+            &poses,
             Environment {
                 planes: vec![plane],
                 obstacles: vec![],
@@ -132,6 +152,19 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         ),
         (
             "plane+mesh",
+            &poses,
+            Environment {
+                planes: vec![plane],
+                obstacles: vec![Obstacle {
+                    sdf: grid.clone(),
+                    pose: duck_pose,
+                }],
+                gravity: g,
+            },
+        ),
+        (
+            "plane+mesh/near",
+            &near,
             Environment {
                 planes: vec![plane],
                 obstacles: vec![Obstacle {
@@ -152,7 +185,7 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
             body.samples.len()
         );
         println!(
-            "{:>11} {:>14} {:>14} {:>8} {:>11} {:>11} {:>9}",
+            "{:>15} {:>14} {:>14} {:>8} {:>11} {:>11} {:>9}",
             "scene",
             "gpu queries/s",
             "cpu queries/s",
@@ -162,7 +195,8 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
             "refined"
         );
     }
-    for (name, env) in &configs {
+    for (name, poses, env) in &configs {
+        let poses: &[Pose] = poses;
         let mut row = PhysicsBenchRow {
             adapter: adapter.clone(),
             backend: backend.clone(),
@@ -180,14 +214,14 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         };
         if let Device::Gpu(ctx) = &device {
             let gpu = GpuContacts::new(ctx, &body, env, a.n, false)?;
-            let warm = gpu.run(&poses)?; // first submit compiles and is slower
+            let warm = gpu.run(poses)?; // first submit compiles and is slower
             row.refined_fraction = Some(gpu.refined_count(&warm) as f64 / queries);
             let mut kernel = Vec::new();
             let mut full = Vec::new();
             for _ in 0..repeat {
                 let t = Instant::now();
-                let out = gpu.run(&poses)?;
-                let ev = gpu.finish(&poses, &out);
+                let out = gpu.run(poses)?;
+                let ev = gpu.finish(poses, &out);
                 full.push(t.elapsed());
                 kernel.push(out.compute);
                 std::hint::black_box(ev);
@@ -199,10 +233,10 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         let mut ch = Vec::new();
         for _ in 0..repeat {
             let t = Instant::now();
-            std::hint::black_box(distances_batch(&body, &poses, env));
+            std::hint::black_box(distances_batch(&body, poses, env));
             cq.push(t.elapsed());
             let t = Instant::now();
-            std::hint::black_box(evaluate_batch(&body, &poses, env));
+            std::hint::black_box(evaluate_batch(&body, poses, env));
             ch.push(t.elapsed());
         }
         row.cpu_queries_per_s = queries / median(cq).as_secs_f64();
@@ -215,7 +249,7 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
                     .unwrap_or_else(|| "-".into())
             };
             println!(
-                "{:>11} {:>13}M {:>13}M {:>8} {:>11} {:>11.0} {:>8}%",
+                "{:>15} {:>13}M {:>13}M {:>8} {:>11} {:>11.0} {:>8}%",
                 name,
                 opt(row.gpu_queries_per_s, 1e6),
                 format!("{:.1}", row.cpu_queries_per_s / 1e6),
