@@ -39,7 +39,8 @@ pub fn static_equilibrium(
     scale: f64,
 ) -> Option<bool> {
     let k = points.len();
-    if k == 0 || normals.len() != k || !(mu >= 0.0) || !(scale > 0.0) {
+    // (Written so that NaN fails too.)
+    if k == 0 || normals.len() != k || mu.is_nan() || mu < 0.0 || scale.is_nan() || scale <= 0.0 {
         return None;
     }
     let g = gravity.normalize();

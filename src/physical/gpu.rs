@@ -204,7 +204,7 @@ impl GpuContacts {
         if (node_data.len() as u64) * 4 > ctx.limits.max_items(1) {
             return Err(Error::Gpu(format!(
                 "the signed-distance grids need {} MiB, more than one storage binding holds on this adapter; lower the SDF resolution",
-                node_data.len() * 4 >> 20
+                (node_data.len() * 4) >> 20
             )));
         }
         // Chunk: poses per dispatch within the binding limits.

@@ -40,7 +40,7 @@ pub fn surface_samples(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<DVec3
         total += 0.5 * (b - a).cross(c - a).length();
         cumulative.push(total);
     }
-    if !(total > 0.0) || !total.is_finite() {
+    if total.is_nan() || total <= 0.0 || !total.is_finite() {
         return Err(Error::InvalidInput(
             "cannot sample a mesh with zero surface area".into(),
         ));

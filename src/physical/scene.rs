@@ -193,7 +193,7 @@ impl Scene {
             let point = vec3(&format!("plane {i}: point"), &p.point).map_err(bad)?;
             let normal = vec3(&format!("plane {i}: normal"), &p.normal).map_err(bad)?;
             let len = normal.length();
-            if !(len > 1e-12) {
+            if len.is_nan() || len <= 1e-12 {
                 return Err(bad(format!("plane {i}: normal has zero length")));
             }
             planes.push(Plane {
@@ -238,7 +238,7 @@ impl Scene {
             }];
         } else if let Some(g) = &raw.gravity {
             gravity = vec3("gravity", g).map_err(bad)?;
-            if !(gravity.length() > 1e-9) {
+            if gravity.length() <= 1e-9 {
                 return Err(bad("gravity has zero length".into()));
             }
         }

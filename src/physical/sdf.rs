@@ -82,7 +82,7 @@ impl SdfGrid {
         }
         let (lo, hi) = mesh.bounds();
         let longest = (hi - lo).max_element();
-        if !(longest > 0.0) || !longest.is_finite() {
+        if longest.is_nan() || longest <= 0.0 || !longest.is_finite() {
             return Err(Error::InvalidInput(
                 "cannot bake a signed-distance grid of a degenerate mesh".into(),
             ));
