@@ -719,3 +719,54 @@ fn explain_draws_classes_support_polygons_and_centres_of_mass() {
         "unstable and stable centres of mass"
     );
 }
+
+#[test]
+fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
+    use plausible::physical::batch::{rank, PlanePhysics};
+    use plausible::physical::scene::Plane;
+    use plausible::pose::Pose;
+    let cube = plausible::shapes::cuboid(DVec3::splat(SIDE / 2.0));
+    // Camera 0.6 m from the plane, looking down at 45°.
+    let cam_from_world = Pose::new(
+        axis_angle(DVec3::X, 3.0 * std::f64::consts::FRAC_PI_4),
+        DVec3::new(0.0, 0.1, 0.6),
+    );
+    let plane = Plane {
+        point: cam_from_world.t,
+        normal: cam_from_world.r * DVec3::Z,
+    };
+    let world = [
+        Pose::new(
+            axis_angle(DVec3::Z, 0.3),
+            DVec3::new(0.0, 0.0, SIDE / 2.0 + 0.01),
+        ), // floating
+        Pose::new(DMat3::IDENTITY, DVec3::new(0.02, 0.0, SIDE / 2.0 - 0.01)), // intersecting
+        Pose::new(axis_angle(DVec3::Y, 0.5), DVec3::new(0.0, 0.0, 0.05)), // floating or unstable
+        Pose::new(
+            axis_angle(DVec3::Z, 1.0),
+            DVec3::new(-0.01, 0.02, SIDE / 2.0),
+        ), // plausible
+    ];
+    let cam: Vec<Pose> = world.iter().map(|p| cam_from_world.compose(p)).collect();
+    let cpu = PlanePhysics::new(&cube, &plane, None, 1024, 0)
+        .unwrap()
+        .evaluate(&cam)
+        .unwrap();
+    let verdicts: Vec<Verdict> = cpu.iter().map(|e| e.verdict).collect();
+    assert_eq!(verdicts[0], Verdict::Floating);
+    assert_eq!(verdicts[1], Verdict::Intersecting);
+    assert_eq!(verdicts[3], Verdict::Plausible);
+    assert!((cpu[3].stability_margin.unwrap() - SIDE / 2.0).abs() < 1e-6);
+    // Visual scores that prefer the wrong ones: physics still ranks the plausible one first.
+    let order = rank(&verdicts, &[0.9, 0.8, 0.7, 0.1]);
+    assert_eq!(order[0], 3);
+    assert_eq!(*order.last().unwrap(), 1);
+    if let Some(ctx) = plausible::gpu::test_context() {
+        let gpu = PlanePhysics::new(&cube, &plane, Some(&ctx), 1024, 0)
+            .unwrap()
+            .evaluate(&cam)
+            .unwrap();
+        let gv: Vec<Verdict> = gpu.iter().map(|e| e.verdict).collect();
+        assert_eq!(gv, verdicts);
+    }
+}

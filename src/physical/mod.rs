@@ -20,7 +20,10 @@
 //! - [`friction`]: static equilibrium with friction cones (eq. 10-12).
 //! - [`simulate`]: displacement over a few simulated steps (rapier).
 //! - [`explain`]: a top and a side view of a checked scene.
+//! - [`batch`]: camera-frame hypotheses on a support plane, and the ranking
+//!   rule (physically plausible first).
 
+pub mod batch;
 pub mod check;
 pub mod contacts;
 pub mod explain;

@@ -70,6 +70,27 @@ pub struct Scene {
     pub objects: Vec<SceneObject>,
 }
 
+/// The rigid transform from the camera frame to the frame of a support
+/// plane given in the camera frame (metres): origin at the plane point, z
+/// along the plane normal turned towards the camera (gravity −z), x along
+/// the camera's x projected onto the plane.
+pub fn camera_to_plane_frame(plane: &Plane) -> Pose {
+    let point = plane.point;
+    let mut up = plane.normal.normalize();
+    if up.dot(-point) < 0.0 {
+        up = -up; // the camera looks at the plane from above
+    }
+    let helper = if DVec3::X.cross(up).length() > 0.1 {
+        DVec3::X
+    } else {
+        DVec3::Z
+    };
+    let x = (helper - up * helper.dot(up)).normalize();
+    let y = up.cross(x);
+    let r = DMat3::from_cols(x, y, up).transpose(); // camera -> world
+    Pose::new(r, -(r * point))
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawScene {
@@ -218,20 +239,10 @@ impl Scene {
                 )));
             }
             let p = planes[0];
-            let point = p.point * 1e-3;
-            let mut up = p.normal;
-            if up.dot(-point) < 0.0 {
-                up = -up; // the camera looks at the plane from above
-            }
-            let helper = if DVec3::X.cross(up).length() > 0.1 {
-                DVec3::X
-            } else {
-                DVec3::Z
-            };
-            let x = (helper - up * helper.dot(up)).normalize();
-            let y = up.cross(x);
-            let r = DMat3::from_cols(x, y, up).transpose(); // camera -> world
-            to_world = Pose::new(r, -(r * point));
+            to_world = camera_to_plane_frame(&Plane {
+                point: p.point * 1e-3,
+                normal: p.normal,
+            });
             planes = vec![Plane {
                 point: DVec3::ZERO,
                 normal: DVec3::Z,
