@@ -52,6 +52,19 @@ impl MassProperties {
         self.inertia_unit_density * density
     }
 
+    /// The same properties as rapier's (f32) mass properties of a body of
+    /// uniform `density`, for setting on a rigid body instead of deriving
+    /// them from its collider.
+    pub fn to_rapier(&self, density: f64) -> rapier3d::parry::mass_properties::MassProperties {
+        let i = self.inertia(density);
+        let inertia = glam::Mat3::from_cols(i.x_axis.as_vec3(), i.y_axis.as_vec3(), i.z_axis.as_vec3());
+        rapier3d::parry::mass_properties::MassProperties::with_inertia_matrix(
+            self.com.as_vec3(),
+            self.mass(density) as f32,
+            inertia,
+        )
+    }
+
     /// Computes the mass properties of `mesh`, returning warnings about the
     /// fallbacks used (open mesh, inverted winding).
     ///

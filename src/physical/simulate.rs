@@ -112,17 +112,7 @@ pub fn displacement(
                 ))
             })?;
             let (m, _) = MassProperties::of_mesh(&o.mesh)?;
-            let inertia = m.inertia(o.density);
-            let inertia32 = glam::Mat3::from_cols(
-                inertia.x_axis.as_vec3(),
-                inertia.y_axis.as_vec3(),
-                inertia.z_axis.as_vec3(),
-            );
-            let mprops = rapier3d::parry::mass_properties::MassProperties::with_inertia_matrix(
-                m.com.as_vec3(),
-                m.mass(o.density) as f32,
-                inertia32,
-            );
+            let mprops = m.to_rapier(o.density);
             let h = world.insert_body(
                 RigidBodyBuilder::dynamic()
                     .pose(pose)

@@ -165,18 +165,7 @@ pub fn simulate(
             .friction(params.friction as f32)
             .restitution(params.restitution as f32),
     );
-    let m = &body.mass;
-    let inertia = m.inertia(params.density);
-    let inertia32 = glam::Mat3::from_cols(
-        inertia.x_axis.as_vec3(),
-        inertia.y_axis.as_vec3(),
-        inertia.z_axis.as_vec3(),
-    );
-    let mprops = rapier3d::parry::mass_properties::MassProperties::with_inertia_matrix(
-        m.com.as_vec3(),
-        m.mass(params.density) as f32,
-        inertia32,
-    );
+    let mprops = body.mass.to_rapier(params.density);
     let rb = RigidBodyBuilder::dynamic()
         .pose(Pose::from_parts(
             Vec3::new(0.0, 0.0, z0 as f32),
