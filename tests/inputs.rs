@@ -118,7 +118,7 @@ fn mesh_formats_agree() {
     let v = [[0.0f32, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]];
     let f = [[0u32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
     let mut obj = String::new();
-    let mut ply = format!("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n");
+    let mut ply = String::from("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n");
     for p in v {
         obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
         ply += &format!("{} {} {}\n", p[0], p[1], p[2]);
@@ -173,7 +173,9 @@ fn mesh_formats_agree() {
     for p in &paths {
         let (m, report) = Mesh::load(p, MeshUnits::Metres).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
         assert_eq!(m.triangles.len(), 4, "{}", p.display());
-        assert!((m.area() - (1.5 * 0.01 + 0.5 * 3f64.sqrt() * 0.02 / 1.0 * 0.5)).abs() < 1e-6, "{}: area {}", p.display(), m.area());
+        // Three right triangles of 0.005 m² and one equilateral face of side 0.1·√2.
+        let area = 3.0 * 0.005 + 3f64.sqrt() / 4.0 * 0.02;
+        assert!((m.area() - area).abs() < 1e-6, "{}: area {}", p.display(), m.area());
         assert_eq!(report.boundary_edges, 0, "{}", p.display());
     }
 }

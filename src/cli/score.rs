@@ -71,7 +71,7 @@ pub struct ScoreArgs {
 }
 
 pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
-    if !(a.tau > 0.0 && a.tau.is_finite()) || !(a.alpha > 0.0 && a.alpha.is_finite()) {
+    if !(a.tau > 0.0 && a.tau.is_finite() && a.alpha > 0.0 && a.alpha.is_finite()) {
         bail!("--tau and --alpha must be positive");
     }
     if a.tau > 1.0 {

@@ -29,7 +29,7 @@ pub struct BatchLimits {
 impl BatchLimits {
     fn from_wgpu(l: &wgpu::Limits) -> Self {
         BatchLimits {
-            max_storage_binding: l.max_storage_buffer_binding_size as u64,
+            max_storage_binding: l.max_storage_buffer_binding_size,
             max_buffer: l.max_buffer_size,
             max_workgroups: l.max_compute_workgroups_per_dimension,
         }

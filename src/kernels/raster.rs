@@ -42,7 +42,7 @@ pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize
     let y0 = (ylo.ceil().max(-1.0) as i64).max(0);
     let x1 = (xhi.floor().min(w as f32) as i64).min(w - 1);
     let y1 = (yhi.floor().min(h as f32) as i64).min(h - 1);
-    (x0 <= x1 && y0 <= y1).then(|| [x0 as usize, y0 as usize, x1 as usize, y1 as usize])
+    (x0 <= x1 && y0 <= y1).then_some([x0 as usize, y0 as usize, x1 as usize, y1 as usize])
 }
 
 /// Rasterizes `mesh` at `pose` into a z-buffer of triangle ids (`u32::MAX`
