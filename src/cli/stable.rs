@@ -67,7 +67,8 @@ pub struct RunArgs {
     /// Angular threshold of the clustering (degrees).
     #[arg(long, default_value_t = 5.0)]
     pub cluster_deg: f64,
-    /// Cap on simulated time per drop (seconds).
+    /// Cap on simulated time per drop (seconds) for a 0.15 m object; larger
+    /// objects get it times √(diagonal / 0.15 m).
     #[arg(long, default_value_t = 10.0)]
     pub max_time: f64,
     /// Simulation steps per second. 240 gives converged pose frequencies;

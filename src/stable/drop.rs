@@ -25,7 +25,11 @@ pub struct SimParams {
     /// agree with pybullet's; at 1/60 s the poses are the same but their
     /// frequencies shift (e.g. 16 % vs 8 % for the upright duck).
     pub dt: f64,
-    /// Simulated-time cap per drop (s); drops not at rest by then are unsettled.
+    /// Simulated-time cap per drop (s) for an object of [`REFERENCE_DIAG`];
+    /// drops not at rest by then are unsettled. Heights and speed
+    /// thresholds scale with the diagonal, so free-motion times grow with
+    /// its square root: larger objects get `max_time · √(diag / 0.15 m)`
+    /// (a 1.6 m object, 33 s), smaller ones keep `max_time`.
     pub max_time: f64,
     /// Drop height: gap between the lowest hull point and the plane at
     /// release, in bounding diagonals (1.5 ≈ the pybullet peer's 0.3 m drop
@@ -51,6 +55,9 @@ pub struct SimParams {
     /// Continuous collision detection on the dropped body.
     pub ccd: bool,
 }
+
+/// Object size (bounding diagonal, m) that [`SimParams::max_time`] is given for.
+pub const REFERENCE_DIAG: f64 = 0.15;
 
 impl Default for SimParams {
     fn default() -> Self {
@@ -186,7 +193,8 @@ pub fn simulate(
             .insert_with_parent(collider, handle, &mut world.bodies);
     }
 
-    let max_steps = (params.max_time / params.dt).ceil().max(1.0) as u32;
+    let time_scale = (body.diagonal / REFERENCE_DIAG).sqrt().max(1.0);
+    let max_steps = (params.max_time * time_scale / params.dt).ceil().max(1.0) as u32;
     let calm_needed = (params.calm_time / params.dt).ceil().max(1.0) as u32;
     let lin_tol = (params.lin_tol_diag * body.diagonal) as f32;
     let ang_tol = params.ang_tol as f32;
