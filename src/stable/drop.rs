@@ -7,7 +7,7 @@
 //! ran it or what that worker simulated before: results are identical for
 //! any thread count and any sharding.
 
-use glam::{DQuat, DVec3, Quat, Vec3};
+use glam::{DQuat, DVec2, DVec3, Quat, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::*;
@@ -262,49 +262,23 @@ pub fn supported(body: &DropBody, q: DQuat, t: DVec3) -> bool {
     let world: Vec<DVec3> = body.support.iter().map(|p| q * *p + t).collect();
     let low = world.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
     let tol = 0.01 * body.diagonal;
-    let mut pts: Vec<[f64; 2]> = world
-        .iter()
-        .filter(|p| p.z <= low + tol)
-        .map(|p| [p.x, p.y])
-        .collect();
+    let pts: Vec<DVec2> = world.iter().filter(|p| p.z <= low + tol).map(|p| p.truncate()).collect();
     let com = q * body.mass.com + t;
-    point_in_hull_2d(&mut pts, [com.x, com.y], 1e-3 * body.diagonal)
+    point_in_hull_2d(&pts, com.truncate(), 1e-3 * body.diagonal)
 }
 
-/// Point-in-convex-hull test in 2D with an inward margin (Andrew's
-/// monotone chain). Fewer than three hull corners (an edge or a vertex)
+/// Point-in-convex-hull test in 2D with an inward margin (the hull is the
+/// support module's). Fewer than three hull corners (an edge or a vertex)
 /// never contain a point strictly.
-fn point_in_hull_2d(pts: &mut [[f64; 2]], p: [f64; 2], margin: f64) -> bool {
-    pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
-    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
-        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-    };
-    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(pts.len() + 1);
-    for pass in 0..2 {
-        let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
-            Box::new(pts.iter())
-        } else {
-            Box::new(pts.iter().rev())
-        };
-        for &q in iter {
-            while hull.len() >= start + 2
-                && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0
-            {
-                hull.pop();
-            }
-            hull.push(q);
-        }
-        hull.pop();
-    }
+fn point_in_hull_2d(pts: &[DVec2], p: DVec2, margin: f64) -> bool {
+    let hull = crate::physical::support::convex_hull(pts);
     if hull.len() < 3 {
         return false;
     }
     (0..hull.len()).all(|i| {
-        let a = hull[i];
-        let b = hull[(i + 1) % hull.len()];
-        let len = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
-        len > 0.0 && cross(a, b, p) / len > margin
+        let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
+        let len = (b - a).length();
+        len > 0.0 && (b - a).perp_dot(p - a) / len > margin
     })
 }
 
@@ -314,12 +288,13 @@ mod tests {
 
     #[test]
     fn support_polygon_test() {
-        let mut sq = vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.5]];
-        assert!(point_in_hull_2d(&mut sq, [0.5, 0.5], 0.01));
-        assert!(!point_in_hull_2d(&mut sq, [1.2, 0.5], 0.01));
-        assert!(!point_in_hull_2d(&mut sq, [0.995, 0.5], 0.01));
-        let mut edge = vec![[0.0, 0.0], [1.0, 0.0]];
-        assert!(!point_in_hull_2d(&mut edge, [0.5, 0.0], 0.0));
+        let v = |x: f64, y: f64| DVec2::new(x, y);
+        let sq = [v(0.0, 0.0), v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0), v(0.5, 0.5)];
+        assert!(point_in_hull_2d(&sq, v(0.5, 0.5), 0.01));
+        assert!(!point_in_hull_2d(&sq, v(1.2, 0.5), 0.01));
+        assert!(!point_in_hull_2d(&sq, v(0.995, 0.5), 0.01));
+        let edge = [v(0.0, 0.0), v(1.0, 0.0)];
+        assert!(!point_in_hull_2d(&edge, v(0.5, 0.0), 0.0));
     }
 
     #[test]
