@@ -37,6 +37,30 @@ pub enum SampleClass {
     Supported,
 }
 
+/// Running counts of the critical point sets (eq. 6, 7, 13) of one pose:
+/// shared by the CPU twin and the GPU path's exact refinement.
+#[derive(Default)]
+pub(crate) struct Tally {
+    pub intersecting: u32,
+    pub contact: u32,
+    /// World positions of the supported points.
+    pub supported: Vec<DVec3>,
+}
+
+impl Tally {
+    pub fn add(&mut self, class: SampleClass, x: DVec3) {
+        match class {
+            SampleClass::Intersecting => self.intersecting += 1,
+            SampleClass::Contact => self.contact += 1,
+            SampleClass::Supported => {
+                self.contact += 1;
+                self.supported.push(x);
+            }
+            SampleClass::Free => {}
+        }
+    }
+}
+
 /// Per-object verdict, decided in this order: intersecting (|I| > 0),
 /// floating (|C| = 0), unstable (centre of mass not strictly inside the
 /// support polygon), plausible.
@@ -264,28 +288,20 @@ pub fn evaluate_detailed(body: &Body, pose: &Pose, env: &Environment) -> (Evalua
         com: DVec2::ZERO,
         com_world: pose.transform_point(body.com),
     };
-    let (mut ni, mut nc, mut min) = (0u32, 0u32, f64::INFINITY);
-    let mut sup = Vec::new();
+    let mut tally = Tally::default();
+    let mut min = f64::INFINITY;
     for s in &body.samples {
         let x = pose.transform_point(*s);
         let d = env.refined_distance(x, eps);
         let c = classify(d.delta, d.normal, eps, g);
-        match c {
-            SampleClass::Intersecting => ni += 1,
-            SampleClass::Contact => nc += 1,
-            SampleClass::Supported => {
-                nc += 1;
-                sup.push(x);
-            }
-            SampleClass::Free => {}
-        }
+        tally.add(c, x);
         min = min.min(d.delta);
         det.world.push(x);
         det.delta.push(d.delta);
         det.normal.push(d.normal);
         det.classes.push(c);
     }
-    let (e, hull, c) = finish(ni, nc, min, &sup, det.com_world, env.gravity);
+    let (e, hull, c) = finish(tally.intersecting, tally.contact, min, &tally.supported, det.com_world, env.gravity);
     det.hull = hull;
     det.com = c;
     (e, det)

@@ -21,7 +21,7 @@ use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
-use super::contacts::{classify, finish, Body, Environment, Evaluation, SampleClass, SUPPORT_COS};
+use super::contacts::{classify, finish, Body, Environment, Evaluation, Tally, SUPPORT_COS};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::kernels::GpuPose;
@@ -448,32 +448,24 @@ impl GpuContacts {
                 let r = out.records[i];
                 let bits = &out.bits[2 * i * words..(2 * i + 1) * words];
                 let refine = &out.bits[(2 * i + 1) * words..(2 * i + 2) * words];
-                let (mut ni, mut nc, mut min) = (r.intersecting, r.contact, r.min_delta as f64);
-                let mut sup = Vec::new();
+                let mut tally = Tally { intersecting: r.intersecting, contact: r.contact, supported: Vec::new() };
+                let mut min = r.min_delta as f64;
                 for (j, s) in self.body.samples.iter().enumerate() {
                     let (w, b) = (j / 32, j % 32);
                     if bits[w] >> b & 1 == 1 {
-                        sup.push(pose.transform_point(*s));
+                        tally.supported.push(pose.transform_point(*s));
                     } else if refine[w] >> b & 1 == 1 {
                         let x = pose.transform_point(*s);
                         let d = self.env.refined_distance(x, eps);
                         min = min.min(d.delta);
-                        match classify(d.delta, d.normal, eps, g) {
-                            SampleClass::Intersecting => ni += 1,
-                            SampleClass::Contact => nc += 1,
-                            SampleClass::Supported => {
-                                nc += 1;
-                                sup.push(x);
-                            }
-                            SampleClass::Free => {}
-                        }
+                        tally.add(classify(d.delta, d.normal, eps, g), x);
                     }
                 }
                 finish(
-                    ni,
-                    nc,
+                    tally.intersecting,
+                    tally.contact,
                     min,
-                    &sup,
+                    &tally.supported,
                     pose.transform_point(self.body.com),
                     self.env.gravity,
                 )
