@@ -35,7 +35,13 @@ fn score_main(
     if (h >= params.n_hyp) {
         return;
     }
-    let base = wid.x * params.width * params.height;
+    score_hypothesis(h, wid.x, lid);
+}
+
+// Renders hypothesis h into visibility slot `slot` and writes its record
+// (the whole workgroup calls it, in uniform control flow).
+fn score_hypothesis(h: u32, slot: u32, lid: u32) {
+    let base = slot * params.width * params.height;
     {
         let p = poses[h];
         let rect = raster_slot(p, base, lid);

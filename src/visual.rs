@@ -7,6 +7,8 @@ use crate::gpu::Context;
 use crate::kernels::score::{score_cpu, GpuScorer, ScoreParams, ScoreRecord, StageTimes};
 use crate::kernels::RenderMesh;
 use crate::observation::ScoreTarget;
+use crate::physical::batch::PlanePhysics;
+use crate::physical::Evaluation;
 use crate::pose::Pose;
 
 /// Where the kernels run.
@@ -42,6 +44,54 @@ pub fn score_poses(
             Ok((r, StageTimes { compute: t.elapsed(), ..Default::default() }))
         }
     }
+}
+
+/// Scores `poses` on `device` and computes their physical terms against
+/// `physics`' support plane: on the GPU in the same dispatch as the visual
+/// score (the support polygons are finished on the CPU from the GPU's
+/// supported-sample bits), on the CPU with the twins. `done(n)` reports
+/// progress. Records and evaluations come back in input order.
+pub fn score_poses_with_physics(
+    device: &Device,
+    mesh: &RenderMesh,
+    target: &ScoreTarget,
+    poses: &[Pose],
+    params: ScoreParams,
+    physics: &PlanePhysics,
+    mut done: impl FnMut(usize),
+) -> Result<(Vec<ScoreRecord>, Vec<Evaluation>, StageTimes)> {
+    match device {
+        Device::Gpu(ctx) => {
+            let scorer = GpuScorer::with_plane_physics(ctx, mesh, target, params, poses.len(), physics)?;
+            let (records, contacts, times) = scorer.score_with_physics(poses, done)?;
+            let evals = physics.finish_fused(poses, &contacts.records, &contacts.bits);
+            Ok((records, evals, times))
+        }
+        Device::Cpu => {
+            let t = std::time::Instant::now();
+            let mut records = Vec::with_capacity(poses.len());
+            let mut evals = Vec::with_capacity(poses.len());
+            for chunk in poses.chunks(1024) {
+                records.extend(score_cpu(mesh, target, chunk, &params));
+                evals.extend(physics.evaluate_cpu(chunk));
+                done(records.len());
+            }
+            Ok((records, evals, StageTimes { compute: t.elapsed(), ..Default::default() }))
+        }
+    }
+}
+
+/// Rank of each hypothesis (1 = best) by the physics-first rule of
+/// [`crate::physical::batch::rank`]: plausible, then unstable, floating,
+/// intersecting; within a group by visual score; ties keep input order.
+pub fn ranks_with_physics(records: &[ScoreRecord], evals: &[Evaluation]) -> Vec<usize> {
+    let verdicts: Vec<_> = evals.iter().map(|e| e.verdict).collect();
+    let scores: Vec<f64> = records.iter().map(|r| r.score as f64).collect();
+    let mut rank = vec![0; records.len()];
+    for (r, i) in crate::physical::batch::rank(&verdicts, &scores).into_iter().enumerate() {
+        rank[i] = r + 1;
+    }
+    rank
 }
 
 /// Rank of each record (1 = best): by score, descending; ties keep input

@@ -748,7 +748,7 @@ fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
         ), // plausible
     ];
     let cam: Vec<Pose> = world.iter().map(|p| cam_from_world.compose(p)).collect();
-    let cpu = PlanePhysics::new(&cube, &plane, None, 1024, 0)
+    let cpu = PlanePhysics::new(&cube, &plane, None, 1024, 0, None)
         .unwrap()
         .evaluate(&cam)
         .unwrap();
@@ -762,11 +762,76 @@ fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
     assert_eq!(order[0], 3);
     assert_eq!(*order.last().unwrap(), 1);
     if let Some(ctx) = plausible::gpu::test_context() {
-        let gpu = PlanePhysics::new(&cube, &plane, Some(&ctx), 1024, 0)
+        let gpu = PlanePhysics::new(&cube, &plane, Some(&ctx), 1024, 0, None)
             .unwrap()
             .evaluate(&cam)
             .unwrap();
         let gv: Vec<Verdict> = gpu.iter().map(|e| e.verdict).collect();
         assert_eq!(gv, verdicts);
+    }
+}
+
+/// The fused score + plane kernel against the CPU twins (score_cpu and the
+/// exact f64 classifier) over 4096 duck hypotheses near contact with a
+/// plane seen at 45°: verdicts agree on ≥ 99.9 %, min δ within 10 µm (f32
+/// rounding of camera-frame coordinates), margins within 1 µm where the
+/// supported sets agree; the visual records equal the plain score kernel's.
+#[test]
+fn fused_score_and_plane_physics_match_the_cpu_twins() {
+    use plausible::kernels::score::{GpuScorer, ScoreParams};
+    use plausible::kernels::RenderMesh;
+    use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+    use plausible::physical::batch::PlanePhysics;
+    use plausible::physical::scene::Plane;
+    use plausible::pose::Pose;
+    use plausible::synth::{linemod_camera, observe, SensorNoise};
+    use plausible::visual::{score_poses_with_physics, Device};
+    use rand::{Rng, SeedableRng};
+
+    let Some(ctx) = plausible::gpu::test_context() else { return };
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
+    let duck = plausible::mesh::Mesh::load(path, plausible::mesh::MeshUnits::Metres).unwrap().0.normalized(0.15);
+    let rmesh = RenderMesh::new(&duck).unwrap();
+    let cam_from_world = Pose::new(axis_angle(DVec3::X, 3.0 * std::f64::consts::FRAC_PI_4), DVec3::new(0.0, 0.1, 0.6));
+    let plane = Plane { point: cam_from_world.t, normal: cam_from_world.r * DVec3::Z };
+    let physics = PlanePhysics::new(&duck, &plane, None, 1024, 0, None).unwrap();
+    let eps = physics.body().epsilon;
+    // Poses whose lowest sample lies within ±3ε of the plane.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let poses: Vec<Pose> = (0..4096)
+        .map(|_| {
+            let r = plausible::hypotheses::random_rotation(&mut rng);
+            let low = physics.body().samples.iter().map(|s| (r * *s).z).fold(f64::INFINITY, f64::min);
+            let t = DVec3::new(rng.random_range(-0.05..0.05), rng.random_range(-0.05..0.05), -low + rng.random_range(-3.0..3.0) * eps);
+            cam_from_world.compose(&Pose::new(r, t))
+        })
+        .collect();
+    let (obs, mask) = observe(&rmesh, &poses[0], &linemod_camera(), SensorNoise::default(), 3);
+    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(64), DEFAULT_ROI_MARGIN).unwrap();
+    let params = ScoreParams::default();
+    let (gr, ge, _) = score_poses_with_physics(&Device::Gpu(ctx.clone()), &rmesh, &target, &poses, params, &physics, |_| {}).unwrap();
+    let (cr, ce, _) = score_poses_with_physics(&Device::Cpu, &rmesh, &target, &poses, params, &physics, |_| {}).unwrap();
+    let plain = GpuScorer::new(&ctx, &rmesh, &target, params, poses.len()).unwrap().score(&poses).unwrap().0;
+    assert_eq!(gr, plain, "the fused kernel changes the visual records");
+    let visual_off = gr.iter().zip(&cr).filter(|(g, c)| (g.score - c.score).abs() > 1e-3).count();
+    assert!(visual_off <= 4, "{visual_off} visual scores differ from the twin");
+    let mut kinds = std::collections::HashMap::new();
+    let mut differ = 0;
+    for (i, (g, c)) in ge.iter().zip(&ce).enumerate() {
+        *kinds.entry(c.verdict).or_insert(0) += 1;
+        differ += (g.verdict != c.verdict) as usize;
+        assert!((g.min_distance - c.min_distance).abs() < 1e-5, "pose {i}: min δ {} vs {}", g.min_distance, c.min_distance);
+        if g.supported == c.supported && g.contact == c.contact {
+            match (g.stability_margin, c.stability_margin) {
+                (Some(a), Some(b)) => assert!((a - b).abs() < 1e-6, "pose {i}: margin {a} vs {b}"),
+                (a, b) => assert_eq!(a.is_some(), b.is_some(), "pose {i}"),
+            }
+        }
+    }
+    eprintln!("fused kernel vs twins: {differ} of {} verdicts differ; twin verdicts {kinds:?}", poses.len());
+    assert!(differ * 1000 <= poses.len(), "{differ} of {} verdicts differ", poses.len());
+    // The batch covers every verdict.
+    for v in [Verdict::Plausible, Verdict::Unstable, Verdict::Floating, Verdict::Intersecting] {
+        assert!(kinds.get(&v).copied().unwrap_or(0) > 20, "{v:?}: {kinds:?}");
     }
 }

@@ -86,7 +86,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         poses.len() as f64 / secs
     );
     println!("\ntop 5 (index 0 is the true pose):");
-    super::score::print_table(&records, &rank, 5);
+    super::score::print_table(&records, None, &rank, 5);
     let best = rank.iter().position(|&r| r == 1).unwrap_or(0);
     println!(
         "\ntrue pose: rank {} of {}, score {:.4}; best hypothesis {} is {:.1}° and {:.1} mm from the truth",
@@ -124,7 +124,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
     }
     std::fs::write(a.out.join("duck_0.15m.obj"), obj)?;
-    super::score::write_records(&a.out.join("scores.json"), &records, &rank)?;
+    super::score::write_records(&a.out.join("scores.json"), &records, None, &rank)?;
     let render = render_cpu(&rmesh, &poses[best], &target.intrinsics);
     let pic = plausible::explain::alignment_panels(&target, &render, &params, 3);
     let pic_path = a.out.join("alignment.png");

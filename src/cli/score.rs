@@ -10,7 +10,10 @@ use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{read_camera, read_depth_png, read_mask_png, RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{read_poses, PoseUnits};
-use plausible::visual::{ranks, Device};
+use plausible::physical::batch::PlanePhysics;
+use plausible::physical::scene::read_camera_plane;
+use plausible::physical::{Evaluation, Verdict};
+use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device};
 
 use super::DeviceArgs;
 
@@ -63,6 +66,27 @@ pub struct ScoreArgs {
     /// Growth of the mask's bounding box on each side, as a fraction of its size.
     #[arg(long, default_value_t = DEFAULT_ROI_MARGIN)]
     pub margin: f64,
+    /// Support plane in the camera frame (JSON: {"point": [x, y, z], "normal":
+    /// [nx, ny, nz], "units": "mm"}; `plausible plane` fits one from the depth).
+    /// Needs --physics.
+    #[arg(long, requires = "physics")]
+    pub plane: Option<PathBuf>,
+    /// Add the physical terms against --plane to every record (computed in
+    /// the same GPU pass as the visual score) and rank physically plausible
+    /// hypotheses first: plausible, then unstable, floating, intersecting;
+    /// within each group by visual score.
+    #[arg(long, requires = "plane")]
+    pub physics: bool,
+    /// Surface samples of the object for --physics.
+    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SAMPLES)]
+    pub samples: usize,
+    /// Seed of the surface sampling for --physics.
+    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SEED)]
+    pub seed: u64,
+    /// Contact tolerance ε in metres for --physics (default: half the sample
+    /// spacing, clamped to 2-5 mm).
+    #[arg(long)]
+    pub epsilon: Option<f64>,
     #[command(flatten)]
     pub device: DeviceArgs,
     /// No progress bar.
@@ -95,10 +119,48 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let params = ScoreParams { tau: a.tau, alpha: a.alpha };
     let device = a.device.open(verbose, false)?;
 
+    let physics = match (&a.plane, a.physics) {
+        (Some(path), true) => {
+            let plane = read_camera_plane(path)?;
+            if let Some(e) = a.epsilon {
+                if !(e.is_finite() && e > 0.0 && e < 0.05) {
+                    bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
+                }
+            }
+            Some(PlanePhysics::new(&mesh, &plane, None, a.samples, a.seed, a.epsilon)?)
+        }
+        _ => None,
+    };
+
     let t0 = Instant::now();
     let pb = super::progress(poses.len() as u64, "scoring");
     if a.quiet {
         pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    if let Some(physics) = &physics {
+        let (records, evals, _) =
+            score_poses_with_physics(&device, &rmesh, &target, &poses, params, physics, |n| pb.set_position(n as u64))?;
+        pb.finish_and_clear();
+        let secs = t0.elapsed().as_secs_f64();
+        let rank = ranks_with_physics(&records, &evals);
+        print_throughput(&device, &target, poses.len(), secs);
+        let plane = physics.kernel_params().plane;
+        println!(
+            "physics against the plane n = ({:.3}, {:.3}, {:.3}), {:.1} mm from the camera: {} samples, ε = {:.2} mm; {}",
+            plane[0],
+            plane[1],
+            plane[2],
+            plane[3].abs() * 1e3,
+            physics.body().samples.len(),
+            physics.body().epsilon * 1e3,
+            verdict_counts(&evals)
+        );
+        print_table(&records, Some(&evals), &rank, a.top);
+        if let Some(out) = &a.out {
+            write_records(out, &records, Some(&evals), &rank)?;
+            println!("wrote {} records to {}", records.len(), out.display());
+        }
+        return Ok(());
     }
     let records = match &device {
         Device::Gpu(ctx) => {
@@ -117,38 +179,73 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
     let rank = ranks(&records);
-
-    println!(
-        "{} hypotheses scored in {:.3} s ({:.0} hypotheses/s) on {}; region {}x{}, {} observed pixels",
-        poses.len(),
-        secs,
-        poses.len() as f64 / secs,
-        device.describe(),
-        target.intrinsics.width,
-        target.intrinsics.height,
-        target.observed_pixels()
-    );
-    print_table(&records, &rank, a.top);
+    print_throughput(&device, &target, poses.len(), secs);
+    print_table(&records, None, &rank, a.top);
     if let Some(out) = &a.out {
-        write_records(out, &records, &rank)?;
+        write_records(out, &records, None, &rank)?;
         println!("wrote {} records to {}", records.len(), out.display());
     }
     Ok(())
 }
 
-/// Prints the best `top` hypotheses.
-pub fn print_table(records: &[ScoreRecord], rank: &[usize], top: usize) {
+fn print_throughput(device: &Device, target: &ScoreTarget, n: usize, secs: f64) {
+    println!(
+        "{} hypotheses scored in {:.3} s ({:.0} hypotheses/s) on {}; region {}x{}, {} observed pixels",
+        n,
+        secs,
+        n as f64 / secs,
+        device.describe(),
+        target.intrinsics.width,
+        target.intrinsics.height,
+        target.observed_pixels()
+    );
+}
+
+/// "12 plausible, 3 unstable, ..." over a batch.
+pub fn verdict_counts(evals: &[Evaluation]) -> String {
+    [Verdict::Plausible, Verdict::Unstable, Verdict::Floating, Verdict::Intersecting]
+        .iter()
+        .map(|v| format!("{} {}", evals.iter().filter(|e| e.verdict == *v).count(), v.as_str()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Prints the best `top` hypotheses (with their physical terms when given).
+pub fn print_table(records: &[ScoreRecord], evals: Option<&[Evaluation]>, rank: &[usize], top: usize) {
     let mut order: Vec<usize> = (0..records.len()).collect();
     order.sort_by_key(|&i| rank[i]);
-    println!("{:>5} {:>7} {:>7} {:>7} {:>7} {:>7}", "rank", "index", "score", "a_d", "a_n", "|V|");
+    print!("{:>5} {:>7} {:>7} {:>7} {:>7} {:>7}", "rank", "index", "score", "a_d", "a_n", "|V|");
+    if evals.is_some() {
+        print!(" {:>12} {:>5} {:>5} {:>5} {:>9} {:>10}", "verdict", "|I|", "|C|", "|S|", "min δ mm", "margin mm");
+    }
+    println!();
     for &i in order.iter().take(top) {
         let r = &records[i];
-        println!("{:>5} {:>7} {:>7.4} {:>7.4} {:>7.4} {:>7}", rank[i], i, r.score, r.mean_ad, r.mean_an, r.valid);
+        print!("{:>5} {:>7} {:>7.4} {:>7.4} {:>7.4} {:>7}", rank[i], i, r.score, r.mean_ad, r.mean_an, r.valid);
+        if let Some(e) = evals.map(|e| &e[i]) {
+            let margin = e.stability_margin.map_or("-".to_string(), |m| format!("{:.1}", m * 1e3));
+            print!(
+                " {:>12} {:>5} {:>5} {:>5} {:>9.2} {:>10}",
+                e.verdict.as_str(),
+                e.intersecting,
+                e.contact,
+                e.supported,
+                e.min_distance * 1e3,
+                margin
+            );
+        }
+        println!();
     }
 }
 
-/// Writes all records in input order as JSON or CSV (by extension).
-pub fn write_records(path: &std::path::Path, records: &[ScoreRecord], rank: &[usize]) -> Result<()> {
+/// Writes all records in input order as JSON or CSV (by extension), with
+/// the physical terms when given.
+pub fn write_records(
+    path: &std::path::Path,
+    records: &[ScoreRecord],
+    evals: Option<&[Evaluation]>,
+    rank: &[usize],
+) -> Result<()> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let mut f = std::io::BufWriter::new(
         std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
@@ -159,19 +256,51 @@ pub fn write_records(path: &std::path::Path, records: &[ScoreRecord], rank: &[us
                 .iter()
                 .enumerate()
                 .map(|(i, r)| {
-                    serde_json::json!({
+                    let mut v = serde_json::json!({
                         "index": i, "rank": rank[i], "score": r.score, "a_d": r.mean_ad, "a_n": r.mean_an,
                         "valid": r.valid, "rendered": r.rendered, "observed": r.observed,
-                    })
+                    });
+                    if let Some(e) = evals.map(|e| &e[i]) {
+                        let m = v.as_object_mut().expect("a JSON object");
+                        m.insert("verdict".into(), e.verdict.as_str().into());
+                        m.insert("intersecting".into(), e.intersecting.into());
+                        m.insert("contact".into(), e.contact.into());
+                        m.insert("supported".into(), e.supported.into());
+                        m.insert("min_distance".into(), e.min_distance.into());
+                        m.insert("stability_margin".into(), e.stability_margin.into());
+                        m.insert("feasible".into(), e.feasible.into());
+                        m.insert("stable".into(), e.stable.into());
+                    }
+                    v
                 })
                 .collect();
             serde_json::to_writer_pretty(&mut f, &v)?;
             writeln!(f)?;
         }
         "csv" => {
-            writeln!(f, "index,rank,score,a_d,a_n,valid,rendered,observed")?;
+            write!(f, "index,rank,score,a_d,a_n,valid,rendered,observed")?;
+            if evals.is_some() {
+                write!(f, ",verdict,intersecting,contact,supported,min_distance,stability_margin,feasible,stable")?;
+            }
+            writeln!(f)?;
             for (i, r) in records.iter().enumerate() {
-                writeln!(f, "{i},{},{},{},{},{},{},{}", rank[i], r.score, r.mean_ad, r.mean_an, r.valid, r.rendered, r.observed)?;
+                write!(f, "{i},{},{},{},{},{},{},{}", rank[i], r.score, r.mean_ad, r.mean_an, r.valid, r.rendered, r.observed)?;
+                if let Some(e) = evals.map(|e| &e[i]) {
+                    let margin = e.stability_margin.map_or(String::new(), |m| m.to_string());
+                    write!(
+                        f,
+                        ",{},{},{},{},{},{},{},{}",
+                        e.verdict.as_str(),
+                        e.intersecting,
+                        e.contact,
+                        e.supported,
+                        e.min_distance,
+                        margin,
+                        e.feasible,
+                        e.stable
+                    )?;
+                }
+                writeln!(f)?;
             }
         }
         _ => bail!("--out {}: use a .json or .csv file name", path.display()),

@@ -167,6 +167,7 @@ pub fn shader_sources() -> Vec<(&'static str, String)> {
         ("render", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"))),
         ("score", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"))),
         ("contacts", crate::physical::gpu::CONTACTS_WGSL.to_string()),
+        ("plane_contacts", score::SCORE_PHYSICS_WGSL.to_string()),
     ]
 }
 
@@ -209,5 +210,18 @@ mod tests {
         assert_eq!(size_of("Tri"), std::mem::size_of::<GpuTriangle>());
         assert_eq!(size_of("Pose"), std::mem::size_of::<GpuPose>());
         assert_eq!(size_of("Record"), std::mem::size_of::<score::ScoreRecord>());
+    }
+
+    #[test]
+    fn fused_physics_structs_match_rust_sizes() {
+        let module = naga::front::wgsl::parse_str(&score::SCORE_PHYSICS_WGSL).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let size_of = |name: &str| {
+            let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
+            layouter[h].size as usize
+        };
+        assert_eq!(size_of("PlaneParams"), std::mem::size_of::<crate::physical::batch::PlaneContactParams>());
+        assert_eq!(size_of("ContactRecord"), std::mem::size_of::<crate::physical::gpu::ContactRecord>());
     }
 }

@@ -12,9 +12,11 @@ use rayon::prelude::*;
 
 use super::raster::{raster_ids, raster_params, resolve, RasterBuffers};
 use super::{GpuPose, RenderMesh, RASTER_WGSL};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::observation::ScoreTarget;
+use crate::physical::batch::PlanePhysics;
+use crate::physical::gpu::ContactRecord;
 use crate::pose::Pose;
 
 /// Alignment tolerances of eq. 4-5.
@@ -150,6 +152,35 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
         .collect()
 }
 
+/// The WGSL of the score kernel with the fused plane stage
+/// (`shaders/plane_contacts.wgsl`).
+pub const SCORE_PHYSICS_WGSL: &str = concat!(
+    include_str!("../../shaders/raster.wgsl"),
+    "\n",
+    include_str!("../../shaders/score.wgsl"),
+    "\n",
+    include_str!("../../shaders/plane_contacts.wgsl")
+);
+
+/// The physical terms the fused kernel returns for a batch: one record and
+/// `words` supported-sample words per hypothesis, input order (finish them
+/// with [`PlanePhysics::finish_fused`]).
+#[derive(Clone, Debug, Default)]
+pub struct PlaneContactOutput {
+    pub records: Vec<ContactRecord>,
+    pub bits: Vec<u32>,
+}
+
+/// Buffers and pipeline of the fused plane stage.
+struct PlaneStage {
+    words: usize,
+    params: wgpu::Buffer,
+    samples: wgpu::Buffer,
+    records: wgpu::Buffer,
+    bits: wgpu::Buffer,
+    pipeline: std::sync::Arc<wgpu::ComputePipeline>,
+}
+
 /// Wall-clock time per stage of a GPU scoring run.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StageTimes {
@@ -192,6 +223,8 @@ pub struct GpuScorer {
     raster_pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     /// Timestamp query set and its resolve buffer, when enabled.
     timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
+    /// The fused physical stage against a support plane, when asked for.
+    plane: Option<PlaneStage>,
 }
 
 /// Default most hypotheses per dispatch: keeps each submission short (the
@@ -213,9 +246,38 @@ impl GpuScorer {
         n_hint: usize,
         max_chunk: usize,
     ) -> Result<Self> {
+        Self::build(ctx, mesh, target, params, n_hint, max_chunk, None)
+    }
+
+    /// A scorer whose kernel also computes the physical terms of every
+    /// hypothesis against `physics`' support plane in the same dispatch
+    /// (`shaders/plane_contacts.wgsl`); run it with
+    /// [`score_with_physics`](Self::score_with_physics).
+    pub fn with_plane_physics(
+        ctx: &Context,
+        mesh: &RenderMesh,
+        target: &ScoreTarget,
+        params: ScoreParams,
+        n_hint: usize,
+        physics: &PlanePhysics,
+    ) -> Result<Self> {
+        Self::build(ctx, mesh, target, params, n_hint, DEFAULT_MAX_CHUNK, Some(physics))
+    }
+
+    fn build(
+        ctx: &Context,
+        mesh: &RenderMesh,
+        target: &ScoreTarget,
+        params: ScoreParams,
+        n_hint: usize,
+        max_chunk: usize,
+        physics: Option<&PlanePhysics>,
+    ) -> Result<Self> {
         use wgpu::util::DeviceExt;
         let k = target.intrinsics;
-        let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, std::mem::size_of::<ScoreRecord>() as u64, max_chunk)?;
+        let words = physics.map_or(0, |p| p.kernel_params().words as usize);
+        let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
+        let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
         let obs: Vec<[f32; 4]> = target
             .depth
             .iter()
@@ -243,6 +305,7 @@ impl GpuScorer {
         let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"));
         let pipeline = ctx.pipeline("score", &src, "score_main");
         let raster_pipeline = ctx.pipeline("score/raster", &src, "raster_main");
+        let plane = physics.map(|phys| plane_stage(ctx, phys, bufs.chunk)).transpose()?;
         Ok(GpuScorer {
             ctx: ctx.clone(),
             mesh: mesh.clone(),
@@ -256,6 +319,7 @@ impl GpuScorer {
             pipeline,
             raster_pipeline,
             timestamps: None,
+            plane,
         })
     }
 
@@ -297,7 +361,7 @@ impl GpuScorer {
         let mut out = Vec::with_capacity(poses.len());
         let mut times = StageTimes::default();
         for chunk in poses.chunks(self.bufs.chunk) {
-            let (r, t) = self.run_chunk(chunk, false)?;
+            let (r, _, t) = self.run_chunk(chunk, false)?;
             out.extend(r);
             times += t;
             done(out.len());
@@ -305,17 +369,53 @@ impl GpuScorer {
         Ok((out, times))
     }
 
+    /// Scores `poses` and computes their physical terms against the support
+    /// plane in the same dispatch (a scorer made by
+    /// [`with_plane_physics`](Self::with_plane_physics)); `done(n)` is
+    /// called after each chunk.
+    pub fn score_with_physics(
+        &self,
+        poses: &[Pose],
+        mut done: impl FnMut(usize),
+    ) -> Result<(Vec<ScoreRecord>, PlaneContactOutput, StageTimes)> {
+        if self.plane.is_none() {
+            return Err(Error::InvalidInput(
+                "this scorer has no support plane: make it with GpuScorer::with_plane_physics".into(),
+            ));
+        }
+        let mut out = Vec::with_capacity(poses.len());
+        let mut phys = PlaneContactOutput::default();
+        let mut times = StageTimes::default();
+        for chunk in poses.chunks(self.bufs.chunk) {
+            let (r, p, t) = self.run_chunk(chunk, false)?;
+            out.extend(r);
+            let p = p.expect("plane stage output");
+            phys.records.extend(p.records);
+            phys.bits.extend(p.bits);
+            times += t;
+            done(out.len());
+        }
+        Ok((out, phys, times))
+    }
+
     /// Runs rasterization alone over `poses` and returns its wall time (for
     /// the benchmark's render/reduce split).
     pub fn raster_only(&self, poses: &[Pose]) -> Result<Duration> {
         let mut total = Duration::ZERO;
         for chunk in poses.chunks(self.bufs.chunk) {
-            total += self.run_chunk(chunk, true)?.1.compute;
+            total += self.run_chunk(chunk, true)?.2.compute;
         }
         Ok(total)
     }
 
-    fn run_chunk(&self, chunk: &[Pose], raster_only: bool) -> Result<(Vec<ScoreRecord>, StageTimes)> {
+    /// One chunk: the score records, the plane stage's output when the
+    /// scorer has one, and the stage times.
+    #[allow(clippy::type_complexity)]
+    fn run_chunk(
+        &self,
+        chunk: &[Pose],
+        raster_only: bool,
+    ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
         let ctx = &self.ctx;
         let mut times = StageTimes::default();
         let t0 = Instant::now();
@@ -343,11 +443,23 @@ impl GpuScorer {
         if raster_only {
             self.bufs.dispatch_waves(ctx, &mut enc, &self.raster_pipeline, &[], params, chunk.len(), timestamp_writes);
         } else {
-            let extra = [
+            let mut extra = vec![
                 wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
             ];
-            self.bufs.dispatch_waves(ctx, &mut enc, &self.pipeline, &extra, params, chunk.len(), timestamp_writes);
+            let pipeline = match &self.plane {
+                Some(st) => {
+                    extra.extend([
+                        wgpu::BindGroupEntry { binding: 6, resource: st.params.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 7, resource: st.samples.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 8, resource: st.records.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 9, resource: st.bits.as_entire_binding() },
+                    ]);
+                    &st.pipeline
+                }
+                None => &self.pipeline,
+            };
+            self.bufs.dispatch_waves(ctx, &mut enc, pipeline, &extra, params, chunk.len(), timestamp_writes);
         }
         if let Some((set, buf)) = &self.timestamps {
             enc.resolve_query_set(set, 0..2, buf, 0);
@@ -362,7 +474,7 @@ impl GpuScorer {
             times.gpu_compute = Some(Duration::from_nanos(ns as u64));
         }
         if raster_only {
-            return Ok((Vec::new(), times));
+            return Ok((Vec::new(), None, times));
         }
 
         let t2 = Instant::now();
@@ -383,7 +495,57 @@ impl GpuScorer {
         let recs: Vec<ScoreRecord> = bytemuck::cast_slice(&view).to_vec();
         drop(view);
         self.staging.unmap();
+        let plane = match &self.plane {
+            Some(st) => {
+                let n = chunk.len();
+                let rec = ctx.read_buffer(&st.records, (n * std::mem::size_of::<ContactRecord>()) as u64)?;
+                let bits = ctx.read_buffer(&st.bits, (n * st.words * 4) as u64)?;
+                Some(PlaneContactOutput {
+                    records: bytemuck::cast_slice(&rec).to_vec(),
+                    bits: bytemuck::cast_slice(&bits).to_vec(),
+                })
+            }
+            None => None,
+        };
         times.readback = t2.elapsed();
-        Ok((recs, times))
+        Ok((recs, plane, times))
     }
+}
+
+/// Uploads the plane stage's parameters and samples and sizes its outputs
+/// for `chunk` hypotheses per dispatch.
+fn plane_stage(ctx: &Context, physics: &PlanePhysics, chunk: usize) -> Result<PlaneStage> {
+    use wgpu::util::DeviceExt;
+    let params = physics.kernel_params();
+    let samples = physics.kernel_samples();
+    if samples.is_empty() {
+        return Err(Error::InvalidInput("the body has no surface samples".into()));
+    }
+    let words = params.words as usize;
+    let bits_bytes = (chunk * words * 4) as u64;
+    if bits_bytes > ctx.limits.max_items(1) || (samples.len() * 16) as u64 > ctx.limits.max_items(1) {
+        return Err(Error::Gpu(format!(
+            "{} surface samples do not fit this adapter's storage bindings; use fewer samples",
+            samples.len()
+        )));
+    }
+    let init = |label: &str, bytes: &[u8], usage: wgpu::BufferUsages| {
+        ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytes, usage })
+    };
+    let output = |label: &str, size: u64| {
+        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(16),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        })
+    };
+    Ok(PlaneStage {
+        words,
+        params: init("plane params", bytemuck::bytes_of(&params), wgpu::BufferUsages::UNIFORM),
+        samples: init("plane samples", bytemuck::cast_slice(&samples), wgpu::BufferUsages::STORAGE),
+        records: output("plane records", (chunk * std::mem::size_of::<ContactRecord>()) as u64),
+        bits: output("plane bits", bits_bytes),
+        pipeline: ctx.pipeline("score+plane", SCORE_PHYSICS_WGSL, "score_physics_main"),
+    })
 }

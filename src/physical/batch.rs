@@ -6,15 +6,32 @@
 //! unstable ones (feasible: touching, not intersecting), then floating, then
 //! intersecting; within a group by the visual score, best first.
 
+use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
 use super::contacts::{evaluate_batch, Body, Environment, Evaluation, Verdict};
-use super::gpu::GpuContacts;
+use super::gpu::{finish_from_bits, ContactRecord, GpuContacts};
 use super::scene::{camera_to_plane_frame, Plane};
 use crate::error::Result;
 use crate::gpu::Context;
 use crate::mesh::Mesh;
 use crate::pose::Pose;
+
+/// Uniform block of the plane stage of the fused score kernel
+/// (`PlaneParams` in `shaders/plane_contacts.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct PlaneContactParams {
+    /// Unit normal (towards the camera) and offset `w` of the support plane
+    /// in the camera frame: δ = n·x − w.
+    pub plane: [f32; 4],
+    pub n_samples: u32,
+    /// u32 words of supported bits per hypothesis (`n_samples / 32`, rounded up).
+    pub words: u32,
+    pub eps: f32,
+    pub pad: u32,
+}
+const _: () = assert!(std::mem::size_of::<PlaneContactParams>() == 32);
 
 /// Hypotheses of one object against one support plane (camera frame).
 pub struct PlanePhysics {
@@ -25,17 +42,22 @@ pub struct PlanePhysics {
 }
 
 impl PlanePhysics {
-    /// `plane` in the camera frame, metres. With `ctx`, evaluations run on
-    /// the GPU (records finished on the CPU); without, on the CPU twin.
+    /// `plane` in the camera frame, metres; `samples` surface samples drawn
+    /// with `seed`; ε from `epsilon` or the default for the sample spacing.
+    /// With `ctx`, [`evaluate`](Self::evaluate) runs the contacts kernel on
+    /// the GPU (records finished on the CPU); without, the CPU twin. (The
+    /// fused score kernel takes the plane through
+    /// [`kernel_params`](Self::kernel_params) and needs no `ctx` here.)
     pub fn new(
         mesh: &Mesh,
         plane: &Plane,
         ctx: Option<&Context>,
         samples: usize,
         seed: u64,
+        epsilon: Option<f64>,
     ) -> Result<PlanePhysics> {
         let to_plane = camera_to_plane_frame(plane);
-        let body = Body::new(mesh, samples, seed, None)?;
+        let body = Body::new(mesh, samples, seed, epsilon)?;
         let env = Environment {
             planes: vec![Plane {
                 point: DVec3::ZERO,
@@ -54,6 +76,50 @@ impl PlanePhysics {
             env,
             gpu,
         })
+    }
+
+    /// The object's surface samples, centre of mass and ε.
+    pub fn body(&self) -> &Body {
+        &self.body
+    }
+
+    /// Parameters of the plane stage fused into the score kernel
+    /// ([`crate::kernels::score::GpuScorer::with_plane_physics`]).
+    pub fn kernel_params(&self) -> PlaneContactParams {
+        // The plane frame's z coordinate of a camera point x is row 2 of
+        // the camera-to-plane rotation dotted with x, plus t.z: that row is
+        // the plane normal in the camera frame and −t.z its offset.
+        let n = self.to_plane.r.row(2);
+        let w = -self.to_plane.t.z;
+        PlaneContactParams {
+            plane: [n.x as f32, n.y as f32, n.z as f32, w as f32],
+            n_samples: self.body.samples.len() as u32,
+            words: self.body.samples.len().div_ceil(32) as u32,
+            eps: self.body.epsilon as f32,
+            pad: 0,
+        }
+    }
+
+    /// The surface samples as the GPU takes them (model frame, xyz + 0).
+    pub fn kernel_samples(&self) -> Vec<[f32; 4]> {
+        self.body.samples.iter().map(|s| [s.x as f32, s.y as f32, s.z as f32, 0.0]).collect()
+    }
+
+    /// Evaluations from the fused kernel's output: one record and
+    /// [`PlaneContactParams::words`] supported-sample words per hypothesis.
+    /// The support polygon and the margin are finished here (f64), from the
+    /// GPU's classification.
+    pub fn finish_fused(&self, cam_poses: &[Pose], records: &[ContactRecord], bits: &[u32]) -> Vec<Evaluation> {
+        let world: Vec<Pose> = cam_poses.iter().map(|p| self.to_plane.compose(p)).collect();
+        let words = self.body.samples.len().div_ceil(32);
+        finish_from_bits(&self.body, &self.env, &world, records, bits, words, false)
+    }
+
+    /// The CPU twin's evaluation of every camera-frame hypothesis (exact,
+    /// f64), whether or not this was made with a GPU context.
+    pub fn evaluate_cpu(&self, cam_poses: &[Pose]) -> Vec<Evaluation> {
+        let world: Vec<Pose> = cam_poses.iter().map(|p| self.to_plane.compose(p)).collect();
+        evaluate_batch(&self.body, &world, &self.env)
     }
 
     /// The physical evaluation of every camera-frame hypothesis.

@@ -64,7 +64,7 @@ impl Tally {
 /// Per-object verdict, decided in this order: intersecting (|I| > 0),
 /// floating (|C| = 0), unstable (centre of mass not strictly inside the
 /// support polygon), plausible.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Verdict {
     Plausible,

@@ -438,40 +438,7 @@ impl GpuContacts {
     /// Completes evaluations from a run's output: refines the flagged
     /// samples exactly and builds the support polygons.
     pub fn finish(&self, poses: &[Pose], out: &ContactOutput) -> Vec<Evaluation> {
-        let words = self.params.words as usize;
-        let g = self.env.gravity.normalize();
-        let eps = self.body.epsilon;
-        poses
-            .par_iter()
-            .enumerate()
-            .map(|(i, pose)| {
-                let r = out.records[i];
-                let bits = &out.bits[2 * i * words..(2 * i + 1) * words];
-                let refine = &out.bits[(2 * i + 1) * words..(2 * i + 2) * words];
-                let mut tally = Tally { intersecting: r.intersecting, contact: r.contact, supported: Vec::new() };
-                let mut min = r.min_delta as f64;
-                for (j, s) in self.body.samples.iter().enumerate() {
-                    let (w, b) = (j / 32, j % 32);
-                    if bits[w] >> b & 1 == 1 {
-                        tally.supported.push(pose.transform_point(*s));
-                    } else if refine[w] >> b & 1 == 1 {
-                        let x = pose.transform_point(*s);
-                        let d = self.env.refined_distance(x, eps);
-                        min = min.min(d.delta);
-                        tally.add(classify(d.delta, d.normal, eps, g), x);
-                    }
-                }
-                finish(
-                    tally.intersecting,
-                    tally.contact,
-                    min,
-                    &tally.supported,
-                    pose.transform_point(self.body.com),
-                    self.env.gravity,
-                )
-                .0
-            })
-            .collect()
+        finish_from_bits(&self.body, &self.env, poses, &out.records, &out.bits, self.params.words as usize, true)
     }
 
     /// Samples flagged for refinement in a run's output (for statistics).
@@ -487,6 +454,48 @@ impl GpuContacts {
             })
             .sum()
     }
+}
+
+/// Completes the evaluations of `poses` (world frame) from a kernel's
+/// per-pose records and sample bits: `words` u32 of supported bits per pose,
+/// followed, when `with_refine`, by `words` u32 of samples left to the CPU,
+/// which are classified here exactly. The support polygons are built from
+/// the supported samples, in parallel over poses.
+pub(crate) fn finish_from_bits(
+    body: &Body,
+    env: &Environment,
+    poses: &[Pose],
+    records: &[ContactRecord],
+    bits: &[u32],
+    words: usize,
+    with_refine: bool,
+) -> Vec<Evaluation> {
+    let stride = words * if with_refine { 2 } else { 1 };
+    let g = env.gravity.normalize();
+    let eps = body.epsilon;
+    poses
+        .par_iter()
+        .enumerate()
+        .map(|(i, pose)| {
+            let r = records[i];
+            let supported = &bits[i * stride..i * stride + words];
+            let refine = with_refine.then(|| &bits[i * stride + words..(i + 1) * stride]);
+            let mut tally = Tally { intersecting: r.intersecting, contact: r.contact, supported: Vec::new() };
+            let mut min = r.min_delta as f64;
+            for (j, s) in body.samples.iter().enumerate() {
+                let (w, b) = (j / 32, j % 32);
+                if supported[w] >> b & 1 == 1 {
+                    tally.supported.push(pose.transform_point(*s));
+                } else if refine.is_some_and(|r| r[w] >> b & 1 == 1) {
+                    let x = pose.transform_point(*s);
+                    let d = env.refined_distance(x, eps);
+                    min = min.min(d.delta);
+                    tally.add(classify(d.delta, d.normal, eps, g), x);
+                }
+            }
+            finish(tally.intersecting, tally.contact, min, &tally.supported, pose.transform_point(body.com), env.gravity).0
+        })
+        .collect()
 }
 
 #[cfg(test)]

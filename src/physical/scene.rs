@@ -91,6 +91,75 @@ pub fn camera_to_plane_frame(plane: &Plane) -> Pose {
     Pose::new(r, -(r * point))
 }
 
+/// A support plane in the camera frame, as `plausible score --plane` takes
+/// it and `plausible plane` writes it:
+/// ```json
+/// {"point": [0.0, 95.2, 702.4], "normal": [0.0, -0.81, -0.59], "units": "mm"}
+/// ```
+/// `point` is any point of the plane, in `units` (`"mm"`, the BOP
+/// convention and the default, or `"m"`); `normal` any non-zero vector
+/// perpendicular to it (its sign does not matter: the side facing the
+/// camera is up).
+#[derive(Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraPlaneJson {
+    pub point: Vec<f64>,
+    pub normal: Vec<f64>,
+    #[serde(default)]
+    pub units: Option<String>,
+}
+
+/// Reads a camera-frame support plane ([`CameraPlaneJson`]); the returned
+/// plane is in metres with a unit normal turned towards the camera.
+pub fn read_camera_plane(path: &Path) -> Result<Plane> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    camera_plane_from_json(&text, path)
+}
+
+/// Parses and validates a camera-frame support plane; `name` labels errors.
+pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
+    let bad = |reason: String| Error::BadJson { path: name.to_path_buf(), reason };
+    let raw: CameraPlaneJson = serde_json::from_str(text).map_err(|e| {
+        let hint = if text.contains("NaN") || text.contains("Infinity") {
+            " (JSON has no NaN or Infinity: every number must be finite)"
+        } else {
+            ""
+        };
+        bad(format!("{e}{hint} (expected {{\"point\": [x, y, z], \"normal\": [nx, ny, nz], \"units\": \"mm\"}})"))
+    })?;
+    let scale = match raw.units.as_deref() {
+        None | Some("mm") => 1e-3,
+        Some("m") => 1.0,
+        Some(u) => return Err(bad(format!("unknown units '{u}' (expected \"mm\" or \"m\")"))),
+    };
+    let point = vec3("point", &raw.point).map_err(bad)? * scale;
+    let normal = vec3("normal", &raw.normal).map_err(bad)?;
+    let len = normal.length();
+    if len <= 1e-12 {
+        return Err(bad("normal has zero length".into()));
+    }
+    let mut normal = normal / len;
+    let dist = normal.dot(point).abs();
+    if dist < 0.01 {
+        let hint = if scale == 1e-3 && dist > 1e-5 {
+            format!(
+                "; the point is {:.1} mm from the camera: is it in metres? (add \"units\": \"m\")",
+                point.length() * 1e3
+            )
+        } else {
+            String::new()
+        };
+        return Err(bad(format!(
+            "the plane passes {:.1} mm from the camera centre; a support plane seen by the camera lies well in front of it{hint}",
+            dist * 1e3
+        )));
+    }
+    if normal.dot(point) > 0.0 {
+        normal = -normal; // the camera looks at the plane from above
+    }
+    Ok(Plane { point, normal })
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawScene {
