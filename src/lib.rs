@@ -26,3 +26,4 @@ pub mod synth;
 pub mod visual;
 pub mod explain;
 pub mod physical;
+pub mod support_plane;

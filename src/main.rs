@@ -16,8 +16,11 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Rank pose hypotheses by their visual-alignment score (eq. 3-5).
+    /// Rank pose hypotheses by their visual-alignment score (eq. 3-5), and
+    /// with --plane --physics by physical plausibility first.
     Score(cli::score::ScoreArgs),
+    /// Fit the support plane to a depth frame (RANSAC outside the object's mask).
+    Plane(cli::plane::PlaneArgs),
     /// Run the scorer end to end on shipped data (no arguments needed).
     Demo(cli::demo::DemoArgs),
     /// Measure throughput, GPU side by side with the CPU twin.
@@ -45,6 +48,7 @@ fn main() {
         .init();
     let result = match cli.command {
         Command::Score(a) => cli::score::run(a, cli.verbose),
+        Command::Plane(a) => cli::plane::run(a),
         Command::Demo(a) => cli::demo::run(a, cli.verbose),
         Command::Bench(a) => cli::bench::run(a, cli.verbose),
         Command::StablePoses(a) => cli::stable::stable_poses(a),

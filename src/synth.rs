@@ -9,10 +9,15 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use glam::{DMat3, DVec3};
+
 use crate::camera::Intrinsics;
+use crate::error::{Error, Result};
 use crate::kernels::raster::render_cpu;
 use crate::kernels::RenderMesh;
+use crate::mesh::Mesh;
 use crate::observation::DepthImage;
+use crate::physical::Plane;
 use crate::pose::Pose;
 
 /// Sensor noise of a synthetic observation.
@@ -64,4 +69,49 @@ pub fn observe(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics, noise: SensorNois
         })
         .collect();
     (DepthImage { intrinsics: *k, depth }, mask)
+}
+
+/// The camera pose (world to camera, OpenCV axes) of a camera at `eye`
+/// looking at `target`, with world `up` pointing up in the image.
+pub fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> Result<Pose> {
+    let z = (target - eye).normalize();
+    let x = z.cross(up).normalize();
+    if !(z.is_finite() && x.is_finite()) {
+        return Err(Error::InvalidInput("look_at: the eye equals the target or looks along `up`".into()));
+    }
+    let y = z.cross(x);
+    let r = DMat3::from_cols(x, y, z).transpose();
+    Ok(Pose::new(r, -(r * eye)))
+}
+
+/// A tabletop observation: `mesh` at `object` (model to world; the table
+/// top is the plane z = 0 of the world, z up) on a square table of side
+/// `table_side` metres and 3 cm thickness, seen by a camera at
+/// `cam_from_world`. Returns the noisy depth of object and table, the
+/// object's mask (its visible, noise-free pixels, as a segmentation would
+/// give) and the table plane in the camera frame.
+pub fn observe_on_table(
+    mesh: &Mesh,
+    object: &Pose,
+    cam_from_world: &Pose,
+    k: &Intrinsics,
+    table_side: f64,
+    noise: SensorNoise,
+    seed: u64,
+) -> Result<(DepthImage, Vec<bool>, Plane)> {
+    let table = crate::shapes::cuboid(DVec3::new(table_side / 2.0, table_side / 2.0, 0.015));
+    let mut vertices: Vec<DVec3> = mesh.vertices.iter().map(|&v| object.transform_point(v)).collect();
+    let mut triangles = mesh.triangles.clone();
+    let off = vertices.len() as u32;
+    vertices.extend(table.vertices.iter().map(|&v| v - DVec3::Z * 0.015));
+    triangles.extend(table.triangles.iter().map(|t| t.map(|i| i + off)));
+    let scene = Mesh::from_raw("tabletop scene", vertices, triangles)?.0;
+    let scene = RenderMesh::new(&scene)?;
+    let (depth, _) = observe(&scene, cam_from_world, k, noise, seed);
+    // The object's visible pixels: where it renders and nothing is in front.
+    let alone = render_cpu(&RenderMesh::new(mesh)?, &cam_from_world.compose(object), k);
+    let both = render_cpu(&scene, cam_from_world, k);
+    let mask = alone.depth.iter().zip(&both.depth).map(|(&a, &b)| a > 0.0 && (a - b).abs() < 1e-4).collect();
+    let plane = Plane { point: cam_from_world.t, normal: cam_from_world.r * DVec3::Z };
+    Ok((depth, mask, plane))
 }

@@ -14,7 +14,8 @@ use crate::pose::Pose;
 /// Where the kernels run.
 #[derive(Clone, Debug)]
 pub enum Device {
-    Gpu(Context),
+    /// Boxed: a context is a few hundred bytes, the CPU variant nothing.
+    Gpu(Box<Context>),
     /// The CPU twins, multi-threaded with rayon.
     Cpu,
 }

@@ -29,7 +29,8 @@ fn demo_then_score_round_trip() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
     assert!(stdout.contains("true pose: rank 1 of 256"), "{stdout}");
-    for f in ["alignment.png", "depth.png", "mask.png", "camera.json", "poses.json", "duck_0.15m.obj", "scores.json"] {
+    assert!(stdout.contains("visual score alone: true pose rank 1"), "{stdout}");
+    for f in ["alignment.png", "depth.png", "mask.png", "camera.json", "poses.json", "plane.json", "duck_0.15m.obj", "scores.json"] {
         assert!(out.join(f).exists(), "{f} missing");
     }
 
@@ -69,6 +70,65 @@ fn demo_then_score_round_trip() {
     for (r, j) in rows.iter().zip(&records) {
         assert!((r[2] - j["score"].as_f64().unwrap()).abs() < 1e-3);
     }
+}
+
+/// `plane` fits the demo's table again, and `score --plane --physics` adds
+/// the physical terms to every record and ranks plausible hypotheses first.
+#[test]
+fn plane_then_score_with_physics() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = plausible().args(["demo", "--n", "300", "--out"]).arg(&out).args(device_args()).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plane = dir.path().join("plane.json");
+    let o = plausible()
+        .arg("plane")
+        .arg("--camera").arg(out.join("camera.json"))
+        .arg("--depth").arg(out.join("depth.png"))
+        .arg("--mask").arg(out.join("mask.png"))
+        .arg("--out").arg(&plane)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let read = |p: &std::path::Path| -> serde_json::Value { serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap() };
+    let (a, b) = (read(&plane), read(&out.join("plane.json")));
+    // The same plane (the demo fitted the float depth, `plane` the 0.1 mm PNG).
+    let v = |j: &serde_json::Value, key: &str| glam::DVec3::from_array([0, 1, 2].map(|i| j[key][i].as_f64().unwrap()));
+    assert!(v(&a, "normal").angle_between(v(&b, "normal")).to_degrees() < 0.01);
+    assert!(v(&b, "normal").dot(v(&a, "point") - v(&b, "point")).abs() < 0.1, "mm");
+
+    let json = dir.path().join("records.json");
+    let o = plausible()
+        .arg("score")
+        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
+        .arg("--camera").arg(out.join("camera.json"))
+        .arg("--depth").arg(out.join("depth.png"))
+        .arg("--mask").arg(out.join("mask.png"))
+        .arg("--poses").arg(out.join("poses.json"))
+        .arg("--plane").arg(&plane)
+        .args(["--physics", "--quiet", "--out"])
+        .arg(&json)
+        .args(device_args())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("plausible") && stdout.contains("intersecting"), "{stdout}");
+    let records: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(records.len(), 300);
+    for key in ["verdict", "intersecting", "contact", "supported", "min_distance", "stability_margin", "feasible", "stable"] {
+        assert!(records[0].get(key).is_some(), "missing {key}");
+    }
+    assert_eq!(records[0]["rank"], 1);
+    assert_eq!(records[0]["verdict"], "plausible");
+    // Physics first: every plausible record outranks every other one.
+    let worst_plausible = records.iter().filter(|r| r["verdict"] == "plausible").map(|r| r["rank"].as_u64().unwrap()).max().unwrap();
+    let best_other = records.iter().filter(|r| r["verdict"] != "plausible").map(|r| r["rank"].as_u64().unwrap()).min().unwrap();
+    assert!(worst_plausible < best_other);
+    // And the demo wrote the same verdicts.
+    let demo: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(out.join("scores.json")).unwrap()).unwrap();
+    let same = demo.iter().zip(&records).filter(|(a, b)| a["verdict"] == b["verdict"]).count();
+    assert!(same >= 299, "{same} of 300 verdicts agree");
 }
 
 #[test]

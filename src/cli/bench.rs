@@ -5,6 +5,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
+use glam::DVec3;
 use plausible::camera::Intrinsics;
 use plausible::hypotheses::around_and_random;
 use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams};
@@ -12,7 +13,10 @@ use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::synth::{linemod_camera, observe, SensorNoise};
-use plausible::visual::Device;
+use plausible::physical::batch::PlanePhysics;
+use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
+use plausible::physical::Plane;
+use plausible::visual::{score_poses_with_physics, Device};
 use serde::Serialize;
 
 use super::DeviceArgs;
@@ -47,6 +51,11 @@ pub struct BenchScoreArgs {
     /// Skip the CPU twin (not recommended: figures are meant side by side).
     #[arg(long)]
     pub no_cpu: bool,
+    /// Also time scoring with the physical terms against a support plane
+    /// (`score --plane --physics`: fused on the GPU, support polygons
+    /// finished on the CPU; the twins on the CPU), end to end.
+    #[arg(long)]
+    pub physics: bool,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
@@ -63,6 +72,9 @@ pub struct ScoreBenchRow {
     pub gpu_hyps_per_s: Option<f64>,
     pub cpu_hyps_per_s: Option<f64>,
     pub cpu_threads: usize,
+    /// With --physics: visual score + physical terms, end to end.
+    pub gpu_physics_hyps_per_s: Option<f64>,
+    pub cpu_physics_hyps_per_s: Option<f64>,
     pub upload_ms: Option<f64>,
     pub render_ms: Option<f64>,
     pub reduce_ms: Option<f64>,
@@ -124,6 +136,9 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
     let mut rows = Vec::new();
     if !a.json {
         println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
+        if a.physics {
+            print!("{:>13} {:>13} ", "gpu+phys h/s", "cpu+phys h/s");
+        }
         println!(
             "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
             "mesh", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu/cpu", "upload", "render", "reduce", "readback"
@@ -132,6 +147,17 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
     for (name, mesh) in bench_meshes(a.quick)? {
         let rmesh = RenderMesh::new(&mesh)?;
         let (obs, mask) = observe(&rmesh, &truth, &k, SensorNoise::default(), 1);
+        // A support plane under the true pose (normal up and towards the
+        // camera, through the lowest vertex), so the perturbed hypotheses
+        // mix contacts, floating and intersecting ones.
+        let physics = if a.physics {
+            let up = DVec3::new(0.0, -1.0, -0.6).normalize();
+            let low = mesh.vertices.iter().map(|&v| truth.transform_point(v)).min_by(|p, q| p.dot(up).total_cmp(&q.dot(up)));
+            let plane = Plane { point: low.unwrap_or(truth.t), normal: up };
+            Some(PlanePhysics::new(&mesh, &plane, None, DEFAULT_SAMPLES, DEFAULT_SEED, None)?)
+        } else {
+            None
+        };
         for &(n, sampling) in &configs {
             let target = ScoreTarget::new(&obs, Some(&mask), sampling, DEFAULT_ROI_MARGIN)?;
             let poses = around_and_random(&truth, n, 7);
@@ -147,6 +173,8 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 gpu_hyps_per_s: None,
                 cpu_hyps_per_s: None,
                 cpu_threads: rayon::current_num_threads(),
+                gpu_physics_hyps_per_s: None,
+                cpu_physics_hyps_per_s: None,
                 upload_ms: None,
                 render_ms: None,
                 reduce_ms: None,
@@ -191,6 +219,24 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 );
                 row.cpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
             }
+            if let Some(physics) = &physics {
+                let time = |dev: &Device| -> Result<f64> {
+                    score_poses_with_physics(dev, &rmesh, &target, &poses[..n.min(64)], params, physics, |_| {})?;
+                    let mut runs = Vec::new();
+                    for _ in 0..repeat {
+                        let t = Instant::now();
+                        score_poses_with_physics(dev, &rmesh, &target, &poses, params, physics, |_| {})?;
+                        runs.push(t.elapsed());
+                    }
+                    Ok(n as f64 / median(runs).as_secs_f64())
+                };
+                if matches!(device, Device::Gpu(_)) {
+                    row.gpu_physics_hyps_per_s = Some(time(&device)?);
+                }
+                if !a.no_cpu {
+                    row.cpu_physics_hyps_per_s = Some(time(&Device::Cpu)?);
+                }
+            }
             if a.json {
                 println!("{}", serde_json::to_string(&row)?);
             } else {
@@ -199,6 +245,9 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                     (Some(g), Some(c)) => format!("{:.2}x", g / c),
                     _ => "-".into(),
                 };
+                if a.physics {
+                    print!("{:>13} {:>13} ", f(row.gpu_physics_hyps_per_s, 0), f(row.cpu_physics_hyps_per_s, 0));
+                }
                 println!(
                     "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
                     name,

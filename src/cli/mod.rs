@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_physics;
 pub mod check;
 pub mod demo;
+pub mod plane;
 pub mod score;
 pub mod stable;
 
@@ -41,7 +42,7 @@ impl DeviceArgs {
                 if ctx.info.backend == wgpu::Backend::Gl {
                     eprintln!("note: running on the OpenGL backend; a Vulkan driver is faster and more robust");
                 }
-                Ok(Device::Gpu(ctx))
+                Ok(Device::Gpu(Box::new(ctx)))
             }
             Err(e) if fallback => {
                 eprintln!("note: {e}\nnote: falling back to the CPU twin");

@@ -214,7 +214,7 @@ mod tests {
 
     #[test]
     fn fused_physics_structs_match_rust_sizes() {
-        let module = naga::front::wgsl::parse_str(&score::SCORE_PHYSICS_WGSL).unwrap();
+        let module = naga::front::wgsl::parse_str(score::SCORE_PHYSICS_WGSL).unwrap();
         let mut layouter = naga::proc::Layouter::default();
         layouter.update(module.to_ctx()).unwrap();
         let size_of = |name: &str| {

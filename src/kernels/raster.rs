@@ -254,6 +254,7 @@ impl RasterBuffers {
     /// parameter block per wave (`params.first` = the wave's first
     /// hypothesis) and one dispatch per wave in a single compute pass. wgpu
     /// orders the dispatches, since each writes the visibility buffer.
+    #[allow(clippy::too_many_arguments)] // one call site per kernel; a struct would only rename them
     pub fn dispatch_waves(
         &self,
         ctx: &Context,

@@ -1,0 +1,89 @@
+//! `plausible plane`: fit the support plane to an observed depth frame and
+//! write it as the JSON `plausible score --plane` reads.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _, Result};
+use plausible::observation::{read_camera, read_depth_png, read_mask_png};
+use plausible::physical::scene::CameraPlaneJson;
+use plausible::support_plane::{fit_support_plane, PlaneFitParams};
+
+#[derive(clap::Args, Debug)]
+pub struct PlaneArgs {
+    /// Camera JSON: a BOP scene_camera.json entry (or a whole file with --frame).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// Frame id to pick from a whole scene_camera.json.
+    #[arg(long)]
+    pub frame: Option<String>,
+    /// 16-bit depth PNG (value x depth_scale = millimetres).
+    #[arg(long)]
+    pub depth: PathBuf,
+    /// 8-bit mask PNG of the object (non-zero = object): its pixels, grown
+    /// by --mask-margin, are left out, and the object must lie on the
+    /// camera side of the plane.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Write the plane here (JSON, point in mm).
+    #[arg(long, default_value = "plane.json")]
+    pub out: PathBuf,
+    /// Inlier distance in millimetres.
+    #[arg(long, default_value_t = 5.0)]
+    pub inlier_mm: f64,
+    /// RANSAC hypotheses.
+    #[arg(long, default_value_t = 500)]
+    pub iterations: usize,
+    /// Pixels the mask is grown by.
+    #[arg(long, default_value_t = 5)]
+    pub mask_margin: usize,
+    /// Seed of the RANSAC sampling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+pub fn run(a: PlaneArgs) -> Result<()> {
+    if a.iterations == 0 {
+        bail!("--iterations must be at least 1");
+    }
+    let cam = read_camera(&a.camera, a.frame.as_deref())?;
+    let obs = read_depth_png(&a.depth, &cam)?;
+    let mask = match &a.mask {
+        Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
+        None => None,
+    };
+    let params = PlaneFitParams {
+        inlier_m: a.inlier_mm * 1e-3,
+        iterations: a.iterations,
+        seed: a.seed,
+        mask_margin_px: a.mask_margin,
+        ..Default::default()
+    };
+    let fit = fit_support_plane(&obs, mask.as_deref(), &params)?;
+    let p = fit.plane;
+    println!(
+        "support plane: normal ({:.4}, {:.4}, {:.4}), {:.1} mm from the camera; {} of {} points within {} mm (RMS {:.2} mm)",
+        p.normal.x,
+        p.normal.y,
+        p.normal.z,
+        p.normal.dot(p.point).abs() * 1e3,
+        fit.inliers,
+        fit.candidates,
+        a.inlier_mm,
+        fit.rms * 1e3
+    );
+    if fit.inliers * 5 < fit.candidates {
+        eprintln!(
+            "warning: only {:.0} % of the depth outside the mask lies on this plane; check that the support surface is in view",
+            100.0 * fit.inliers as f64 / fit.candidates as f64
+        );
+    }
+    let json = CameraPlaneJson {
+        point: (p.point * 1e3).to_array().to_vec(),
+        normal: p.normal.to_array().to_vec(),
+        units: Some("mm".into()),
+    };
+    std::fs::write(&a.out, serde_json::to_string_pretty(&json)? + "\n")
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
