@@ -67,3 +67,43 @@ pub fn alignment_panels(target: &ScoreTarget, render: &RenderImage, params: &Sco
     }
     img
 }
+
+/// Colour of a physical verdict in pictures: plausible green, unstable
+/// orange, floating violet, intersecting red.
+pub fn verdict_colour(v: crate::physical::Verdict) -> Rgb<u8> {
+    use crate::physical::Verdict;
+    match v {
+        Verdict::Plausible => Rgb([40, 160, 70]),
+        Verdict::Unstable => Rgb([240, 150, 20]),
+        Verdict::Floating => Rgb([140, 80, 200]),
+        Verdict::Intersecting => Rgb([220, 30, 30]),
+    }
+}
+
+/// One picture of one hypothesis: the alignment panels on top and, when
+/// given, the physical top and side views below, with a band in the
+/// verdict's colour ([`verdict_colour`]) across the top.
+pub fn hypothesis_picture(
+    target: &ScoreTarget,
+    render: &RenderImage,
+    params: &ScoreParams,
+    physics: Option<(&RgbImage, crate::physical::Verdict)>,
+) -> RgbImage {
+    let panels = alignment_panels(target, render, params, 3);
+    let band = if physics.is_some() { 12 } else { 0 };
+    let (pw, ph) = physics.map_or((0, 0), |(v, _)| (v.width(), v.height() + 8));
+    let width = panels.width().max(pw);
+    let mut img = RgbImage::from_pixel(width, band + panels.height() + ph, Rgb([255, 255, 255]));
+    if let Some((_, verdict)) = physics {
+        for y in 0..band - 4 {
+            for x in 0..width {
+                img.put_pixel(x, y, verdict_colour(verdict));
+            }
+        }
+    }
+    image::imageops::overlay(&mut img, &panels, 0, band as i64);
+    if let Some((views, _)) = physics {
+        image::imageops::overlay(&mut img, views, 0, (band + panels.height() + 8) as i64);
+    }
+    img
+}

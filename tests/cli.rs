@@ -108,6 +108,8 @@ fn plane_then_score_with_physics() {
         .arg("--plane").arg(&plane)
         .args(["--physics", "--quiet", "--out"])
         .arg(&json)
+        .arg("--explain").arg(dir.path().join("why"))
+        .args(["--explain-ids", "0,7"])
         .args(device_args())
         .output()
         .unwrap();
@@ -125,6 +127,20 @@ fn plane_then_score_with_physics() {
     let worst_plausible = records.iter().filter(|r| r["verdict"] == "plausible").map(|r| r["rank"].as_u64().unwrap()).max().unwrap();
     let best_other = records.iter().filter(|r| r["verdict"] != "plausible").map(|r| r["rank"].as_u64().unwrap()).min().unwrap();
     assert!(worst_plausible < best_other);
+    // One picture per explained hypothesis, under a band in its verdict's colour.
+    for i in [0, 7] {
+        let img = image::open(dir.path().join(format!("why/hypothesis_{i}.png"))).unwrap().to_rgb8();
+        assert!(img.width() >= 1024 && img.height() > 800);
+        let band = img.get_pixel(5, 2).0;
+        let want = match records[i]["verdict"].as_str().unwrap() {
+            "plausible" => [40, 160, 70],
+            "unstable" => [240, 150, 20],
+            "floating" => [140, 80, 200],
+            _ => [220, 30, 30],
+        };
+        assert_eq!(band, want, "hypothesis {i}");
+    }
+    assert!(out.join("explain").read_dir().unwrap().count() >= 1, "the demo explains its best hypothesis");
     // And the demo wrote the same verdicts.
     let demo: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(out.join("scores.json")).unwrap()).unwrap();
     let same = demo.iter().zip(&records).filter(|(a, b)| a["verdict"] == b["verdict"]).count();

@@ -27,6 +27,7 @@ use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::CameraPlaneJson;
+use plausible::physical::Verdict;
 use plausible::pose::{axis_angle, poses_to_json, Pose};
 use plausible::stable::analytic::{stable_poses, AnalyticParams};
 use plausible::stable::cluster::canonical_rotation;
@@ -200,6 +201,29 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         "\nwrote {}: observed depth | best hypothesis' depth | per-pixel alignment (yellow = aligned, red = rendered only, blue = observed only)",
         pic_path.display()
     );
+    // Why physics matters: the visually best hypothesis that is not plausible.
+    let implausible = (0..poses.len())
+        .filter(|&i| evals[i].verdict != Verdict::Plausible)
+        .min_by_key(|&i| visual_rank[i]);
+    let mut ids = vec![best];
+    ids.extend(implausible);
+    super::score::write_explanations(&a.out.join("explain"), &ids, &poses, &rmesh, &target, &params, Some(&physics), Some(&evals))?;
+    if let Some(i) = implausible {
+        let e = &evals[i];
+        let why = match e.verdict {
+            Verdict::Intersecting => "red samples below the table",
+            Verdict::Floating => "no sample touches the table",
+            _ => "the centre of mass (red cross) lies outside the support polygon",
+        };
+        println!(
+            "  hypothesis_{best}.png: the top-ranked one; hypothesis_{i}.png: the visually best implausible one \
+             (visual rank {}, {}: |I| = {}, min δ = {:.1} mm; {why})",
+            visual_rank[i],
+            e.verdict.as_str(),
+            e.intersecting,
+            e.min_distance * 1e3
+        );
+    }
     println!(
         "wrote the inputs to {0}/ (depth.png, mask.png, camera.json, poses.json, plane.json, duck_0.15m.obj) and all records to {0}/scores.json",
         a.out.display()

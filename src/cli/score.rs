@@ -87,6 +87,15 @@ pub struct ScoreArgs {
     /// spacing, clamped to 2-5 mm).
     #[arg(long)]
     pub epsilon: Option<f64>,
+    /// Write a picture per explained hypothesis to this folder
+    /// (`hypothesis_<index>.png`): observed depth | rendered depth |
+    /// alignment, and with --physics the samples, support polygon and centre
+    /// of mass from above and from the side under a band in the verdict's colour.
+    #[arg(long)]
+    pub explain: Option<PathBuf>,
+    /// Hypotheses (input indices) to explain; default: the best 3.
+    #[arg(long, value_delimiter = ',', requires = "explain")]
+    pub explain_ids: Vec<usize>,
     #[command(flatten)]
     pub device: DeviceArgs,
     /// No progress bar.
@@ -160,6 +169,10 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
             write_records(out, &records, Some(&evals), &rank)?;
             println!("wrote {} records to {}", records.len(), out.display());
         }
+        if let Some(dir) = &a.explain {
+            let ids = explain_ids(&a.explain_ids, &rank)?;
+            write_explanations(dir, &ids, &poses, &rmesh, &target, &params, Some(physics), Some(&evals))?;
+        }
         return Ok(());
     }
     let records = match &device {
@@ -184,6 +197,48 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     if let Some(out) = &a.out {
         write_records(out, &records, None, &rank)?;
         println!("wrote {} records to {}", records.len(), out.display());
+    }
+    if let Some(dir) = &a.explain {
+        let ids = explain_ids(&a.explain_ids, &rank)?;
+        write_explanations(dir, &ids, &poses, &rmesh, &target, &params, None, None)?;
+    }
+    Ok(())
+}
+
+/// The hypotheses to explain: those asked for (checked), else the best 3.
+fn explain_ids(asked: &[usize], rank: &[usize]) -> Result<Vec<usize>> {
+    if let Some(&bad) = asked.iter().find(|&&i| i >= rank.len()) {
+        bail!("--explain-ids {bad}: there are only {} hypotheses (indices start at 0)", rank.len());
+    }
+    if !asked.is_empty() {
+        return Ok(asked.to_vec());
+    }
+    let mut order: Vec<usize> = (0..rank.len()).collect();
+    order.sort_by_key(|&i| rank[i]);
+    Ok(order.into_iter().take(3).collect())
+}
+
+/// Writes `hypothesis_<index>.png` for every id (see `--explain`).
+#[allow(clippy::too_many_arguments)]
+pub fn write_explanations(
+    dir: &std::path::Path,
+    ids: &[usize],
+    poses: &[plausible::pose::Pose],
+    rmesh: &RenderMesh,
+    target: &ScoreTarget,
+    params: &ScoreParams,
+    physics: Option<&PlanePhysics>,
+    evals: Option<&[Evaluation]>,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for &i in ids {
+        let render = plausible::kernels::raster::render_cpu(rmesh, &poses[i], &target.intrinsics);
+        let views = physics.map(|p| p.explain(&poses[i]));
+        let verdict = evals.map(|e| e[i].verdict);
+        let pic = plausible::explain::hypothesis_picture(target, &render, params, views.as_ref().zip(verdict));
+        let path = dir.join(format!("hypothesis_{i}.png"));
+        pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+        println!("wrote {}", path.display());
     }
     Ok(())
 }

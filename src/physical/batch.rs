@@ -9,7 +9,8 @@
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
-use super::contacts::{evaluate_batch, Body, Environment, Evaluation, Verdict};
+use super::contacts::{evaluate_batch, evaluate_detailed, Body, Detail, Environment, Evaluation, Verdict};
+use super::explain::{draw_views, Drawn};
 use super::gpu::{finish_from_bits, ContactRecord, GpuContacts};
 use super::scene::{camera_to_plane_frame, Plane};
 use crate::error::Result;
@@ -120,6 +121,20 @@ impl PlanePhysics {
     pub fn evaluate_cpu(&self, cam_poses: &[Pose]) -> Vec<Evaluation> {
         let world: Vec<Pose> = cam_poses.iter().map(|p| self.to_plane.compose(p)).collect();
         evaluate_batch(&self.body, &world, &self.env)
+    }
+
+    /// The CPU twin's evaluation of one camera-frame hypothesis with its
+    /// per-sample detail (plane frame), for pictures.
+    pub fn evaluate_detailed(&self, cam_pose: &Pose) -> (Evaluation, Detail) {
+        evaluate_detailed(&self.body, &self.to_plane.compose(cam_pose), &self.env)
+    }
+
+    /// Top and side views of one hypothesis on the plane (1024 × 512; see
+    /// [`super::explain`] for the colours).
+    pub fn explain(&self, cam_pose: &Pose) -> image::RgbImage {
+        let (e, detail) = self.evaluate_detailed(cam_pose);
+        let drawn = Drawn { detail: &detail, is_static: false, stable: e.stable };
+        draw_views(&self.env.planes, self.env.gravity, &[drawn])
     }
 
     /// The physical evaluation of every camera-frame hypothesis.

@@ -11,8 +11,8 @@ use glam::{DVec2, DVec3};
 use image::{Rgb, RgbImage};
 
 use super::check::ObjectCheck;
-use super::contacts::SampleClass;
-use super::scene::Scene;
+use super::contacts::{Detail, SampleClass};
+use super::scene::{Plane, Scene};
 use super::support::support_basis;
 
 const SIZE: u32 = 512;
@@ -65,14 +65,31 @@ fn line(img: &mut RgbImage, a: (i64, i64), b: (i64, i64), c: Rgb<u8>) {
     }
 }
 
+/// One object to draw: its per-sample detail, whether it is static (no
+/// support polygon or centre of mass drawn) and whether it is stable.
+pub struct Drawn<'a> {
+    pub detail: &'a Detail,
+    pub is_static: bool,
+    pub stable: bool,
+}
+
 /// Draws the top and side views of a checked scene (1024 × 512 pixels).
 pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
+    let items: Vec<Drawn> = checks
+        .iter()
+        .map(|c| Drawn { detail: &c.detail, is_static: c.is_static, stable: c.evaluation.stable })
+        .collect();
+    draw_views(&scene.planes, scene.gravity, &items)
+}
+
+/// Top and side views (1024 × 512 pixels) of `items` over `planes`.
+pub fn draw_views(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> RgbImage {
     let mut img = RgbImage::from_pixel(2 * SIZE, SIZE, Rgb([255, 255, 255]));
-    let (u, v) = support_basis(scene.gravity);
-    let up = -scene.gravity.normalize();
+    let (u, v) = support_basis(gravity);
+    let up = -gravity.normalize();
     let top = |p: DVec3| DVec2::new(p.dot(u), p.dot(v));
     let side = |p: DVec3| DVec2::new(p.dot(u), p.dot(up));
-    let all: Vec<DVec3> = checks
+    let all: Vec<DVec3> = items
         .iter()
         .flat_map(|c| c.detail.world.iter().copied())
         .collect();
@@ -99,7 +116,7 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
         (SIZE as i64, SIZE as i64 - 1),
         Rgb([120, 120, 120]),
     );
-    for p in &scene.planes {
+    for p in planes {
         let h = p.point.dot(up);
         if p.normal.dot(up) > 0.99 {
             let a = sv.px(DVec2::new(sv.lo.x, h));
@@ -114,7 +131,7 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
     }
     // Free samples first, then the classes on top.
     for pass in 0..2 {
-        for c in checks {
+        for c in items {
             for (p, cls) in c.detail.world.iter().zip(&c.detail.classes) {
                 if (*cls == SampleClass::Free) == (pass == 0) {
                     let col = class_colour(*cls);
@@ -124,19 +141,19 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
             }
         }
     }
-    for c in checks.iter().filter(|c| !c.is_static) {
+    for c in items.iter().filter(|c| !c.is_static) {
         let hull = &c.detail.hull;
         for i in 0..hull.len() {
             let a = tv.px(hull[i]);
             let b = tv.px(hull[(i + 1) % hull.len()]);
             line(&mut img, a, b, Rgb([20, 40, 160]));
         }
-        let col = if c.evaluation.stable {
+        let col = if c.stable {
             Rgb([0, 0, 0])
         } else {
             Rgb([220, 0, 0])
         };
-        for (view, p) in [(&tv, c.detail.com), (&sv, side(c.com_world))] {
+        for (view, p) in [(&tv, c.detail.com), (&sv, side(c.detail.com_world))] {
             let (x, y) = view.px(p);
             line(&mut img, (x - 6, y), (x + 6, y), col);
             line(&mut img, (x, y - 6), (x, y + 6), col);
