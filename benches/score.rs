@@ -1,6 +1,7 @@
 //! Criterion benchmark of the visual score: the GPU kernel and its CPU twin
 //! on the same inputs (duck, 4212 triangles, 128x128 region, 256 poses).
-//! `plausible bench score` covers more sizes and prints a table / JSON.
+//! With the physical terms against a support plane (the fused kernel) too.
+//! `plausible bench score [--physics]` covers more sizes and prints a table / JSON.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::DVec3;
@@ -11,7 +12,10 @@ use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{axis_angle, Pose};
+use plausible::physical::batch::PlanePhysics;
+use plausible::physical::Plane;
 use plausible::synth::{linemod_camera, observe, SensorNoise};
+use plausible::visual::{score_poses_with_physics, Device};
 
 fn bench(c: &mut Criterion) {
     let mesh = Mesh::load(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj"), MeshUnits::Metres)
@@ -28,12 +32,31 @@ fn bench(c: &mut Criterion) {
     g.throughput(Throughput::Elements(poses.len() as u64));
     g.sample_size(10);
     g.bench_function("cpu_twin", |b| b.iter(|| score_cpu(&rmesh, &target, &poses, &params)));
-    match Context::new(&GpuOptions::default()) {
-        Ok(ctx) => {
-            let scorer = GpuScorer::new(&ctx, &rmesh, &target, params, poses.len()).unwrap();
-            g.bench_function(format!("gpu ({})", ctx.info.name), |b| b.iter(|| scorer.score(&poses).unwrap()));
+    let gpu = match Context::new(&GpuOptions::default()) {
+        Ok(ctx) => Some(Device::Gpu(Box::new(ctx))),
+        Err(e) => {
+            eprintln!("skipping the GPU benchmark: {e}");
+            None
         }
-        Err(e) => eprintln!("skipping the GPU benchmark: {e}"),
+    };
+    if let Some(Device::Gpu(ctx)) = &gpu {
+        let scorer = GpuScorer::new(ctx, &rmesh, &target, params, poses.len()).unwrap();
+        g.bench_function(format!("gpu ({})", ctx.info.name), |b| b.iter(|| scorer.score(&poses).unwrap()));
+    }
+    g.finish();
+
+    // Visual score + physical terms against a support plane under the pose
+    // (1024 samples), end to end: the fused kernel and its CPU twins.
+    let up = DVec3::new(0.0, -1.0, -0.6).normalize();
+    let low = mesh.vertices.iter().map(|&v| truth.transform_point(v)).min_by(|p, q| p.dot(up).total_cmp(&q.dot(up))).unwrap();
+    let physics = PlanePhysics::new(&mesh, &Plane { point: low, normal: up }, None, 1024, 0, None).unwrap();
+    let mut g = c.benchmark_group("score+plane/duck/128x128");
+    g.throughput(Throughput::Elements(poses.len() as u64));
+    g.sample_size(10);
+    let run = |dev: &Device| score_poses_with_physics(dev, &rmesh, &target, &poses, params, &physics, |_| {}).unwrap();
+    g.bench_function("cpu_twin", |b| b.iter(|| run(&Device::Cpu)));
+    if let Some(dev) = &gpu {
+        g.bench_function(format!("gpu ({})", dev.describe()), |b| b.iter(|| run(dev)));
     }
     g.finish();
 }

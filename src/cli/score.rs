@@ -164,6 +164,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
             physics.body().epsilon * 1e3,
             verdict_counts(&evals)
         );
+        warn_if_below_plane(&evals, mesh.diagonal());
         print_table(&records, Some(&evals), &rank, a.top);
         if let Some(out) = &a.out {
             write_records(out, &records, Some(&evals), &rank)?;
@@ -254,6 +255,25 @@ fn print_throughput(device: &Device, target: &ScoreTarget, n: usize, secs: f64) 
         target.intrinsics.height,
         target.observed_pixels()
     );
+}
+
+/// A plane that most hypotheses are far below is probably the wrong plane
+/// (or in the wrong units): say so rather than rank 4096 intersecting poses.
+fn warn_if_below_plane(evals: &[Evaluation], diagonal: f64) {
+    let mut mins: Vec<f64> = evals.iter().map(|e| e.min_distance).collect();
+    if mins.is_empty() {
+        return;
+    }
+    mins.sort_by(f64::total_cmp);
+    let median = mins[mins.len() / 2];
+    if median < -diagonal {
+        eprintln!(
+            "warning: half the hypotheses reach more than {:.0} mm below the support plane (median min δ = {:.0} mm), \
+             farther than the object's size: is --plane the surface the object rests on, with its point in the stated units?",
+            diagonal * 1e3,
+            median * 1e3
+        );
+    }
 }
 
 /// "12 plausible, 3 unstable, ..." over a batch.
