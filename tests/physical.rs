@@ -772,7 +772,7 @@ fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
 }
 
 /// The fused score + plane kernel against the CPU twins (score_cpu and the
-/// exact f64 classifier) over 4096 duck hypotheses near contact with a
+/// exact f64 classifier) over 10,000 duck hypotheses near contact with a
 /// plane seen at 45°: verdicts agree on ≥ 99.9 %, min δ within 10 µm (f32
 /// rounding of camera-frame coordinates), margins within 1 µm where the
 /// supported sets agree; the visual records equal the plain score kernel's.
@@ -798,7 +798,7 @@ fn fused_score_and_plane_physics_match_the_cpu_twins() {
     let eps = physics.body().epsilon;
     // Poses whose lowest sample lies within ±3ε of the plane.
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-    let poses: Vec<Pose> = (0..4096)
+    let poses: Vec<Pose> = (0..10_000)
         .map(|_| {
             let r = plausible::hypotheses::random_rotation(&mut rng);
             let low = physics.body().samples.iter().map(|s| (r * *s).z).fold(f64::INFINITY, f64::min);
