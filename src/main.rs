@@ -21,6 +21,8 @@ enum Command {
     Score(cli::score::ScoreArgs),
     /// Fit the support plane to a depth frame (RANSAC outside the object's mask).
     Plane(cli::plane::PlaneArgs),
+    /// Pose hypotheses of an object on the support plane: stable poses x yaw x position from the depth.
+    Hypotheses(cli::hypotheses::HypothesesArgs),
     /// Run the scorer end to end on shipped data (no arguments needed).
     Demo(cli::demo::DemoArgs),
     /// Measure throughput, GPU side by side with the CPU twin.
@@ -49,6 +51,7 @@ fn main() {
     let result = match cli.command {
         Command::Score(a) => cli::score::run(a, cli.verbose),
         Command::Plane(a) => cli::plane::run(a),
+        Command::Hypotheses(a) => cli::hypotheses::run(a),
         Command::Demo(a) => cli::demo::run(a, cli.verbose),
         Command::Bench(a) => cli::bench::run(a, cli.verbose),
         Command::StablePoses(a) => cli::stable::stable_poses(a),

@@ -141,6 +141,73 @@ fn plane_then_score_with_physics() {
         assert_eq!(band, want, "hypothesis {i}");
     }
     assert!(out.join("explain").read_dir().unwrap().count() >= 1, "the demo explains its best hypothesis");
+    // Hypotheses from the duck's resting poses on the fitted plane: 24 yaws
+    // each, all of them resting on the plane, the best within 10° and 5 mm of
+    // the demo's truth (index 0 of poses.json).
+    let hyps = dir.path().join("hyps.json");
+    let o = plausible()
+        .arg("hypotheses")
+        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
+        .arg("--camera").arg(out.join("camera.json"))
+        .arg("--depth").arg(out.join("depth.png"))
+        .arg("--mask").arg(out.join("mask.png"))
+        .arg("--plane").arg(&plane)
+        .arg("--out").arg(&hyps)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let list: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&hyps).unwrap()).unwrap();
+    assert_eq!(list.len() % 24, 0);
+    assert!(list[0].get("rest").is_some() && list[0].get("yaw_deg").is_some());
+    let scored = dir.path().join("hyps-scored.json");
+    let o = plausible()
+        .arg("score")
+        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
+        .arg("--camera").arg(out.join("camera.json"))
+        .arg("--depth").arg(out.join("depth.png"))
+        .arg("--mask").arg(out.join("mask.png"))
+        .arg("--poses").arg(&hyps)
+        .arg("--plane").arg(&plane)
+        .args(["--physics", "--quiet", "--out"])
+        .arg(&scored)
+        .args(device_args())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let recs: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&scored).unwrap()).unwrap();
+    assert!(recs.iter().all(|r| r["verdict"] != "floating" && r["verdict"] != "intersecting"));
+    let best = recs.iter().position(|r| r["rank"] == 1).unwrap();
+    let poses: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(out.join("poses.json")).unwrap()).unwrap();
+    let rot = |p: &serde_json::Value| glam::DMat3::from_cols_array(&std::array::from_fn(|i| p["cam_R_m2c"][i].as_f64().unwrap())).transpose();
+    let pos = |p: &serde_json::Value| glam::DVec3::from_array(std::array::from_fn(|i| p["cam_t_m2c"][i].as_f64().unwrap()));
+    let rel = rot(&list[best]).transpose() * rot(&poses[0]);
+    let angle = ((rel.x_axis.x + rel.y_axis.y + rel.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+    assert!(angle < 10.0 && (pos(&list[best]) - pos(&poses[0])).length() < 5.0, "{angle}°");
+    // The resting poses can come from a drop-test database instead.
+    let db = dir.path().join("stable.sqlite");
+    let export = dir.path().join("stable.json");
+    let run = |args: &[&std::ffi::OsStr]| {
+        let o = plausible().args(args).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let mesh = out.join("duck_0.15m.obj");
+    run(&["stable-poses".as_ref(), mesh.as_os_str(), "--mesh-units".as_ref(), "m".as_ref(), "--drops".as_ref(), "200".as_ref(), "--quiet".as_ref(), "--db".as_ref(), db.as_os_str()]);
+    run(&["stable-poses".as_ref(), "export".as_ref(), "--db".as_ref(), db.as_os_str(), "--json".as_ref(), export.as_os_str()]);
+    let text = run(&[
+        "hypotheses".as_ref(),
+        "--mesh".as_ref(), mesh.as_os_str(),
+        "--camera".as_ref(), out.join("camera.json").as_os_str(),
+        "--depth".as_ref(), out.join("depth.png").as_os_str(),
+        "--mask".as_ref(), out.join("mask.png").as_os_str(),
+        "--plane".as_ref(), plane.as_os_str(),
+        "--stable".as_ref(), export.as_os_str(),
+        "--yaw-steps".as_ref(), "12".as_ref(),
+        "--out".as_ref(), hyps.as_os_str(),
+    ]);
+    assert!(text.contains("from drop-test clusters"), "{text}");
+    let list: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&hyps).unwrap()).unwrap();
+    assert!(!list.is_empty() && list.len() % 12 == 0);
     // And the demo wrote the same verdicts.
     let demo: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(out.join("scores.json")).unwrap()).unwrap();
     let same = demo.iter().zip(&records).filter(|(a, b)| a["verdict"] == b["verdict"]).count();

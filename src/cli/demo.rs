@@ -18,6 +18,7 @@ use std::time::Instant;
 use anyhow::{Context as _, Result};
 use glam::{DMat3, DVec3};
 use plausible::hypotheses::around_and_random;
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, OnPlaneParams};
 use plausible::kernels::raster::render_cpu;
 use plausible::kernels::score::{GpuScorer, ScoreParams};
 use plausible::kernels::RenderMesh;
@@ -160,6 +161,33 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         evals[visual_best].verdict.as_str()
     );
 
+    // Pose estimation without a learned model (paper section 3.1): the
+    // duck's resting poses x 24 yaws, each put on the fitted plane and
+    // centred on the observed points, scored the same way.
+    let rests = analytic_resting_poses(&mesh)?;
+    let t1 = Instant::now();
+    let estimates = on_plane_hypotheses(&mesh, &rests, &fit.plane, &obs, &mask, &OnPlaneParams::default())?;
+    let est_poses: Vec<Pose> = estimates.iter().map(|h| h.pose).collect();
+    let (est_records, est_evals, _) = score_poses_with_physics(&device, &rmesh, &target, &est_poses, params, &physics, |_| {})?;
+    let est_rank = ranks_with_physics(&est_records, &est_evals);
+    let est_best = est_rank.iter().position(|&r| r == 1).unwrap_or(0);
+    println!(
+        "\npose estimation from stable poses: {} hypotheses ({} resting poses x 24 yaws on the fitted plane, centred on the observed points) generated and scored in {:.2} s",
+        est_poses.len(),
+        rests.iter().filter(|r| r.probability >= OnPlaneParams::default().min_probability).count(),
+        t1.elapsed().as_secs_f64()
+    );
+    println!(
+        "best: resting pose {} ({:.0} %), yaw {:.0}°, score {:.4}, {}: {:.1}° and {:.1} mm from the truth",
+        estimates[est_best].rest,
+        rests[estimates[est_best].rest].probability * 100.0,
+        estimates[est_best].yaw.to_degrees(),
+        est_records[est_best].score,
+        est_evals[est_best].verdict.as_str(),
+        est_poses[est_best].rotation_angle_to(&truth).to_degrees(),
+        (est_poses[est_best].t - truth.t).length() * 1e3
+    );
+
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     // BOP-style inputs, so `plausible score` can be run on them.
     let depth_scale = 0.1; // value x 0.1 = mm
@@ -177,6 +205,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         }))?,
     )?;
     std::fs::write(a.out.join("poses.json"), serde_json::to_string(&poses_to_json(&poses))?)?;
+    std::fs::write(a.out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(&est_poses))?)?;
     let plane_json = CameraPlaneJson {
         point: (fit.plane.point * 1e3).to_array().to_vec(),
         normal: fit.plane.normal.to_array().to_vec(),
@@ -225,7 +254,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         );
     }
     println!(
-        "wrote the inputs to {0}/ (depth.png, mask.png, camera.json, poses.json, plane.json, duck_0.15m.obj) and all records to {0}/scores.json",
+        "wrote the inputs to {0}/ (depth.png, mask.png, camera.json, poses.json, hypotheses.json, plane.json, duck_0.15m.obj) and all records to {0}/scores.json",
         a.out.display()
     );
     Ok(())

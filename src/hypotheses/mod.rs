@@ -1,4 +1,10 @@
 //! Pose hypothesis generators (seeded: the same seed gives the same poses).
+//!
+//! - [`on_plane`]: stable resting poses × yaw × in-plane position from the
+//!   segmented depth, for an object on a support plane (paper section 3.1).
+//! - [`around_and_random`]: the demo's and benchmark's synthetic set.
+
+pub mod on_plane;
 
 use glam::{DMat3, DQuat, DVec3};
 use rand::{Rng, SeedableRng};

@@ -1,0 +1,113 @@
+//! `plausible hypotheses`: pose hypotheses of an object resting on a support
+//! plane (stable poses × yaw × in-plane position from the segmented depth),
+//! written as the BOP pose JSON `plausible score` reads.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _, Result};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::observation::{read_camera, read_depth_png, read_mask_png};
+use plausible::physical::scene::read_camera_plane;
+
+#[derive(clap::Args, Debug)]
+pub struct HypothesesArgs {
+    /// Object mesh (.obj, .ply, .stl, .gltf, .glb).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// Units of the mesh file: m, mm or auto.
+    #[arg(long, default_value = "auto")]
+    pub mesh_units: MeshUnits,
+    /// Camera JSON: a BOP scene_camera.json entry (or a whole file with --frame).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// Frame id to pick from a whole scene_camera.json.
+    #[arg(long)]
+    pub frame: Option<String>,
+    /// 16-bit depth PNG (value x depth_scale = millimetres).
+    #[arg(long)]
+    pub depth: PathBuf,
+    /// 8-bit mask PNG of the object (non-zero = object).
+    #[arg(long)]
+    pub mask: PathBuf,
+    /// Support plane in the camera frame (`plausible plane` writes one).
+    #[arg(long)]
+    pub plane: PathBuf,
+    /// Resting poses from `plausible stable-poses export --json` (default:
+    /// the quasi-static analysis of the mesh's convex hull).
+    #[arg(long)]
+    pub stable: Option<PathBuf>,
+    /// Yaw angles per resting pose, evenly spaced over 360°.
+    #[arg(long, default_value_t = 24)]
+    pub yaw_steps: usize,
+    /// Leave out resting poses less probable than this.
+    #[arg(long, default_value_t = 0.01)]
+    pub min_probability: f64,
+    /// In-plane grid of (2r + 1)² offsets around each aligned position.
+    #[arg(long, default_value_t = 0)]
+    pub grid_radius: usize,
+    /// Spacing of that grid in millimetres.
+    #[arg(long, default_value_t = 5.0)]
+    pub grid_step_mm: f64,
+    /// Write the hypotheses here (BOP pose JSON, with their provenance).
+    #[arg(long, default_value = "hypotheses.json")]
+    pub out: PathBuf,
+}
+
+pub fn run(a: HypothesesArgs) -> Result<()> {
+    if !(0.0..1.0).contains(&a.min_probability) {
+        bail!("--min-probability must lie in [0, 1)");
+    }
+    let (mesh, report) = Mesh::load(&a.mesh, a.mesh_units)?;
+    for w in &report.warnings {
+        eprintln!("warning: {}: {w}", a.mesh.display());
+    }
+    let cam = read_camera(&a.camera, a.frame.as_deref())?;
+    let obs = read_depth_png(&a.depth, &cam)?;
+    let mask = read_mask_png(&a.mask, obs.intrinsics.width, obs.intrinsics.height)?;
+    let plane = read_camera_plane(&a.plane)?;
+    let (rests, source) = match &a.stable {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let stem = a.mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let sha = plausible::stable::mesh_sha256(&mesh);
+            let rests = resting_poses_from_export(&text, &sha, &stem).with_context(|| path.display().to_string())?;
+            (rests, format!("drop-test clusters of {}", path.display()))
+        }
+        None => (analytic_resting_poses(&mesh)?, "the quasi-static analysis of the convex hull".to_string()),
+    };
+    let params = OnPlaneParams {
+        yaw_steps: a.yaw_steps,
+        min_probability: a.min_probability,
+        grid_radius: a.grid_radius,
+        grid_step: a.grid_step_mm * 1e-3,
+        ..Default::default()
+    };
+    let used = rests.iter().filter(|r| r.probability >= params.min_probability).count();
+    if used == 0 {
+        bail!("no resting pose is at least {} probable; lower --min-probability", a.min_probability);
+    }
+    let hyps = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &params)?;
+    let json: Vec<serde_json::Value> = hyps
+        .iter()
+        .map(|h| {
+            serde_json::json!({
+                "cam_R_m2c": h.pose.r_row_major(),
+                "cam_t_m2c": (h.pose.t * 1e3).to_array(),
+                "rest": h.rest,
+                "rest_probability": rests[h.rest].probability,
+                "yaw_deg": h.yaw.to_degrees(),
+                "offset_mm": (h.offset * 1e3).to_array(),
+            })
+        })
+        .collect();
+    std::fs::write(&a.out, serde_json::to_string_pretty(&json)? + "\n").with_context(|| format!("cannot write {}", a.out.display()))?;
+    println!(
+        "{} hypotheses: {used} resting poses (from {source}) x {} yaws x {} in-plane offsets, each on the plane and centred on the observed object",
+        hyps.len(),
+        a.yaw_steps,
+        (2 * a.grid_radius + 1).pow(2)
+    );
+    println!("wrote {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,224 @@
+//! Hypotheses of an object resting on a support plane (paper section 3.1):
+//! each stable resting pose × yaw steps about the plane normal × an in-plane
+//! position found from the segmented depth.
+//!
+//! The resting poses come from the stable-pose database (`plausible
+//! stable-poses export`) or, without one, from the quasi-static analysis of
+//! the mesh's convex hull. For each (resting pose, yaw) the object is put on
+//! the plane (its lowest vertex touching it) with its centre of mass over
+//! the centroid of the observed object points, then moved along the plane
+//! by the offset between the observed and the rendered visible centroids
+//! (the camera sees one side of the object, so the centroid of what it sees
+//! is not over the centre of mass); that alignment is repeated a few times.
+//! An optional grid of in-plane offsets around the aligned position adds
+//! the neighbours.
+
+use glam::{DMat3, DVec2, DVec3};
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::kernels::raster::render_cpu;
+use crate::kernels::RenderMesh;
+use crate::mesh::mass::MassProperties;
+use crate::mesh::Mesh;
+use crate::observation::DepthImage;
+use crate::physical::scene::camera_to_plane_frame;
+use crate::physical::Plane;
+use crate::pose::{axis_angle, Pose};
+
+/// A resting pose up to rotation about the plane normal.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RestingPose {
+    /// Rotation from the model frame to the plane frame (z up).
+    pub r_model_to_plane: DMat3,
+    /// How often the object ends up resting like this.
+    pub probability: f64,
+}
+
+/// Parameters of the generator.
+#[derive(Clone, Copy, Debug)]
+pub struct OnPlaneParams {
+    /// Yaw angles per resting pose, evenly spaced over 360°.
+    pub yaw_steps: usize,
+    /// Resting poses below this probability are left out.
+    pub min_probability: f64,
+    /// Observed-versus-rendered centroid alignments per hypothesis.
+    pub align_iterations: usize,
+    /// In-plane grid around each aligned position: (2r + 1)² offsets...
+    pub grid_radius: usize,
+    /// ... spaced this far apart (m).
+    pub grid_step: f64,
+}
+
+impl Default for OnPlaneParams {
+    fn default() -> Self {
+        // 15° yaw steps and a 5 mm grid are the reference grids of the
+        // authors' code; the grid is off by default (the alignment already
+        // centres each hypothesis).
+        OnPlaneParams { yaw_steps: 24, min_probability: 0.01, align_iterations: 3, grid_radius: 0, grid_step: 0.005 }
+    }
+}
+
+/// One generated hypothesis and where it came from.
+#[derive(Clone, Debug)]
+pub struct OnPlaneHypothesis {
+    /// Model to camera.
+    pub pose: Pose,
+    /// Index into the resting poses given.
+    pub rest: usize,
+    /// Yaw about the plane normal (radians).
+    pub yaw: f64,
+    /// In-plane offset from the aligned position (m, plane frame).
+    pub offset: DVec2,
+}
+
+/// The quasi-static resting poses of `mesh` (stable facets of its convex
+/// hull, most probable first): the prior when no drop-test database exists.
+pub fn analytic_resting_poses(mesh: &Mesh) -> Result<Vec<RestingPose>> {
+    let hull = crate::stable::hull::Hull::of_points("object", &mesh.vertices)?;
+    let (mass, _) = MassProperties::of_mesh(mesh)?;
+    let a = crate::stable::analytic::stable_poses(&hull, mass.com, Default::default())?;
+    Ok(a.poses
+        .iter()
+        .map(|p| RestingPose {
+            r_model_to_plane: rows(&crate::stable::cluster::canonical_rotation(DVec3::from_array(p.gravity_in_model))),
+            probability: p.probability,
+        })
+        .collect())
+}
+
+/// The resting poses of one mesh in a `plausible stable-poses export` JSON:
+/// the entry whose `sha256` matches `sha256`, else the only entry, else the
+/// one whose file name stem is `name`.
+pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<Vec<RestingPose>> {
+    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| Error::InvalidInput(format!("stable-pose JSON: {e}")))?;
+    let meshes = v["meshes"].as_array().ok_or_else(|| Error::InvalidInput("stable-pose JSON: no \"meshes\" list".into()))?;
+    let stem = |m: &serde_json::Value| {
+        std::path::Path::new(m["mesh"].as_str().unwrap_or("")).file_stem().map(|s| s.to_string_lossy().into_owned())
+    };
+    let entry = meshes
+        .iter()
+        .find(|m| m["sha256"] == sha256)
+        .or_else(|| (meshes.len() == 1).then(|| &meshes[0]))
+        .or_else(|| meshes.iter().find(|m| stem(m).as_deref() == Some(name)))
+        .ok_or_else(|| {
+            let names: Vec<String> = meshes.iter().filter_map(stem).collect();
+            Error::InvalidInput(format!(
+                "stable-pose JSON: no entry for this mesh (by geometry hash or the name '{name}'); it has {}",
+                names.join(", ")
+            ))
+        })?;
+    let clusters = entry["clusters"].as_array().ok_or_else(|| Error::InvalidInput("stable-pose JSON: no \"clusters\"".into()))?;
+    let mut out = Vec::new();
+    for (i, c) in clusters.iter().enumerate() {
+        let r: Vec<f64> = c["R_model_to_plane"].as_array().map(|a| a.iter().filter_map(|x| x.as_f64()).collect()).unwrap_or_default();
+        let p = c["probability"].as_f64();
+        let (Ok(r), Some(p)) = (<[f64; 9]>::try_from(r), p) else {
+            return Err(Error::InvalidInput(format!("stable-pose JSON: cluster {i} needs R_model_to_plane (9 numbers) and probability")));
+        };
+        let r = rows(&r);
+        if ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| x.abs() > 1e-6) {
+            return Err(Error::InvalidInput(format!("stable-pose JSON: cluster {i}: R_model_to_plane is not a rotation")));
+        }
+        out.push(RestingPose { r_model_to_plane: r, probability: p });
+    }
+    if out.is_empty() {
+        return Err(Error::InvalidInput("stable-pose JSON: the mesh has no clusters (did its drops settle?)".into()));
+    }
+    Ok(out)
+}
+
+fn rows(r: &[f64; 9]) -> DMat3 {
+    DMat3::from_cols_array(r).transpose()
+}
+
+/// The observed object's points (camera frame): masked pixels with depth.
+fn observed_points(obs: &DepthImage, mask: &[bool]) -> Vec<DVec3> {
+    let k = &obs.intrinsics;
+    let w = k.width as usize;
+    (0..obs.depth.len())
+        .filter(|&i| mask[i] && obs.depth[i] > 0.0)
+        .map(|i| k.ray((i % w) as f64, (i / w) as f64) * obs.depth[i] as f64)
+        .collect()
+}
+
+/// Generates the hypotheses (see the module docs), in order of resting
+/// pose, then yaw, then offset.
+pub fn on_plane_hypotheses(
+    mesh: &Mesh,
+    rests: &[RestingPose],
+    plane: &Plane,
+    obs: &DepthImage,
+    mask: &[bool],
+    p: &OnPlaneParams,
+) -> Result<Vec<OnPlaneHypothesis>> {
+    if p.yaw_steps == 0 {
+        return Err(Error::InvalidInput("at least one yaw step is needed".into()));
+    }
+    if mask.len() != obs.depth.len() {
+        return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())));
+    }
+    if !(p.grid_step.is_finite() && p.grid_step > 0.0) {
+        return Err(Error::InvalidInput(format!("the grid step must be a positive number of metres, got {}", p.grid_step)));
+    }
+    let points = observed_points(obs, mask);
+    if points.len() < 10 {
+        return Err(Error::InvalidInput(format!(
+            "only {} masked pixels have depth; hypotheses need the object's observed points",
+            points.len()
+        )));
+    }
+    let to_plane = camera_to_plane_frame(plane);
+    let from_plane = to_plane.inverse();
+    let centroid = |pts: &[DVec3]| pts.iter().map(|&x| to_plane.transform_point(x)).sum::<DVec3>().truncate() / pts.len() as f64;
+    let observed = centroid(&points);
+    let (mass, _) = MassProperties::of_mesh(mesh)?;
+    let rmesh = RenderMesh::new(mesh)?;
+    let k = obs.intrinsics;
+    let w = k.width as usize;
+    let jobs: Vec<(usize, usize)> = rests
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.probability >= p.min_probability)
+        .flat_map(|(i, _)| (0..p.yaw_steps).map(move |y| (i, y)))
+        .collect();
+    let aligned: Vec<(usize, f64, Pose)> = jobs
+        .par_iter()
+        .map(|&(i, y)| {
+            let yaw = std::f64::consts::TAU * y as f64 / p.yaw_steps as f64;
+            let r = axis_angle(DVec3::Z, yaw) * rests[i].r_model_to_plane;
+            let low = mesh.vertices.iter().map(|&v| (r * v).z).fold(f64::INFINITY, f64::min);
+            let com = (r * mass.com).truncate();
+            let mut t = (observed - com).extend(-low);
+            for _ in 0..p.align_iterations {
+                let cam = from_plane.compose(&Pose::new(r, t));
+                let img = render_cpu(&rmesh, &cam, &k);
+                let seen: Vec<DVec3> = (0..img.depth.len())
+                    .filter(|&j| img.depth[j] > 0.0)
+                    .map(|j| k.ray((j % w) as f64, (j / w) as f64) * img.depth[j] as f64)
+                    .collect();
+                if seen.is_empty() {
+                    break; // out of view: keep the centre-of-mass placement
+                }
+                let shift = observed - centroid(&seen);
+                t += shift.extend(0.0);
+                if shift.length() < 1e-4 {
+                    break;
+                }
+            }
+            (i, yaw, Pose::new(r, t))
+        })
+        .collect();
+    let g = p.grid_radius as i64;
+    let mut out = Vec::with_capacity(aligned.len() * (2 * p.grid_radius + 1).pow(2));
+    for (rest, yaw, base) in aligned {
+        for dy in -g..=g {
+            for dx in -g..=g {
+                let offset = DVec2::new(dx as f64, dy as f64) * p.grid_step;
+                let moved = Pose::new(base.r, base.t + offset.extend(0.0));
+                out.push(OnPlaneHypothesis { pose: from_plane.compose(&moved), rest, yaw, offset });
+            }
+        }
+    }
+    Ok(out)
+}

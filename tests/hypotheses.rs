@@ -1,0 +1,95 @@
+//! Hypotheses on a support plane: stable poses × yaw × in-plane position
+//! from the segmented depth, scored visually and physically, recover the
+//! pose of a duck resting on a table.
+
+use glam::{DMat3, DVec3};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
+use plausible::kernels::score::ScoreParams;
+use plausible::kernels::RenderMesh;
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+use plausible::physical::batch::PlanePhysics;
+use plausible::pose::{axis_angle, Pose};
+use plausible::support_plane::{fit_support_plane, PlaneFitParams};
+use plausible::synth::{linemod_camera, look_at, observe_on_table, SensorNoise};
+use plausible::visual::{ranks_with_physics, score_poses_with_physics, Device};
+
+fn duck() -> Mesh {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
+    Mesh::load(path, MeshUnits::Metres).unwrap().0.normalized(0.15)
+}
+
+/// The duck resting on the table in its `rest`-th analytic pose, turned by
+/// `yaw` and moved to `(x, y)`.
+fn on_table(mesh: &Mesh, rest: usize, yaw: f64, x: f64, y: f64) -> Pose {
+    let rests = analytic_resting_poses(mesh).unwrap();
+    let r = axis_angle(DVec3::Z, yaw) * rests[rest].r_model_to_plane;
+    let low = mesh.vertices.iter().map(|&v| (r * v).z).fold(f64::INFINITY, f64::min);
+    Pose::new(r, DVec3::new(x, y, -low))
+}
+
+#[test]
+fn stable_pose_hypotheses_recover_a_duck_on_a_table() {
+    let mesh = duck();
+    let rmesh = RenderMesh::new(&mesh).unwrap();
+    let k = linemod_camera();
+    let rests = analytic_resting_poses(&mesh).unwrap();
+    assert!(rests.len() >= 2 && (rests.iter().map(|r| r.probability).sum::<f64>() - 1.0).abs() < 1e-6);
+    let device = match plausible::gpu::test_context() {
+        Some(ctx) => Device::Gpu(Box::new(ctx)),
+        None => Device::Cpu,
+    };
+    // Two scenes: the most probable resting pose and the second one, at yaws
+    // between the 15° steps, off the image centre.
+    for (scene, (rest, yaw, x, y)) in [(0usize, 35f64, 0.02, -0.01), (1, 100.0, -0.03, 0.02)].into_iter().enumerate() {
+        let truth_world = on_table(&mesh, rest, yaw.to_radians(), x, y);
+        let cam = look_at(DVec3::new(0.1, -0.5, 0.5), DVec3::new(0.0, 0.0, 0.04), DVec3::Z).unwrap();
+        let truth = cam.compose(&truth_world);
+        let (obs, mask, _) = observe_on_table(&mesh, &truth_world, &cam, &k, 1.0, SensorNoise::default(), scene as u64).unwrap();
+        let plane = fit_support_plane(&obs, Some(&mask), &PlaneFitParams::default()).unwrap().plane;
+        let hyps = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &OnPlaneParams::default()).unwrap();
+        let poses: Vec<Pose> = hyps.iter().map(|h| h.pose).collect();
+        let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN).unwrap();
+        let physics = PlanePhysics::new(&mesh, &plane, None, 1024, 0, None).unwrap();
+        let (records, evals, _) =
+            score_poses_with_physics(&device, &rmesh, &target, &poses, ScoreParams::default(), &physics, |_| {}).unwrap();
+        let rank = ranks_with_physics(&records, &evals);
+        let best = rank.iter().position(|&r| r == 1).unwrap();
+        let angle = poses[best].rotation_angle_to(&truth).to_degrees();
+        let dist = (poses[best].t - truth.t).length();
+        eprintln!(
+            "scene {scene}: {} hypotheses; best {best} (rest {}, yaw {:.0}°) is {angle:.1}° and {:.1} mm from the truth, {:?}, score {:.3}",
+            poses.len(),
+            hyps[best].rest,
+            hyps[best].yaw.to_degrees(),
+            dist * 1e3,
+            evals[best].verdict,
+            records[best].score
+        );
+        assert_eq!(hyps[best].rest, rest);
+        assert!(angle < 11.0 && dist < 0.01, "scene {scene}: {angle}°, {dist} m");
+        // Every hypothesis rests on the fitted plane.
+        assert!(evals.iter().all(|e| e.min_distance.abs() < 1e-3), "hypotheses are put on the plane");
+    }
+}
+
+/// The stable-pose export JSON: the entry is found by hash, as the only
+/// entry, or by name; malformed entries are errors that say what is wrong.
+#[test]
+fn resting_poses_are_read_from_a_stable_pose_export() {
+    let r = DMat3::from_cols_array(&[0.0, 0.0, -1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0]).transpose();
+    let cluster = |p: f64| serde_json::json!({"probability": p, "R_model_to_plane": DMat3::to_cols_array(&r.transpose())});
+    let export = |meshes: Vec<serde_json::Value>| serde_json::json!({"format": "plausible-stable-poses/1", "meshes": meshes}).to_string();
+    let a = serde_json::json!({"mesh": "models/duck.obj", "sha256": "aa", "clusters": [cluster(0.6), cluster(0.4)]});
+    let b = serde_json::json!({"mesh": "models/box.ply", "sha256": "bb", "clusters": [cluster(1.0)]});
+    let one = resting_poses_from_export(&export(vec![a.clone()]), "zz", "whatever").unwrap();
+    assert_eq!(one.len(), 2);
+    assert!((one[0].r_model_to_plane - r).to_cols_array().iter().all(|x| x.abs() < 1e-12));
+    assert_eq!(resting_poses_from_export(&export(vec![a.clone(), b.clone()]), "bb", "duck").unwrap().len(), 1);
+    assert_eq!(resting_poses_from_export(&export(vec![a.clone(), b.clone()]), "zz", "duck").unwrap().len(), 2);
+    let err = resting_poses_from_export(&export(vec![a.clone(), b]), "zz", "cup").unwrap_err().to_string();
+    assert!(err.contains("no entry for this mesh") && err.contains("duck, box"), "{err}");
+    let skewed = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [1, 0, 0, 0, 2, 0, 0, 0, 1]}]});
+    assert!(resting_poses_from_export(&export(vec![skewed]), "x", "x").unwrap_err().to_string().contains("not a rotation"));
+    assert!(resting_poses_from_export("{}", "x", "x").unwrap_err().to_string().contains("\"meshes\""));
+}
