@@ -92,4 +92,15 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     let skewed = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [1, 0, 0, 0, 2, 0, 0, 0, 1]}]});
     assert!(resting_poses_from_export(&export(vec![skewed]), "x", "x").unwrap_err().to_string().contains("not a rotation"));
     assert!(resting_poses_from_export("{}", "x", "x").unwrap_err().to_string().contains("\"meshes\""));
+    // A rolling family: 12 roll angles sharing its probability, each with
+    // the rolling axis horizontal.
+    let can = serde_json::json!({"mesh": "can.obj", "sha256": "c", "clusters": [cluster(0.4)],
+        "families": [{"kind": "circle", "axis": [0.0, 0.0, 1.0], "probability": 0.6},
+                     {"kind": "scattered", "axis": null, "probability": 0.0}]});
+    let rests = resting_poses_from_export(&export(vec![can]), "c", "can").unwrap();
+    assert_eq!(rests.len(), 1 + 12);
+    for r in &rests[1..] {
+        assert!((r.probability - 0.05).abs() < 1e-12);
+        assert!((r.r_model_to_plane * DVec3::Z).z.abs() < 1e-12, "the axis lies flat");
+    }
 }

@@ -89,7 +89,8 @@ pub fn analytic_resting_poses(mesh: &Mesh) -> Result<Vec<RestingPose>> {
 
 /// The resting poses of one mesh in a `plausible stable-poses export` JSON:
 /// the entry whose `sha256` matches `sha256`, else the only entry, else the
-/// one whose file name stem is `name`.
+/// one whose file name stem is `name`. Clusters give one resting pose each,
+/// rolling families [`ROLL_STEPS`] (their probability split evenly).
 pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<Vec<RestingPose>> {
     let v: serde_json::Value = serde_json::from_str(text).map_err(|e| Error::InvalidInput(format!("stable-pose JSON: {e}")))?;
     let meshes = v["meshes"].as_array().ok_or_else(|| Error::InvalidInput("stable-pose JSON: no \"meshes\" list".into()))?;
@@ -122,11 +123,40 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
         }
         out.push(RestingPose { r_model_to_plane: r, probability: p });
     }
+    // Rolling families (a cylinder on its side): gravity anywhere on the
+    // great circle normal to the axis, sampled at ROLL_STEPS angles that
+    // share the family's probability. Scattered (ball-like) families have no
+    // resting orientation to offer and are left out.
+    let families = entry["families"].as_array().map(Vec::as_slice).unwrap_or(&[]);
+    for (i, f) in families.iter().enumerate() {
+        if f["kind"] != "circle" {
+            continue;
+        }
+        let axis: Vec<f64> = f["axis"].as_array().map(|a| a.iter().filter_map(|x| x.as_f64()).collect()).unwrap_or_default();
+        let (Ok(axis), Some(p)) = (<[f64; 3]>::try_from(axis), f["probability"].as_f64()) else {
+            return Err(Error::InvalidInput(format!("stable-pose JSON: family {i} needs axis (3 numbers) and probability")));
+        };
+        let axis = DVec3::from_array(axis).normalize();
+        if !axis.is_finite() {
+            return Err(Error::InvalidInput(format!("stable-pose JSON: family {i} has a zero axis")));
+        }
+        let start = axis.any_orthonormal_vector();
+        for k in 0..ROLL_STEPS {
+            let g = axis_angle(axis, std::f64::consts::TAU * k as f64 / ROLL_STEPS as f64) * start;
+            out.push(RestingPose {
+                r_model_to_plane: rows(&crate::stable::cluster::canonical_rotation(g)),
+                probability: p / ROLL_STEPS as f64,
+            });
+        }
+    }
     if out.is_empty() {
         return Err(Error::InvalidInput("stable-pose JSON: the mesh has no clusters (did its drops settle?)".into()));
     }
     Ok(out)
 }
+
+/// Roll angles a rolling family is sampled at (30° apart).
+pub const ROLL_STEPS: usize = 12;
 
 fn rows(r: &[f64; 9]) -> DMat3 {
     DMat3::from_cols_array(r).transpose()
