@@ -7,6 +7,20 @@ fn plausible() -> Command {
     Command::new(env!("CARGO_BIN_EXE_plausible"))
 }
 
+/// `sub` on the demo's inputs in `out`: camera, depth and mask, plus the
+/// mesh unless `sub` is `plane`.
+fn on_demo(sub: &str, out: &std::path::Path) -> Command {
+    let mut c = plausible();
+    c.arg(sub);
+    if sub != "plane" {
+        c.arg("--mesh").arg(out.join("duck_0.15m.obj"));
+    }
+    c.arg("--camera").arg(out.join("camera.json"));
+    c.arg("--depth").arg(out.join("depth.png"));
+    c.arg("--mask").arg(out.join("mask.png"));
+    c
+}
+
 fn device_args() -> Vec<&'static str> {
     // Use the GPU when one exists (and insist on it when CI requires it).
     if plausible::gpu::test_context().is_some() {
@@ -37,12 +51,7 @@ fn demo_then_score_round_trip() {
     let json = dir.path().join("scores.json");
     let csv = dir.path().join("scores.csv");
     for (path, dev) in [(&json, device_args()), (&csv, vec!["--device", "cpu"])] {
-        let o = plausible()
-            .arg("score")
-            .arg("--mesh").arg(out.join("duck_0.15m.obj"))
-            .arg("--camera").arg(out.join("camera.json"))
-            .arg("--depth").arg(out.join("depth.png"))
-            .arg("--mask").arg(out.join("mask.png"))
+        let o = on_demo("score", &out)
             .arg("--poses").arg(out.join("poses.json"))
             .args(["--top", "3", "--quiet", "--out"])
             .arg(path)
@@ -81,11 +90,7 @@ fn plane_then_score_with_physics() {
     let o = plausible().args(["demo", "--n", "300", "--out"]).arg(&out).args(device_args()).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let plane = dir.path().join("plane.json");
-    let o = plausible()
-        .arg("plane")
-        .arg("--camera").arg(out.join("camera.json"))
-        .arg("--depth").arg(out.join("depth.png"))
-        .arg("--mask").arg(out.join("mask.png"))
+    let o = on_demo("plane", &out)
         .arg("--out").arg(&plane)
         .output()
         .unwrap();
@@ -98,12 +103,7 @@ fn plane_then_score_with_physics() {
     assert!(v(&b, "normal").dot(v(&a, "point") - v(&b, "point")).abs() < 0.1, "mm");
 
     let json = dir.path().join("records.json");
-    let o = plausible()
-        .arg("score")
-        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
-        .arg("--camera").arg(out.join("camera.json"))
-        .arg("--depth").arg(out.join("depth.png"))
-        .arg("--mask").arg(out.join("mask.png"))
+    let o = on_demo("score", &out)
         .arg("--poses").arg(out.join("poses.json"))
         .arg("--plane").arg(&plane)
         .args(["--physics", "--quiet", "--out"])
@@ -145,12 +145,7 @@ fn plane_then_score_with_physics() {
     // each, all of them resting on the plane, the best within 10° and 5 mm of
     // the demo's truth (index 0 of poses.json).
     let hyps = dir.path().join("hyps.json");
-    let o = plausible()
-        .arg("hypotheses")
-        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
-        .arg("--camera").arg(out.join("camera.json"))
-        .arg("--depth").arg(out.join("depth.png"))
-        .arg("--mask").arg(out.join("mask.png"))
+    let o = on_demo("hypotheses", &out)
         .arg("--plane").arg(&plane)
         .arg("--out").arg(&hyps)
         .output()
@@ -160,12 +155,7 @@ fn plane_then_score_with_physics() {
     assert_eq!(list.len() % 24, 0);
     assert!(list[0].get("rest").is_some() && list[0].get("yaw_deg").is_some());
     let scored = dir.path().join("hyps-scored.json");
-    let o = plausible()
-        .arg("score")
-        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
-        .arg("--camera").arg(out.join("camera.json"))
-        .arg("--depth").arg(out.join("depth.png"))
-        .arg("--mask").arg(out.join("mask.png"))
+    let o = on_demo("score", &out)
         .arg("--poses").arg(&hyps)
         .arg("--plane").arg(&plane)
         .args(["--physics", "--quiet", "--out"])
@@ -186,25 +176,19 @@ fn plane_then_score_with_physics() {
     // The resting poses can come from a drop-test database instead.
     let db = dir.path().join("stable.sqlite");
     let export = dir.path().join("stable.json");
-    let run = |args: &[&std::ffi::OsStr]| {
-        let o = plausible().args(args).output().unwrap();
+    let run = |c: &mut Command| {
+        let o = c.output().unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         String::from_utf8_lossy(&o.stdout).into_owned()
     };
     let mesh = out.join("duck_0.15m.obj");
-    run(&["stable-poses".as_ref(), mesh.as_os_str(), "--mesh-units".as_ref(), "m".as_ref(), "--drops".as_ref(), "200".as_ref(), "--quiet".as_ref(), "--db".as_ref(), db.as_os_str()]);
-    run(&["stable-poses".as_ref(), "export".as_ref(), "--db".as_ref(), db.as_os_str(), "--json".as_ref(), export.as_os_str()]);
-    let text = run(&[
-        "hypotheses".as_ref(),
-        "--mesh".as_ref(), mesh.as_os_str(),
-        "--camera".as_ref(), out.join("camera.json").as_os_str(),
-        "--depth".as_ref(), out.join("depth.png").as_os_str(),
-        "--mask".as_ref(), out.join("mask.png").as_os_str(),
-        "--plane".as_ref(), plane.as_os_str(),
-        "--stable".as_ref(), export.as_os_str(),
-        "--yaw-steps".as_ref(), "12".as_ref(),
-        "--out".as_ref(), hyps.as_os_str(),
-    ]);
+    run(plausible().arg("stable-poses").arg(&mesh).args(["--mesh-units", "m", "--drops", "200", "--quiet", "--db"]).arg(&db));
+    run(plausible().args(["stable-poses", "export", "--db"]).arg(&db).arg("--json").arg(&export));
+    let text = run(on_demo("hypotheses", &out)
+        .arg("--plane").arg(&plane)
+        .arg("--stable").arg(&export)
+        .args(["--yaw-steps", "12", "--out"])
+        .arg(&hyps));
     assert!(text.contains("from drop-test clusters"), "{text}");
     let list: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&hyps).unwrap()).unwrap();
     assert!(!list.is_empty() && list.len() % 12 == 0);

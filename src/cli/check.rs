@@ -16,16 +16,8 @@ pub struct CheckArgs {
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
-    /// Surface samples per object.
-    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SAMPLES)]
-    pub samples: usize,
-    /// Seed of the surface sampling.
-    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SEED)]
-    pub seed: u64,
-    /// Contact tolerance ε in metres (default: half the sample spacing,
-    /// clamped to 2-5 mm, per object).
-    #[arg(long)]
-    pub epsilon: Option<f64>,
+    #[command(flatten)]
+    pub sampling: super::SampleArgs,
     /// Signed-distance grid cells across each mesh's longest side.
     #[arg(long, default_value_t = plausible::physical::sdf::DEFAULT_RESOLUTION)]
     pub sdf_resolution: usize,
@@ -130,9 +122,9 @@ pub fn run(a: CheckArgs) -> Result<()> {
     let scene =
         Scene::load(&a.scene).with_context(|| format!("reading scene {}", a.scene.display()))?;
     let opts = CheckOptions {
-        samples: a.samples,
-        seed: a.seed,
-        epsilon: a.epsilon,
+        samples: a.sampling.samples,
+        seed: a.sampling.seed,
+        epsilon: a.sampling.epsilon,
         sdf_resolution: a.sdf_resolution,
         friction: a.friction,
     };
@@ -157,8 +149,8 @@ pub fn run(a: CheckArgs) -> Result<()> {
         let report = Report {
             version: env!("CARGO_PKG_VERSION"),
             scene: a.scene.display().to_string(),
-            samples: a.samples,
-            seed: a.seed,
+            samples: a.sampling.samples,
+            seed: a.sampling.seed,
             friction: a.friction,
             objects: checks
                 .iter()

@@ -6,30 +6,14 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
-use plausible::mesh::{Mesh, MeshUnits};
-use plausible::observation::{read_camera, read_depth_png, read_mask_png};
 use plausible::physical::scene::read_camera_plane;
 
 #[derive(clap::Args, Debug)]
 pub struct HypothesesArgs {
-    /// Object mesh (.obj, .ply, .stl, .gltf, .glb).
-    #[arg(long)]
-    pub mesh: PathBuf,
-    /// Units of the mesh file: m, mm or auto.
-    #[arg(long, default_value = "auto")]
-    pub mesh_units: MeshUnits,
-    /// Camera JSON: a BOP scene_camera.json entry (or a whole file with --frame).
-    #[arg(long)]
-    pub camera: PathBuf,
-    /// Frame id to pick from a whole scene_camera.json.
-    #[arg(long)]
-    pub frame: Option<String>,
-    /// 16-bit depth PNG (value x depth_scale = millimetres).
-    #[arg(long)]
-    pub depth: PathBuf,
-    /// 8-bit mask PNG of the object (non-zero = object).
-    #[arg(long)]
-    pub mask: PathBuf,
+    #[command(flatten)]
+    pub mesh: super::MeshArgs,
+    #[command(flatten)]
+    pub obs: super::ObservationArgs,
     /// Support plane in the camera frame (`plausible plane` writes one).
     #[arg(long)]
     pub plane: PathBuf,
@@ -58,18 +42,16 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     if !(0.0..1.0).contains(&a.min_probability) {
         bail!("--min-probability must lie in [0, 1)");
     }
-    let (mesh, report) = Mesh::load(&a.mesh, a.mesh_units)?;
-    for w in &report.warnings {
-        eprintln!("warning: {}: {w}", a.mesh.display());
-    }
-    let cam = read_camera(&a.camera, a.frame.as_deref())?;
-    let obs = read_depth_png(&a.depth, &cam)?;
-    let mask = read_mask_png(&a.mask, obs.intrinsics.width, obs.intrinsics.height)?;
+    let mesh = a.mesh.load()?;
+    let (obs, mask) = a.obs.load()?;
+    let Some(mask) = mask else {
+        bail!("--mask is required: the object's observed points place the hypotheses on the plane");
+    };
     let plane = read_camera_plane(&a.plane)?;
     let (rests, source) = match &a.stable {
         Some(path) => {
             let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-            let stem = a.mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let stem = a.mesh.mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             let sha = plausible::stable::mesh_sha256(&mesh);
             let rests = resting_poses_from_export(&text, &sha, &stem).with_context(|| path.display().to_string())?;
             (rests, format!("drop-test clusters of {}", path.display()))

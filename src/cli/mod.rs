@@ -14,7 +14,81 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use plausible::gpu::{Context, GpuOptions};
+use plausible::mesh::{Mesh, MeshUnits};
+use plausible::observation::{read_camera, read_depth_png, read_mask_png, DepthImage};
 use plausible::visual::Device;
+
+/// The object mesh, shared by the subcommands that take one.
+#[derive(clap::Args, Clone, Debug)]
+pub struct MeshArgs {
+    /// Object mesh (.obj, .ply, .stl, .gltf, .glb).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// Units of the mesh file: m, mm or auto (a bounding-box diagonal above
+    /// 5 m is taken as millimetres, and that is reported).
+    #[arg(long, default_value = "auto")]
+    pub mesh_units: MeshUnits,
+}
+
+impl MeshArgs {
+    /// Loads the mesh, printing its warnings.
+    pub fn load(&self) -> Result<Mesh> {
+        let (mesh, report) = Mesh::load(&self.mesh, self.mesh_units)?;
+        for w in &report.warnings {
+            eprintln!("warning: {}: {w}", self.mesh.display());
+        }
+        Ok(mesh)
+    }
+}
+
+/// An observed depth frame (BOP files), shared by the subcommands that
+/// read one.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ObservationArgs {
+    /// Camera JSON: a BOP scene_camera.json entry {"cam_K": [...], "depth_scale": s}
+    /// (or a whole scene_camera.json with --frame).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// Frame id to pick from a whole scene_camera.json.
+    #[arg(long)]
+    pub frame: Option<String>,
+    /// 16-bit depth PNG (value x depth_scale = millimetres).
+    #[arg(long)]
+    pub depth: PathBuf,
+    /// 8-bit mask PNG of the object, non-zero = object (`score` without
+    /// one scores the whole frame; `plane` leaves the mask, grown by
+    /// --mask-margin, out; `hypotheses` needs it).
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+}
+
+impl ObservationArgs {
+    /// Reads the depth and, when given, the mask.
+    pub fn load(&self) -> Result<(DepthImage, Option<Vec<bool>>)> {
+        let cam = read_camera(&self.camera, self.frame.as_deref())?;
+        let obs = read_depth_png(&self.depth, &cam)?;
+        let mask = match &self.mask {
+            Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
+            None => None,
+        };
+        Ok((obs, mask))
+    }
+}
+
+/// Surface sampling of objects for the physical terms.
+#[derive(clap::Args, Clone, Debug)]
+pub struct SampleArgs {
+    /// Surface samples per object (physical terms).
+    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SAMPLES)]
+    pub samples: usize,
+    /// Seed of the surface sampling.
+    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SEED)]
+    pub seed: u64,
+    /// Contact tolerance ε in metres (default: half the sample spacing,
+    /// clamped to 2-5 mm, per object).
+    #[arg(long)]
+    pub epsilon: Option<f64>,
+}
 
 /// Where to run, shared by every subcommand that runs kernels.
 #[derive(clap::Args, Clone, Debug)]

@@ -4,26 +4,13 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
-use plausible::observation::{read_camera, read_depth_png, read_mask_png};
 use plausible::physical::scene::CameraPlaneJson;
 use plausible::support_plane::{fit_support_plane, PlaneFitParams};
 
 #[derive(clap::Args, Debug)]
 pub struct PlaneArgs {
-    /// Camera JSON: a BOP scene_camera.json entry (or a whole file with --frame).
-    #[arg(long)]
-    pub camera: PathBuf,
-    /// Frame id to pick from a whole scene_camera.json.
-    #[arg(long)]
-    pub frame: Option<String>,
-    /// 16-bit depth PNG (value x depth_scale = millimetres).
-    #[arg(long)]
-    pub depth: PathBuf,
-    /// 8-bit mask PNG of the object (non-zero = object): its pixels, grown
-    /// by --mask-margin, are left out, and the object must lie on the
-    /// camera side of the plane.
-    #[arg(long)]
-    pub mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub obs: super::ObservationArgs,
     /// Write the plane here (JSON, point in mm).
     #[arg(long, default_value = "plane.json")]
     pub out: PathBuf,
@@ -45,12 +32,7 @@ pub fn run(a: PlaneArgs) -> Result<()> {
     if a.iterations == 0 {
         bail!("--iterations must be at least 1");
     }
-    let cam = read_camera(&a.camera, a.frame.as_deref())?;
-    let obs = read_depth_png(&a.depth, &cam)?;
-    let mask = match &a.mask {
-        Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
-        None => None,
-    };
+    let (obs, mask) = a.obs.load()?;
     let params = PlaneFitParams {
         inlier_m: a.inlier_mm * 1e-3,
         iterations: a.iterations,

@@ -7,38 +7,21 @@ use std::time::Instant;
 use anyhow::{bail, Context as _, Result};
 use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams, ScoreRecord};
 use plausible::kernels::RenderMesh;
-use plausible::mesh::{Mesh, MeshUnits};
-use plausible::observation::{read_camera, read_depth_png, read_mask_png, RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{read_poses, PoseUnits};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::scene::read_camera_plane;
 use plausible::physical::{Evaluation, Verdict};
 use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device};
 
-use super::DeviceArgs;
+use super::{DeviceArgs, MeshArgs, ObservationArgs, SampleArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct ScoreArgs {
-    /// Object mesh (.obj, .ply, .stl, .gltf, .glb).
-    #[arg(long)]
-    pub mesh: PathBuf,
-    /// Units of the mesh file: m, mm or auto (a bounding-box diagonal above
-    /// 5 m is taken as millimetres, and that is reported).
-    #[arg(long, default_value = "auto")]
-    pub mesh_units: MeshUnits,
-    /// Camera JSON: a BOP scene_camera.json entry {"cam_K": [...], "depth_scale": s}
-    /// (or a whole scene_camera.json with --frame).
-    #[arg(long)]
-    pub camera: PathBuf,
-    /// Frame id to pick from a whole scene_camera.json.
-    #[arg(long)]
-    pub frame: Option<String>,
-    /// 16-bit depth PNG (value x depth_scale = millimetres).
-    #[arg(long)]
-    pub depth: PathBuf,
-    /// 8-bit mask PNG, non-zero = object (default: the whole frame counts).
-    #[arg(long)]
-    pub mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub mesh: MeshArgs,
+    #[command(flatten)]
+    pub obs: ObservationArgs,
     /// Hypotheses: JSON list of {"cam_R_m2c": [9, row-major], "cam_t_m2c": [3, mm]}.
     #[arg(long)]
     pub poses: PathBuf,
@@ -77,16 +60,8 @@ pub struct ScoreArgs {
     /// within each group by visual score.
     #[arg(long, requires = "plane")]
     pub physics: bool,
-    /// Surface samples of the object for --physics.
-    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SAMPLES)]
-    pub samples: usize,
-    /// Seed of the surface sampling for --physics.
-    #[arg(long, default_value_t = plausible::physical::samples::DEFAULT_SEED)]
-    pub seed: u64,
-    /// Contact tolerance ε in metres for --physics (default: half the sample
-    /// spacing, clamped to 2-5 mm).
-    #[arg(long)]
-    pub epsilon: Option<f64>,
+    #[command(flatten)]
+    pub sampling: SampleArgs,
     /// Write a picture per explained hypothesis to this folder
     /// (`hypothesis_<index>.png`): observed depth | rendered depth |
     /// alignment, and with --physics the samples, support polygon and centre
@@ -110,16 +85,8 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     if a.tau > 1.0 {
         bail!("--tau {} m is larger than a metre: tau is in metres (the usual value is 0.02)", a.tau);
     }
-    let (mesh, report) = Mesh::load(&a.mesh, a.mesh_units)?;
-    for w in &report.warnings {
-        eprintln!("warning: {}: {w}", a.mesh.display());
-    }
-    let cam = read_camera(&a.camera, a.frame.as_deref())?;
-    let obs = read_depth_png(&a.depth, &cam)?;
-    let mask = match &a.mask {
-        Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
-        None => None,
-    };
+    let mesh = a.mesh.load()?;
+    let (obs, mask) = a.obs.load()?;
     let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
     let poses = read_poses(&a.poses, units, a.orthonormalize)?;
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
@@ -131,12 +98,13 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let physics = match (&a.plane, a.physics) {
         (Some(path), true) => {
             let plane = read_camera_plane(path)?;
-            if let Some(e) = a.epsilon {
+            if let Some(e) = a.sampling.epsilon {
                 if !(e.is_finite() && e > 0.0 && e < 0.05) {
                     bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
                 }
             }
-            Some(PlanePhysics::new(&mesh, &plane, None, a.samples, a.seed, a.epsilon)?)
+            let sm = &a.sampling;
+            Some(PlanePhysics::new(&mesh, &plane, None, sm.samples, sm.seed, sm.epsilon)?)
         }
         _ => None,
     };

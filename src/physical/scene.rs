@@ -109,6 +109,19 @@ pub struct CameraPlaneJson {
     pub units: Option<String>,
 }
 
+/// Parses JSON, saying so when the text holds NaN or Infinity (which JSON
+/// cannot: the usual cause of a parse error in machine-written files).
+fn parse<T: serde::de::DeserializeOwned>(text: &str) -> std::result::Result<T, String> {
+    serde_json::from_str(text).map_err(|e| {
+        let hint = if text.contains("NaN") || text.contains("Infinity") {
+            " (JSON has no NaN or Infinity: every number must be finite)"
+        } else {
+            ""
+        };
+        format!("{e}{hint}")
+    })
+}
+
 /// Reads a camera-frame support plane ([`CameraPlaneJson`]); the returned
 /// plane is in metres with a unit normal turned towards the camera.
 pub fn read_camera_plane(path: &Path) -> Result<Plane> {
@@ -119,13 +132,8 @@ pub fn read_camera_plane(path: &Path) -> Result<Plane> {
 /// Parses and validates a camera-frame support plane; `name` labels errors.
 pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
     let bad = |reason: String| Error::BadJson { path: name.to_path_buf(), reason };
-    let raw: CameraPlaneJson = serde_json::from_str(text).map_err(|e| {
-        let hint = if text.contains("NaN") || text.contains("Infinity") {
-            " (JSON has no NaN or Infinity: every number must be finite)"
-        } else {
-            ""
-        };
-        bad(format!("{e}{hint} (expected {{\"point\": [x, y, z], \"normal\": [nx, ny, nz], \"units\": \"mm\"}})"))
+    let raw: CameraPlaneJson = parse(text).map_err(|e| {
+        bad(format!("{e} (expected {{\"point\": [x, y, z], \"normal\": [nx, ny, nz], \"units\": \"mm\"}})"))
     })?;
     let scale = match raw.units.as_deref() {
         None | Some("mm") => 1e-3,
@@ -258,14 +266,7 @@ impl Scene {
             path: name.to_path_buf(),
             reason,
         };
-        let raw: RawScene = serde_json::from_str(text).map_err(|e| {
-            let hint = if text.contains("NaN") || text.contains("Infinity") {
-                " (JSON has no NaN or Infinity: every number must be finite)"
-            } else {
-                ""
-            };
-            bad(format!("{e}{hint}"))
-        })?;
+        let raw: RawScene = parse(text).map_err(bad)?;
         let camera = match raw.frame.as_deref() {
             None | Some("world") => false,
             Some("camera") => true,
