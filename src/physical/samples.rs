@@ -17,6 +17,13 @@ use crate::mesh::Mesh;
 /// SporeAgent's 1024 points).
 pub const DEFAULT_SAMPLES: usize = 1024;
 
+/// Most surface samples per object. The GPU kernels loop over an object's
+/// samples inside one shader invocation, and lavapipe silently ends every
+/// loop of an invocation after 65,535 iterations in total (see the README),
+/// so a larger count would give wrong results there rather than an error.
+/// 50,000 samples are a sample every ~0.3 mm on a 15 cm object.
+pub const MAX_SAMPLES: usize = 50_000;
+
 /// Default seed of the surface sampling.
 pub const DEFAULT_SEED: u64 = 0;
 
@@ -32,6 +39,11 @@ pub fn surface_samples(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<DVec3
         return Err(Error::InvalidInput(
             "the number of surface samples must be at least 1".into(),
         ));
+    }
+    if count > MAX_SAMPLES {
+        return Err(Error::InvalidInput(format!(
+            "{count} surface samples per object is more than the {MAX_SAMPLES} the GPU kernels take; use fewer"
+        )));
     }
     let mut cumulative = Vec::with_capacity(mesh.triangles.len());
     let mut total = 0.0;
@@ -77,6 +89,14 @@ pub fn default_epsilon(spacing: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sample_counts_outside_what_the_kernels_take_are_errors() {
+        let m = crate::shapes::cuboid(DVec3::splat(0.05));
+        assert!(surface_samples(&m, 0, 0).unwrap_err().to_string().contains("at least 1"));
+        assert!(surface_samples(&m, MAX_SAMPLES + 1, 0).unwrap_err().to_string().contains("use fewer"));
+        assert_eq!(surface_samples(&m, MAX_SAMPLES, 0).unwrap().len(), MAX_SAMPLES);
+    }
 
     #[test]
     fn samples_are_on_the_surface_and_area_weighted() {
