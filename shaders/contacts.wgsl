@@ -131,6 +131,23 @@ fn contacts_main(
     let bound = params.gravity.w;
     for (var h = gid.x; h < params.n_hyp; h += nwg.x * WG) {
         let p = poses[h];
+        // The scene in this hypothesis' model frame, once per hypothesis, so
+        // a sample needs no world position: planes as (Rᵀn, w − n·t), grids
+        // as the composite model -> grid-model rows.
+        var pm: array<vec4<f32>, 4>;
+        for (var k = 0u; k < N_PLANES; k += 1u) {
+            let pl = params.planes[k];
+            let t = vec3<f32>(p.rows[0].w, p.rows[1].w, p.rows[2].w);
+            pm[k] = vec4<f32>(pl.x * p.rows[0].xyz + pl.y * p.rows[1].xyz + pl.z * p.rows[2].xyz, pl.w - dot(pl.xyz, t));
+        }
+        var gm: array<array<vec4<f32>, 3>, 16>;
+        for (var k = 0u; k < N_GRIDS; k += 1u) {
+            let t = vec3<f32>(p.rows[0].w, p.rows[1].w, p.rows[2].w);
+            for (var i = 0u; i < 3u; i += 1u) {
+                let gi = params.grids[k].inv[i];
+                gm[k][i] = vec4<f32>(gi.x * p.rows[0].xyz + gi.y * p.rows[1].xyz + gi.z * p.rows[2].xyz, dot(gi.xyz, t) + gi.w);
+            }
+        }
         var cnt = vec3<u32>(0u);
         var mn = 3.0e38;
         for (var w = 0u; w < params.words; w += 1u) {
@@ -139,22 +156,21 @@ fn contacts_main(
             let j0 = w * 32u;
             let j1 = min(j0 + 32u, params.n_samples);
             for (var j = j0; j < j1; j += 1u) {
-                let x = apply(p.rows[0], p.rows[1], p.rows[2], samples[j].xyz);
+                let sm = samples[j].xyz;
                 // Closest component: its δ and world unit normal (grids:
                 // computed only for candidates in the contact band).
                 var d = 3.0e38;
                 var n = vec3<f32>(0.0);
                 var refine = false;
                 for (var k = 0u; k < N_PLANES; k += 1u) {
-                    let pl = params.planes[k];
-                    let dk = dot(pl.xyz, x) - pl.w;
+                    let dk = dot(pm[k].xyz, sm) - pm[k].w;
                     if (dk < d) {
                         d = dk;
-                        n = pl.xyz;
+                        n = params.planes[k].xyz;
                     }
                 }
                 for (var k = 0u; k < N_GRIDS; k += 1u) {
-                    let q = apply(params.grids[k].inv[0], params.grids[k].inv[1], params.grids[k].inv[2], x);
+                    let q = apply(gm[k][0], gm[k][1], gm[k][2], sm);
                     let r = grid_query(k, q);
                     let c = r.w;
                     if (abs(c) < eps + bound) {
