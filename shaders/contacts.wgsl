@@ -72,43 +72,52 @@ fn apply(r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32>, x: vec3<f32>) -> vec3<f32>
     return vec3<f32>(dot(r0.xyz, x) + r0.w, dot(r1.xyz, x) + r1.w, dot(r2.xyz, x) + r2.w);
 }
 
-// Grid k at model-frame point q: the gradient of the trilinear interpolant
-// (xyz, model frame, not unit: the closest-surface normal direction) and
-// the trilinear δ (w), from the same eight loads. Outside the grid box: the
-// lower bound |to box| + margin and no gradient.
-fn grid_query(k: u32, q: vec3<f32>) -> vec4<f32> {
+// The eight node values around a model-frame point of grid k (z = 0
+// corners in `lo`, z = 1 corners in `hi`, each ordered 000, 100, 010, 110
+// in x and y), the point's fraction in that cell, and its offset from the
+// grid box (zero inside).
+struct Cell { lo: vec4<f32>, hi: vec4<f32>, f: vec3<f32>, out: vec3<f32> }
+
+fn grid_cell(k: u32, q: vec3<f32>) -> Cell {
     // Branch-free: look up at the point clamped into the box (SIMD lanes
-    // stay together), then take the lower bound for points outside.
+    // stay together); callers take the lower bound for points outside.
     let o = params.grids[k].origin;
     let up = params.grids[k].upper;
     let qc = clamp(q, o.xyz, up.xyz);
-    let out = q - qc;
     let dims = params.grids[k].dims;
     let dimf = vec3<f32>(dims.xyz);
     // Cell coordinates (o.w is 1/h); index arithmetic in f32 (exact below
     // 2^24 nodes, checked on the CPU) avoids slow vector integer multiplies.
     let u = (qc - o.xyz) * o.w;
     let cell = min(floor(u), dimf - vec3<f32>(2.0));
-    let f = u - cell;
-    let sy = dimf.x;
-    let sz = dimf.x * dimf.y;
-    let b = u32(dot(cell, vec3<f32>(1.0, sy, sz))) + dims.w;
+    let b = u32(dot(cell, vec3<f32>(1.0, dimf.x, dimf.x * dimf.y))) + dims.w;
     let iy = dims.x;
     let iz = dims.x * dims.y;
-    let c000 = dist[b];
-    let c100 = dist[b + 1u];
-    let c010 = dist[b + iy];
-    let c110 = dist[b + iy + 1u];
-    let c001 = dist[b + iz];
-    let c101 = dist[b + iz + 1u];
-    let c011 = dist[b + iz + iy];
-    let c111 = dist[b + iz + iy + 1u];
-    let gx = mix(mix(c100 - c000, c110 - c010, f.y), mix(c101 - c001, c111 - c011, f.y), f.z);
-    let gy = mix(mix(c010 - c000, c110 - c100, f.x), mix(c011 - c001, c111 - c101, f.x), f.z);
-    let gz = mix(mix(c001 - c000, c101 - c100, f.x), mix(c011 - c010, c111 - c110, f.x), f.y);
-    let d = mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
-    let outside = any(out != vec3<f32>(0.0));
-    return select(vec4<f32>(gx, gy, gz, d), vec4<f32>(0.0, 0.0, 0.0, length(out) + up.w), outside);
+    let lo = vec4<f32>(dist[b], dist[b + 1u], dist[b + iy], dist[b + iy + 1u]);
+    let hi = vec4<f32>(dist[b + iz], dist[b + iz + 1u], dist[b + iz + iy], dist[b + iz + iy + 1u]);
+    return Cell(lo, hi, u - cell, q - qc);
+}
+
+// The trilinear δ of a cell; outside the grid box the lower bound
+// |to box| + margin.
+fn cell_distance(k: u32, c: Cell) -> f32 {
+    let z = mix(c.lo, c.hi, c.f.z);
+    let d = mix(mix(z.x, z.y, c.f.x), mix(z.z, z.w, c.f.x), c.f.y);
+    return select(d, length(c.out) + params.grids[k].upper.w, any(c.out != vec3<f32>(0.0)));
+}
+
+// The gradient of the trilinear interpolant (model frame, not unit: the
+// closest-surface normal direction); zero outside the grid box. Only
+// samples in the contact band need it.
+fn cell_gradient(c: Cell) -> vec3<f32> {
+    let f = c.f;
+    let dx = vec4<f32>(c.lo.y - c.lo.x, c.lo.w - c.lo.z, c.hi.y - c.hi.x, c.hi.w - c.hi.z);
+    let dy = vec4<f32>(c.lo.z - c.lo.x, c.lo.w - c.lo.y, c.hi.z - c.hi.x, c.hi.w - c.hi.y);
+    let dz = c.hi - c.lo;
+    let gx = mix(mix(dx.x, dx.y, f.y), mix(dx.z, dx.w, f.y), f.z);
+    let gy = mix(mix(dy.x, dy.y, f.x), mix(dy.z, dy.w, f.x), f.z);
+    let gz = mix(mix(dz.x, dz.y, f.x), mix(dz.z, dz.w, f.x), f.y);
+    return select(vec3<f32>(gx, gy, gz), vec3<f32>(0.0), any(c.out != vec3<f32>(0.0)));
 }
 
 // A model-frame gradient of grid k as a world-frame unit normal (or zero).
@@ -171,11 +180,11 @@ fn contacts_main(
                 }
                 for (var k = 0u; k < N_GRIDS; k += 1u) {
                     let q = apply(gm[k][0], gm[k][1], gm[k][2], sm);
-                    let r = grid_query(k, q);
-                    let c = r.w;
+                    let cl = grid_cell(k, q);
+                    let c = cell_distance(k, cl);
                     if (abs(c) < eps + bound) {
                         // Only candidates in the contact band need a normal.
-                        let nk = grid_normal(k, r.xyz);
+                        let nk = grid_normal(k, cell_gradient(cl));
                         if (abs(abs(c) - eps) <= bound || dot(nk, g) > REFINE_COS) {
                             refine = true;
                         }
