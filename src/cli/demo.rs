@@ -94,7 +94,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     let noise = SensorNoise::default();
     let (obs, mask, true_plane) = observe_on_table(&mesh, &on_table, &cam_from_world, &k, 1.0, noise, a.seed)?;
     println!(
-        "scene: the duck in its most probable resting pose ({:.0} % of random drops) on a table, seen from 0.7 m at 45°",
+        "scene: the duck in its most probable resting pose (probability {:.0} % by the quasi-static analysis) on a table, seen from 0.7 m at 45°",
         probability * 100.0
     );
     println!(
