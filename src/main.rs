@@ -34,6 +34,14 @@ enum Command {
 }
 
 fn main() {
+    // Rust ignores SIGPIPE, so `plausible score ... | head` would panic on
+    // the first print after `head` exits. Die quietly like other Unix tools.
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any other thread exists;
+    // SIG_DFL is a valid action for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => "warn",

@@ -209,3 +209,24 @@ fn score_reports_bad_input_without_panicking() {
     assert!(err.contains("error: /nonexistent/m.obj: file not found"), "{err}");
     assert!(!err.contains("panicked"));
 }
+
+/// `plausible ... | head -1`: the binary ends quietly when its reader goes
+/// away, without a panic.
+#[test]
+fn closed_stdout_ends_quietly() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = plausible()
+        .args(["demo", "--n", "64", "--device", "cpu", "--out"])
+        .arg(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    assert!(first.starts_with("mesh:"), "{first}");
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+}
