@@ -43,6 +43,11 @@ struct Grid {
 struct Params {
     n_hyp: u32, n_samples: u32, n_planes: u32, n_grids: u32,
     eps: f32, support_cos: f32, write_deltas: u32, words: u32,
+    // This dispatch classifies sample words [word_begin, word_end) and
+    // continues the records of the previous one unless word_begin is 0
+    // (lavapipe ends all loops of an invocation after 65,535 iterations, so
+    // large sample counts against many grids take several dispatches).
+    word_begin: u32, word_end: u32, pad0: u32, pad1: u32,
     // Unit gravity direction (xyz), largest grid error bound (w).
     gravity: vec4<f32>,
     // Up to 4 planes: unit normal (xyz), offset (w): δ = n·x − w.
@@ -159,7 +164,12 @@ fn contacts_main(
         }
         var cnt = vec3<u32>(0u);
         var mn = 3.0e38;
-        for (var w = 0u; w < params.words; w += 1u) {
+        if (params.word_begin > 0u) {
+            let r = records[h];
+            cnt = vec3<u32>(r.intersecting, r.contact, r.supported);
+            mn = r.min_delta;
+        }
+        for (var w = params.word_begin; w < params.word_end; w += 1u) {
             var bits = 0u;
             var rbits = 0u;
             let j0 = w * 32u;

@@ -935,3 +935,49 @@ fn support_plane_fit_ignores_clutter() {
         assert!(angle < 0.2 && offset < 1e-3, "trial {trial}: {angle}°, {offset} m, {fit:?}");
     }
 }
+
+/// Regression (lavapipe ends all loops of an invocation after 65,535
+/// iterations): 50,000 samples against a plane and 6 grids need several
+/// dispatches per batch; the GPU must still match the CPU twin on every
+/// count, not stop after the first ~8,000 samples.
+#[test]
+fn max_samples_against_many_grids_match_the_cpu_twin() {
+    use std::sync::Arc;
+    use plausible::physical::contacts::{evaluate_batch, Body, Environment, Obstacle};
+    use plausible::physical::gpu::{words_per_dispatch, GpuContacts};
+    use plausible::physical::samples::MAX_SAMPLES;
+    use plausible::physical::scene::Plane;
+    use plausible::physical::sdf::{SdfGrid, DEFAULT_RESOLUTION};
+    use plausible::pose::Pose;
+    use rand::{Rng, SeedableRng};
+    let Some(ctx) = plausible::gpu::test_context() else { return };
+    let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
+    let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
+    let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());
+    let (lo, _) = cyl.bounds();
+    let n_grids = 6;
+    assert!(words_per_dispatch(1, n_grids) * 32 < MAX_SAMPLES, "the test must need several dispatches");
+    // The cylinders side by side 0.3 m apart; the cube rests near the first.
+    let obstacles = (0..n_grids)
+        .map(|k| Obstacle { sdf: grid.clone(), pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.3 * k as f64, 0.0, -lo.z)) })
+        .collect();
+    let env = Environment { planes: vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }], obstacles, gravity: DVec3::new(0.0, 0.0, -9.81) };
+    let body = Body::new(&cube, MAX_SAMPLES, 5, None).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let poses: Vec<Pose> = (0..16)
+        .map(|_| {
+            let r = axis_angle(DVec3::Z, rng.random_range(0.0..6.3));
+            let t = DVec3::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03), 0.06 + rng.random_range(-0.004..0.004));
+            Pose::new(r, t)
+        })
+        .collect();
+    let cpu = evaluate_batch(&body, &poses, &env);
+    let gpu = GpuContacts::new(&ctx, &body, &env, 64, false).unwrap();
+    let out = gpu.run(&poses).unwrap();
+    let gev = gpu.finish(&poses, &out);
+    for (i, (c, g)) in cpu.iter().zip(&gev).enumerate() {
+        assert_eq!((c.intersecting, c.contact, c.supported, c.verdict), (g.intersecting, g.contact, g.supported, g.verdict), "pose {i}");
+        assert!((c.min_distance - g.min_distance).abs() < 2e-3, "pose {i}");
+    }
+    assert!(cpu.iter().any(|e| e.contact > 1000), "the poses touch the cylinder's top");
+}

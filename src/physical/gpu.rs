@@ -50,11 +50,32 @@ pub struct ContactParams {
     pub support_cos: f32,
     pub write_deltas: u32,
     pub words: u32,
+    /// The sample words `[word_begin, word_end)` this dispatch classifies
+    /// (a dispatch continues the records of the one before it unless
+    /// `word_begin` is 0): see [`words_per_dispatch`].
+    pub word_begin: u32,
+    pub word_end: u32,
+    pub pad: [u32; 2],
     pub gravity: [f32; 4],
     pub planes: [[f32; 4]; MAX_PLANES],
     pub grids: [GpuGrid; MAX_GRIDS],
 }
-const _: () = assert!(std::mem::size_of::<ContactParams>() == 112 + 96 * MAX_GRIDS);
+const _: () = assert!(std::mem::size_of::<ContactParams>() == 128 + 96 * MAX_GRIDS);
+
+/// Loop iterations one invocation may run on lavapipe, with a margin below
+/// llvmpipe's silent cap of 65,535 (all loops of an invocation together;
+/// past it every loop ends early and the results are wrong, not an error).
+const LOOP_BUDGET: usize = 60_000;
+
+/// Sample words (32 samples each) one dispatch may classify so that an
+/// invocation stays within [`LOOP_BUDGET`]: each sample runs its own
+/// iteration plus one per plane and one per grid (the scene loops are not
+/// always unrolled), each word one more, plus the per-hypothesis setup.
+pub fn words_per_dispatch(planes: usize, grids: usize) -> usize {
+    let per_word = 32 * (1 + planes + grids) + 1;
+    let setup = planes + 4 * grids + 1;
+    ((LOOP_BUDGET - setup) / per_word).max(1)
+}
 
 /// One placed grid (`Grid` in the shader).
 #[repr(C)]
@@ -233,6 +254,9 @@ impl GpuContacts {
             support_cos: SUPPORT_COS as f32,
             write_deltas: with_deltas as u32,
             words: words as u32,
+            word_begin: 0,
+            word_end: words as u32,
+            pad: [0; 2],
             gravity: [g.x as f32, g.y as f32, g.z as f32, env.error_bound() as f32],
             planes,
         };
@@ -360,8 +384,6 @@ impl GpuContacts {
         params.n_hyp = n as u32;
         let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
         ctx.queue
-            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
-        ctx.queue
             .write_buffer(&self.poses, 0, bytemuck::cast_slice(&gp));
         let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("contacts"),
@@ -397,21 +419,32 @@ impl GpuContacts {
                 },
             ],
         });
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("contacts"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(
-                (n as u32).div_ceil(WG).min(self.ctx.limits.max_workgroups),
-                1,
-                1,
-            );
+        // One dispatch per range of sample words (usually one), each
+        // continuing the records of the one before: see words_per_dispatch.
+        let step = words_per_dispatch(self.env.planes.len(), self.env.obstacles.len());
+        let words = self.params.words as usize;
+        for begin in (0..words).step_by(step) {
+            params.word_begin = begin as u32;
+            params.word_end = (begin + step).min(words) as u32;
+            // Queue writes land before the next submit, in order.
+            ctx.queue
+                .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
+            let mut enc = ctx.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("contacts"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &bind, &[]);
+                pass.dispatch_workgroups(
+                    (n as u32).div_ceil(WG).min(self.ctx.limits.max_workgroups),
+                    1,
+                    1,
+                );
+            }
+            ctx.queue.submit([enc.finish()]);
         }
-        ctx.queue.submit([enc.finish()]);
         ctx.wait()?;
         out.compute += t0.elapsed();
         let t1 = Instant::now();
