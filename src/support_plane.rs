@@ -66,6 +66,12 @@ pub fn fit_support_plane(obs: &DepthImage, mask: Option<&[bool]>, p: &PlaneFitPa
             p.inlier_m
         )));
     }
+    if p.iterations == 0 || p.max_points < 3 {
+        return Err(Error::InvalidInput(format!(
+            "plane fit: needs at least 1 RANSAC iteration and 3 points to score on, got {} and {}",
+            p.iterations, p.max_points
+        )));
+    }
     let k = &obs.intrinsics;
     let (w, h) = (k.width as usize, k.height as usize);
     if let Some(m) = mask {
@@ -126,8 +132,11 @@ pub fn fit_support_plane(obs: &DepthImage, mask: Option<&[bool]>, p: &PlaneFitPa
         if inliers.len() < 3 {
             break;
         }
+        // The refit must keep the object on the camera side, like RANSAC's.
         if let Some(refit) = least_squares(&inliers, plane.normal) {
-            plane = refit;
+            if !object_centre.is_some_and(|o| refit.distance(o) <= 0.0) {
+                plane = refit;
+            }
         }
     }
     let dists: Vec<f64> = points.iter().map(|&x| plane.distance(x)).filter(|d| d.abs() < p.inlier_m).collect();

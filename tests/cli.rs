@@ -208,6 +208,13 @@ fn score_reports_bad_input_without_panicking() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("error: /nonexistent/m.obj: file not found"), "{err}");
     assert!(!err.contains("panicked"));
+    // Physics options without --physics are a mistake worth saying.
+    let o = plausible()
+        .args(["score", "--mesh", "m.obj", "--camera", "c.json", "--depth", "d.png", "--poses", "p.json", "--samples", "64"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("add --plane P.json --physics"));
 }
 
 /// `plausible ... | head -1`: the binary ends quietly when its reader goes

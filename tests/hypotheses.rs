@@ -3,7 +3,7 @@
 //! pose of a duck resting on a table.
 
 use glam::{DMat3, DVec3};
-use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, ExportMatch, OnPlaneParams};
 use plausible::kernels::score::ScoreParams;
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
@@ -82,11 +82,18 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     let export = |meshes: Vec<serde_json::Value>| serde_json::json!({"format": "plausible-stable-poses/1", "meshes": meshes}).to_string();
     let a = serde_json::json!({"mesh": "models/duck.obj", "sha256": "aa", "clusters": [cluster(0.6), cluster(0.4)]});
     let b = serde_json::json!({"mesh": "models/box.ply", "sha256": "bb", "clusters": [cluster(1.0)]});
-    let one = resting_poses_from_export(&export(vec![a.clone()]), "zz", "whatever").unwrap();
+    let (one, how) = resting_poses_from_export(&export(vec![a.clone()]), "zz", "whatever").unwrap();
+    assert_eq!(how, ExportMatch::OnlyEntry);
     assert_eq!(one.len(), 2);
     assert!((one[0].r_model_to_plane - r).to_cols_array().iter().all(|x| x.abs() < 1e-12));
-    assert_eq!(resting_poses_from_export(&export(vec![a.clone(), b.clone()]), "bb", "duck").unwrap().len(), 1);
-    assert_eq!(resting_poses_from_export(&export(vec![a.clone(), b.clone()]), "zz", "duck").unwrap().len(), 2);
+    let by = |sha: &str, name: &str| {
+        let (r, how) = resting_poses_from_export(&export(vec![a.clone(), b.clone()]), sha, name).unwrap();
+        (r.len(), how)
+    };
+    assert_eq!(by("bb", "duck"), (1, ExportMatch::Hash));
+    assert_eq!(by("zz", "duck"), (2, ExportMatch::Name));
+    // A single entry matched by name is a name match, not a fallback.
+    assert_eq!(resting_poses_from_export(&export(vec![a.clone()]), "zz", "duck").unwrap().1, ExportMatch::Name);
     let err = resting_poses_from_export(&export(vec![a.clone(), b]), "zz", "cup").unwrap_err().to_string();
     assert!(err.contains("no entry for this mesh") && err.contains("duck, box"), "{err}");
     let skewed = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [1, 0, 0, 0, 2, 0, 0, 0, 1]}]});
@@ -97,10 +104,10 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     let can = serde_json::json!({"mesh": "can.obj", "sha256": "c", "clusters": [cluster(0.4)],
         "families": [{"kind": "circle", "axis": [0.0, 0.0, 1.0], "probability": 0.6},
                      {"kind": "scattered", "axis": null, "probability": 0.0}]});
-    let rests = resting_poses_from_export(&export(vec![can]), "c", "can").unwrap();
+    let (rests, _) = resting_poses_from_export(&export(vec![can]), "c", "can").unwrap();
     assert_eq!(rests.len(), 1 + 12);
     for r in &rests[1..] {
-        assert!((r.probability - 0.05).abs() < 1e-12);
+        assert!((r.probability - 0.05).abs() < 1e-12 && r.group_probability == 0.6);
         assert!((r.r_model_to_plane * DVec3::Z).z.abs() < 1e-12, "the axis lies flat");
     }
 }

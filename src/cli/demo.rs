@@ -42,7 +42,7 @@ use super::DeviceArgs;
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
     /// Number of hypotheses.
-    #[arg(long, default_value_t = 4096)]
+    #[arg(long, default_value_t = 4096, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub n: usize,
     /// Seed of the noise and the hypotheses.
     #[arg(long, default_value_t = 42)]
@@ -174,7 +174,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     println!(
         "\npose estimation from stable poses: {} hypotheses ({} resting poses x 24 yaws on the fitted plane, centred on the observed points) generated and scored in {:.2} s",
         est_poses.len(),
-        rests.iter().filter(|r| r.probability >= OnPlaneParams::default().min_probability).count(),
+        rests.iter().filter(|r| r.group_probability >= OnPlaneParams::default().min_probability).count(),
         t1.elapsed().as_secs_f64()
     );
     println!(
@@ -236,7 +236,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         .min_by_key(|&i| visual_rank[i]);
     let mut ids = vec![best];
     ids.extend(implausible);
-    super::score::write_explanations(&a.out.join("explain"), &ids, &poses, &rmesh, &target, &params, Some(&physics), Some(&evals))?;
+    super::score::write_explanations(&a.out.join("explain"), &ids, &poses, &rmesh, &target, &params, Some(&physics))?;
     if let Some(i) = implausible {
         let e = &evals[i];
         let why = match e.verdict {

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
-use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, ExportMatch, OnPlaneParams};
 use plausible::physical::scene::read_camera_plane;
 
 #[derive(clap::Args, Debug)]
@@ -42,6 +42,9 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     if !(0.0..1.0).contains(&a.min_probability) {
         bail!("--min-probability must lie in [0, 1)");
     }
+    if !(a.grid_step_mm.is_finite() && a.grid_step_mm > 0.0) {
+        bail!("--grid-step-mm must be a positive number of millimetres");
+    }
     let mesh = a.mesh.load()?;
     let (obs, mask) = a.obs.load()?;
     let Some(mask) = mask else {
@@ -53,7 +56,14 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
             let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
             let stem = a.mesh.mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             let sha = plausible::stable::mesh_sha256(&mesh);
-            let rests = resting_poses_from_export(&text, &sha, &stem).with_context(|| path.display().to_string())?;
+            let (rests, how) = resting_poses_from_export(&text, &sha, &stem).with_context(|| path.display().to_string())?;
+            if how == ExportMatch::OnlyEntry {
+                eprintln!(
+                    "warning: {}: its only mesh matches neither the geometry of {} nor its name; using it anyway",
+                    path.display(),
+                    a.mesh.mesh.display()
+                );
+            }
             (rests, format!("drop-test clusters of {}", path.display()))
         }
         None => (analytic_resting_poses(&mesh)?, "the quasi-static analysis of the convex hull".to_string()),
@@ -65,7 +75,7 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
         grid_step: a.grid_step_mm * 1e-3,
         ..Default::default()
     };
-    let used = rests.iter().filter(|r| r.probability >= params.min_probability).count();
+    let used = rests.iter().filter(|r| r.group_probability >= params.min_probability).count();
     if used == 0 {
         bail!("no resting pose is at least {} probable; lower --min-probability", a.min_probability);
     }

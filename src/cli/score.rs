@@ -10,6 +10,7 @@ use plausible::kernels::RenderMesh;
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{read_poses, PoseUnits};
 use plausible::physical::batch::PlanePhysics;
+use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::read_camera_plane;
 use plausible::physical::{Evaluation, Verdict};
 use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device};
@@ -85,6 +86,10 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     if a.tau > 1.0 {
         bail!("--tau {} m is larger than a metre: tau is in metres (the usual value is 0.02)", a.tau);
     }
+    let sm = &a.sampling;
+    if !a.physics && (sm.samples != DEFAULT_SAMPLES || sm.seed != DEFAULT_SEED || sm.epsilon.is_some()) {
+        bail!("--samples, --seed and --epsilon set the physical terms: add --plane P.json --physics");
+    }
     let mesh = a.mesh.load()?;
     let (obs, mask) = a.obs.load()?;
     let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
@@ -140,7 +145,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         }
         if let Some(dir) = &a.explain {
             let ids = explain_ids(&a.explain_ids, &rank)?;
-            write_explanations(dir, &ids, &poses, &rmesh, &target, &params, Some(physics), Some(&evals))?;
+            write_explanations(dir, &ids, &poses, &rmesh, &target, &params, Some(physics))?;
         }
         return Ok(());
     }
@@ -169,7 +174,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     }
     if let Some(dir) = &a.explain {
         let ids = explain_ids(&a.explain_ids, &rank)?;
-        write_explanations(dir, &ids, &poses, &rmesh, &target, &params, None, None)?;
+        write_explanations(dir, &ids, &poses, &rmesh, &target, &params, None)?;
     }
     Ok(())
 }
@@ -197,14 +202,13 @@ pub fn write_explanations(
     target: &ScoreTarget,
     params: &ScoreParams,
     physics: Option<&PlanePhysics>,
-    evals: Option<&[Evaluation]>,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     for &i in ids {
         let render = plausible::kernels::raster::render_cpu(rmesh, &poses[i], &target.intrinsics);
+        // The band shows the verdict of the views drawn below it.
         let views = physics.map(|p| p.explain(&poses[i]));
-        let verdict = evals.map(|e| e[i].verdict);
-        let pic = plausible::explain::hypothesis_picture(target, &render, params, views.as_ref().zip(verdict));
+        let pic = plausible::explain::hypothesis_picture(target, &render, params, views.as_ref().map(|(v, e)| (v, e.verdict)));
         let path = dir.join(format!("hypothesis_{i}.png"));
         pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
         println!("wrote {}", path.display());

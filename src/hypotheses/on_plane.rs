@@ -33,6 +33,21 @@ pub struct RestingPose {
     pub r_model_to_plane: DMat3,
     /// How often the object ends up resting like this.
     pub probability: f64,
+    /// The probability of the cluster or the whole rolling family this pose
+    /// stands for (a family's roll angles share its probability);
+    /// [`OnPlaneParams::min_probability`] filters on this.
+    pub group_probability: f64,
+}
+
+/// How [`resting_poses_from_export`] found the mesh's entry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportMatch {
+    /// By the geometry hash: the same mesh in the same units.
+    Hash,
+    /// By the file name: probably the same object, other units or edits.
+    Name,
+    /// Neither, but the export holds a single mesh: the caller should warn.
+    OnlyEntry,
 }
 
 /// Parameters of the generator.
@@ -40,7 +55,8 @@ pub struct RestingPose {
 pub struct OnPlaneParams {
     /// Yaw angles per resting pose, evenly spaced over 360°.
     pub yaw_steps: usize,
-    /// Resting poses below this probability are left out.
+    /// Resting poses whose cluster or rolling family is less probable than
+    /// this are left out.
     pub min_probability: f64,
     /// Observed-versus-rendered centroid alignments per hypothesis.
     pub align_iterations: usize,
@@ -83,25 +99,28 @@ pub fn analytic_resting_poses(mesh: &Mesh) -> Result<Vec<RestingPose>> {
         .map(|p| RestingPose {
             r_model_to_plane: rows(&crate::stable::cluster::canonical_rotation(DVec3::from_array(p.gravity_in_model))),
             probability: p.probability,
+            group_probability: p.probability,
         })
         .collect())
 }
 
 /// The resting poses of one mesh in a `plausible stable-poses export` JSON:
-/// the entry whose `sha256` matches `sha256`, else the only entry, else the
-/// one whose file name stem is `name`. Clusters give one resting pose each,
-/// rolling families [`ROLL_STEPS`] (their probability split evenly).
-pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<Vec<RestingPose>> {
+/// the entry whose `sha256` matches `sha256`, else the one whose file name
+/// stem is `name`, else the only entry (reported as [`ExportMatch::OnlyEntry`]
+/// so the caller can warn). Clusters give one resting pose each, rolling
+/// families [`ROLL_STEPS`] (their probability split evenly).
+pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<(Vec<RestingPose>, ExportMatch)> {
     let v: serde_json::Value = serde_json::from_str(text).map_err(|e| Error::InvalidInput(format!("stable-pose JSON: {e}")))?;
     let meshes = v["meshes"].as_array().ok_or_else(|| Error::InvalidInput("stable-pose JSON: no \"meshes\" list".into()))?;
     let stem = |m: &serde_json::Value| {
         std::path::Path::new(m["mesh"].as_str().unwrap_or("")).file_stem().map(|s| s.to_string_lossy().into_owned())
     };
-    let entry = meshes
+    let (entry, how) = meshes
         .iter()
         .find(|m| m["sha256"] == sha256)
-        .or_else(|| (meshes.len() == 1).then(|| &meshes[0]))
-        .or_else(|| meshes.iter().find(|m| stem(m).as_deref() == Some(name)))
+        .map(|m| (m, ExportMatch::Hash))
+        .or_else(|| meshes.iter().find(|m| stem(m).as_deref() == Some(name)).map(|m| (m, ExportMatch::Name)))
+        .or_else(|| (meshes.len() == 1).then(|| (&meshes[0], ExportMatch::OnlyEntry)))
         .ok_or_else(|| {
             let names: Vec<String> = meshes.iter().filter_map(stem).collect();
             Error::InvalidInput(format!(
@@ -121,7 +140,7 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
         if ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| x.abs() > 1e-6) {
             return Err(Error::InvalidInput(format!("stable-pose JSON: cluster {i}: R_model_to_plane is not a rotation")));
         }
-        out.push(RestingPose { r_model_to_plane: r, probability: p });
+        out.push(RestingPose { r_model_to_plane: r, probability: p, group_probability: p });
     }
     // Rolling families (a cylinder on its side): gravity anywhere on the
     // great circle normal to the axis, sampled at ROLL_STEPS angles that
@@ -146,14 +165,19 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             out.push(RestingPose {
                 r_model_to_plane: rows(&crate::stable::cluster::canonical_rotation(g)),
                 probability: p / ROLL_STEPS as f64,
+                group_probability: p,
             });
         }
     }
     if out.is_empty() {
         return Err(Error::InvalidInput("stable-pose JSON: the mesh has no clusters (did its drops settle?)".into()));
     }
-    Ok(out)
+    Ok((out, how))
 }
+
+/// Largest in-plane grid radius: (2·20 + 1)² = 1681 offsets per (resting
+/// pose, yaw) already make hundreds of thousands of hypotheses.
+pub const MAX_GRID_RADIUS: usize = 20;
 
 /// Roll angles a rolling family is sampled at (30° apart).
 pub const ROLL_STEPS: usize = 12;
@@ -191,6 +215,13 @@ pub fn on_plane_hypotheses(
     if !(p.grid_step.is_finite() && p.grid_step > 0.0) {
         return Err(Error::InvalidInput(format!("the grid step must be a positive number of metres, got {}", p.grid_step)));
     }
+    if p.grid_radius > MAX_GRID_RADIUS {
+        return Err(Error::InvalidInput(format!(
+            "a grid radius of {} gives {} offsets per hypothesis; at most {MAX_GRID_RADIUS} is taken",
+            p.grid_radius,
+            (2 * p.grid_radius + 1).pow(2)
+        )));
+    }
     let points = observed_points(obs, mask);
     if points.len() < 10 {
         return Err(Error::InvalidInput(format!(
@@ -209,7 +240,7 @@ pub fn on_plane_hypotheses(
     let jobs: Vec<(usize, usize)> = rests
         .iter()
         .enumerate()
-        .filter(|(_, r)| r.probability >= p.min_probability)
+        .filter(|(_, r)| r.group_probability >= p.min_probability)
         .flat_map(|(i, _)| (0..p.yaw_steps).map(move |y| (i, y)))
         .collect();
     let aligned: Vec<(usize, f64, Pose)> = jobs

@@ -521,6 +521,15 @@ fn plane_stage(ctx: &Context, physics: &PlanePhysics, chunk: usize) -> Result<Pl
     if samples.is_empty() {
         return Err(Error::InvalidInput("the body has no surface samples".into()));
     }
+    // raster (tris, poses, vis) + score (observed, records) + this stage
+    // (samples, records, bits).
+    let needed = 8;
+    let have = ctx.device.limits().max_storage_buffers_per_shader_stage;
+    if have < needed {
+        return Err(Error::Gpu(format!(
+            "score --physics needs {needed} storage buffers per shader stage, this adapter offers {have}; use --device cpu"
+        )));
+    }
     let words = params.words as usize;
     let bits_bytes = (chunk * words * 4) as u64;
     if bits_bytes > ctx.limits.max_items(1) || (samples.len() * 16) as u64 > ctx.limits.max_items(1) {

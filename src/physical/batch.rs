@@ -130,11 +130,13 @@ impl PlanePhysics {
     }
 
     /// Top and side views of one hypothesis on the plane (1024 × 512; see
-    /// [`super::explain`] for the colours).
-    pub fn explain(&self, cam_pose: &Pose) -> image::RgbImage {
+    /// [`super::explain`] for the colours), with the CPU twin's evaluation
+    /// they show (which can differ from the GPU's for samples within
+    /// rounding of ±ε).
+    pub fn explain(&self, cam_pose: &Pose) -> (image::RgbImage, Evaluation) {
         let (e, detail) = self.evaluate_detailed(cam_pose);
         let drawn = Drawn { detail: &detail, is_static: false, stable: e.stable };
-        draw_views(&self.env.planes, self.env.gravity, &[drawn])
+        (draw_views(&self.env.planes, self.env.gravity, &[drawn]), e)
     }
 
     /// The physical evaluation of every camera-frame hypothesis.
