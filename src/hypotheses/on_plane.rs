@@ -179,6 +179,9 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
 /// pose, yaw) already make hundreds of thousands of hypotheses.
 pub const MAX_GRID_RADIUS: usize = 20;
 
+/// Most yaw steps per resting pose (0.1° apart).
+pub const MAX_YAW_STEPS: usize = 3600;
+
 /// Roll angles a rolling family is sampled at (30° apart).
 pub const ROLL_STEPS: usize = 12;
 
@@ -206,8 +209,11 @@ pub fn on_plane_hypotheses(
     mask: &[bool],
     p: &OnPlaneParams,
 ) -> Result<Vec<OnPlaneHypothesis>> {
-    if p.yaw_steps == 0 {
-        return Err(Error::InvalidInput("at least one yaw step is needed".into()));
+    if p.yaw_steps == 0 || p.yaw_steps > MAX_YAW_STEPS {
+        return Err(Error::InvalidInput(format!(
+            "{} yaw steps: between 1 and {MAX_YAW_STEPS} (0.1° apart) are taken",
+            p.yaw_steps
+        )));
     }
     if mask.len() != obs.depth.len() {
         return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())));
