@@ -25,6 +25,13 @@ const WG: u32 = 64u;
 override N_PLANES: u32 = 1u;
 override N_GRIDS: u32 = 0u;
 override WRITE_DELTAS: bool = false;
+// Sizes of the per-hypothesis scene copies in private memory. Private arrays
+// cannot be sized by override constants, so the dispatch code rewrites these
+// two lines to the scene's counts (at least 1) before compiling: a 768-byte
+// array for 16 grids would otherwise sit in every invocation's registers or
+// spill to local memory on GPUs.
+const PLANE_SLOTS: u32 = 4u;
+const GRID_SLOTS: u32 = 16u;
 // A grid contact whose normal has n·ĝ above this (more than ~8° from
 // straight up) is refined exactly.
 const REFINE_COS: f32 = -0.99;
@@ -148,13 +155,13 @@ fn contacts_main(
         // The scene in this hypothesis' model frame, once per hypothesis, so
         // a sample needs no world position: planes as (Rᵀn, w − n·t), grids
         // as the composite model -> grid-model rows.
-        var pm: array<vec4<f32>, 4>;
+        var pm: array<vec4<f32>, PLANE_SLOTS>;
         for (var k = 0u; k < N_PLANES; k += 1u) {
             let pl = params.planes[k];
             let t = vec3<f32>(p.rows[0].w, p.rows[1].w, p.rows[2].w);
             pm[k] = vec4<f32>(pl.x * p.rows[0].xyz + pl.y * p.rows[1].xyz + pl.z * p.rows[2].xyz, pl.w - dot(pl.xyz, t));
         }
-        var gm: array<array<vec4<f32>, 3>, 16>;
+        var gm: array<array<vec4<f32>, 3>, GRID_SLOTS>;
         for (var k = 0u; k < N_GRIDS; k += 1u) {
             let t = vec3<f32>(p.rows[0].w, p.rows[1].w, p.rows[2].w);
             for (var i = 0u; i < 3u; i += 1u) {

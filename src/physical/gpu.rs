@@ -30,6 +30,17 @@ use crate::pose::Pose;
 /// The WGSL source of the kernel.
 pub const CONTACTS_WGSL: &str = include_str!("../../shaders/contacts.wgsl");
 
+/// The kernel's source with its private scene arrays sized for `planes`
+/// planes and `grids` grids (WGSL cannot size private arrays by override
+/// constants).
+pub fn contacts_source(planes: usize, grids: usize) -> String {
+    let src = CONTACTS_WGSL
+        .replace("const PLANE_SLOTS: u32 = 4u;", &format!("const PLANE_SLOTS: u32 = {}u;", planes.max(1)))
+        .replace("const GRID_SLOTS: u32 = 16u;", &format!("const GRID_SLOTS: u32 = {}u;", grids.max(1)));
+    debug_assert!(src.contains(&format!("GRID_SLOTS: u32 = {}u;", grids.max(1))));
+    src
+}
+
 /// Most planes the kernel takes (they live in the uniform block).
 pub const MAX_PLANES: usize = 4;
 /// Most placed grids (other objects) the kernel takes (uniform block too).
@@ -318,12 +329,12 @@ impl GpuContacts {
             wgpu::BufferUsages::COPY_SRC,
         );
         // Own pipeline (not the context's cache): the scene's shape is baked
-        // in through override constants.
+        // in through override constants and the private array sizes.
         let module = ctx
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("contacts"),
-                source: wgpu::ShaderSource::Wgsl(CONTACTS_WGSL.into()),
+                source: wgpu::ShaderSource::Wgsl(contacts_source(env.planes.len(), descs.len()).into()),
             });
         let constants = [
             ("N_PLANES", env.planes.len() as f64),
@@ -554,5 +565,20 @@ mod tests {
         assert_eq!(size_of("Pose"), std::mem::size_of::<GpuPose>());
         assert_eq!(size_of("Record"), std::mem::size_of::<ContactRecord>());
         assert!(CONTACTS_WGSL.contains(&format!("const WG: u32 = {WG}u;")));
+        assert!(CONTACTS_WGSL.contains(&format!("const PLANE_SLOTS: u32 = {MAX_PLANES}u;")));
+        assert!(CONTACTS_WGSL.contains(&format!("const GRID_SLOTS: u32 = {MAX_GRIDS}u;")));
+    }
+
+    /// Every specialised source still validates.
+    #[test]
+    fn specialised_sources_validate() {
+        for (planes, grids) in [(0, 0), (1, 0), (1, 1), (4, 16)] {
+            let src = contacts_source(planes, grids);
+            assert!(src.contains(&format!("const GRID_SLOTS: u32 = {}u;", grids.max(1))));
+            let module = naga::front::wgsl::parse_str(&src).unwrap();
+            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
+                .validate(&module)
+                .unwrap();
+        }
     }
 }
