@@ -13,8 +13,7 @@ use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{axis_angle, Pose};
 use plausible::physical::batch::PlanePhysics;
-use plausible::physical::Plane;
-use plausible::synth::{linemod_camera, observe, SensorNoise};
+use plausible::synth::{linemod_camera, observe, plane_under, SensorNoise};
 use plausible::visual::{score_poses_with_physics, Device};
 
 fn bench(c: &mut Criterion) {
@@ -47,9 +46,8 @@ fn bench(c: &mut Criterion) {
 
     // Visual score + physical terms against a support plane under the pose
     // (1024 samples), end to end: the fused kernel and its CPU twins.
-    let up = DVec3::new(0.0, -1.0, -0.6).normalize();
-    let low = mesh.vertices.iter().map(|&v| truth.transform_point(v)).min_by(|p, q| p.dot(up).total_cmp(&q.dot(up))).unwrap();
-    let physics = PlanePhysics::new(&mesh, &Plane { point: low, normal: up }, None, 1024, 0, None).unwrap();
+    let plane = plane_under(&mesh, &truth, DVec3::new(0.0, -1.0, -0.6));
+    let physics = PlanePhysics::new(&mesh, &plane, None, 1024, 0, None).unwrap();
     let mut g = c.benchmark_group("score+plane/duck/128x128");
     g.throughput(Throughput::Elements(poses.len() as u64));
     g.sample_size(10);

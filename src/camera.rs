@@ -48,6 +48,13 @@ impl Intrinsics {
         DVec3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)
     }
 
+    /// The camera-frame point seen at row-major pixel index `i` with depth
+    /// `z` (metres).
+    pub fn pixel_point(&self, i: usize, z: f64) -> DVec3 {
+        let w = self.width as usize;
+        self.ray((i % w) as f64, (i / w) as f64) * z
+    }
+
     /// Intrinsics of the crop `[x0, x0 + w) x [y0, y0 + h)` (continuous pixel
     /// edges, so pixel `u` spans `[u - 0.5, u + 0.5)`... expressed here with
     /// pixel `u` covering `[u, u + 1)` in edge coordinates) resampled to

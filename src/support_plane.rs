@@ -80,10 +80,7 @@ pub fn fit_support_plane(obs: &DepthImage, mask: Option<&[bool]>, p: &PlaneFitPa
         }
     }
     let grown = mask.map(|m| grow(m, w, h, p.mask_margin_px));
-    let point = |i: usize| {
-        let d = obs.depth[i] as f64;
-        k.ray((i % w) as f64, (i / w) as f64) * d
-    };
+    let point = |i: usize| k.pixel_point(i, obs.depth[i] as f64);
     let valid = |i: usize| obs.depth[i] > 0.0 && obs.depth[i].is_finite();
     let points: Vec<DVec3> = (0..w * h).filter(|&i| valid(i) && !grown.as_ref().is_some_and(|g| g[i])).map(point).collect();
     if points.len() < MIN_POINTS {
@@ -146,14 +143,8 @@ pub fn fit_support_plane(obs: &DepthImage, mask: Option<&[bool]>, p: &PlaneFitPa
 
 /// The plane through `point` with normal `n`, turned towards the camera.
 fn oriented(point: DVec3, n: DVec3) -> Option<Plane> {
-    let mut normal = n.normalize();
-    if !normal.is_finite() {
-        return None;
-    }
-    if normal.dot(point) > 0.0 {
-        normal = -normal;
-    }
-    Some(Plane { point, normal })
+    let plane = Plane { point, normal: n }.facing_camera();
+    plane.normal.is_finite().then_some(plane)
 }
 
 /// Total least squares: through the centroid, normal along the covariance's

@@ -71,6 +71,14 @@ pub fn observe(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics, noise: SensorNois
     (DepthImage { intrinsics: *k, depth }, mask)
 }
 
+/// The plane with unit normal `up` through the lowest vertex (along `up`) of
+/// `mesh` at `pose`: a support plane under a posed object, for benchmarks.
+pub fn plane_under(mesh: &Mesh, pose: &Pose, up: DVec3) -> Plane {
+    let up = up.normalize();
+    let low = mesh.vertices.iter().map(|&v| pose.transform_point(v)).min_by(|p, q| p.dot(up).total_cmp(&q.dot(up)));
+    Plane { point: low.unwrap_or(pose.t), normal: up }
+}
+
 /// The camera pose (world to camera, OpenCV axes) of a camera at `eye`
 /// looking at `target`, with world `up` pointing up in the image.
 pub fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> Result<Pose> {

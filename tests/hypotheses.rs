@@ -2,8 +2,8 @@
 //! from the segmented depth, scored visually and physically, recover the
 //! pose of a duck resting on a table.
 
-use glam::{DMat3, DVec3};
-use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, ExportMatch, OnPlaneParams};
+use glam::{DMat3, DVec2, DVec3};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, rest_on_plane, ExportMatch, OnPlaneParams};
 use plausible::kernels::score::ScoreParams;
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
@@ -23,9 +23,7 @@ fn duck() -> Mesh {
 /// `yaw` and moved to `(x, y)`.
 fn on_table(mesh: &Mesh, rest: usize, yaw: f64, x: f64, y: f64) -> Pose {
     let rests = analytic_resting_poses(mesh).unwrap();
-    let r = axis_angle(DVec3::Z, yaw) * rests[rest].r_model_to_plane;
-    let low = mesh.vertices.iter().map(|&v| (r * v).z).fold(f64::INFINITY, f64::min);
-    Pose::new(r, DVec3::new(x, y, -low))
+    rest_on_plane(mesh, axis_angle(DVec3::Z, yaw) * rests[rest].r_model_to_plane, DVec2::new(x, y))
 }
 
 #[test]

@@ -12,10 +12,9 @@ use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
-use plausible::synth::{linemod_camera, observe, SensorNoise};
+use plausible::synth::{linemod_camera, observe, plane_under, SensorNoise};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
-use plausible::physical::Plane;
 use plausible::visual::{score_poses_with_physics, Device};
 use serde::Serialize;
 
@@ -152,9 +151,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         // camera, through the lowest vertex), so the perturbed hypotheses
         // mix contacts, floating and intersecting ones.
         let physics = if a.physics {
-            let up = DVec3::new(0.0, -1.0, -0.6).normalize();
-            let low = mesh.vertices.iter().map(|&v| truth.transform_point(v)).min_by(|p, q| p.dot(up).total_cmp(&q.dot(up)));
-            let plane = Plane { point: low.unwrap_or(truth.t), normal: up };
+            let plane = plane_under(&mesh, &truth, DVec3::new(0.0, -1.0, -0.6));
             Some(PlanePhysics::new(&mesh, &plane, None, DEFAULT_SAMPLES, DEFAULT_SEED, None)?)
         } else {
             None

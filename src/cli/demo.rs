@@ -16,13 +16,12 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
-use glam::{DMat3, DVec3};
+use glam::{DVec2, DVec3};
 use plausible::hypotheses::around_and_random;
-use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, OnPlaneParams};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, rest_on_plane, OnPlaneParams};
 use plausible::kernels::raster::render_cpu;
 use plausible::kernels::score::{GpuScorer, ScoreParams};
 use plausible::kernels::RenderMesh;
-use plausible::mesh::mass::MassProperties;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::physical::batch::PlanePhysics;
@@ -30,9 +29,6 @@ use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::CameraPlaneJson;
 use plausible::physical::Verdict;
 use plausible::pose::{axis_angle, poses_to_json, Pose};
-use plausible::stable::analytic::{stable_poses, AnalyticParams};
-use plausible::stable::cluster::canonical_rotation;
-use plausible::stable::hull::Hull;
 use plausible::support_plane::{fit_support_plane, PlaneFitParams};
 use plausible::synth::{linemod_camera, look_at, observe_on_table, SensorNoise};
 use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device};
@@ -63,14 +59,10 @@ pub fn demo_true_pose() -> Pose {
 /// most probable quasi-static resting pose, turned 35° about the vertical;
 /// returns the pose and that resting pose's probability.
 fn resting_on_table(mesh: &Mesh) -> Result<(Pose, f64)> {
-    let hull = Hull::of_points("duck", &mesh.vertices)?;
-    let (mass, _) = MassProperties::of_mesh(mesh)?;
-    let rest = stable_poses(&hull, mass.com, AnalyticParams::default())?;
-    let top = rest.poses.first().context("the duck has no stable resting pose")?;
-    let r = canonical_rotation(DVec3::from_array(top.gravity_in_model));
-    let r = axis_angle(DVec3::Z, 35f64.to_radians()) * DMat3::from_cols_array(&r).transpose();
-    let low = mesh.vertices.iter().map(|&v| (r * v).z).fold(f64::INFINITY, f64::min);
-    Ok((Pose::new(r, DVec3::new(0.0, 0.0, -low)), top.probability))
+    let rests = analytic_resting_poses(mesh)?;
+    let top = rests.first().context("the duck has no stable resting pose")?;
+    let r = axis_angle(DVec3::Z, 35f64.to_radians()) * top.r_model_to_plane;
+    Ok((rest_on_plane(mesh, r, DVec2::ZERO), top.probability))
 }
 
 pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
@@ -206,11 +198,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     )?;
     std::fs::write(a.out.join("poses.json"), serde_json::to_string(&poses_to_json(&poses))?)?;
     std::fs::write(a.out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(&est_poses))?)?;
-    let plane_json = CameraPlaneJson {
-        point: (fit.plane.point * 1e3).to_array().to_vec(),
-        normal: fit.plane.normal.to_array().to_vec(),
-        units: Some("mm".into()),
-    };
+    let plane_json = CameraPlaneJson::from_plane(&fit.plane);
     std::fs::write(a.out.join("plane.json"), serde_json::to_string_pretty(&plane_json)? + "\n")?;
     // The mesh in metres as the demo used it.
     let mut obj = String::new();

@@ -59,11 +59,7 @@ pub fn run(a: PlaneArgs) -> Result<()> {
             100.0 * fit.inliers as f64 / fit.candidates as f64
         );
     }
-    let json = CameraPlaneJson {
-        point: (p.point * 1e3).to_array().to_vec(),
-        normal: p.normal.to_array().to_vec(),
-        units: Some("mm".into()),
-    };
+    let json = CameraPlaneJson::from_plane(&p);
     std::fs::write(&a.out, serde_json::to_string_pretty(&json)? + "\n")
         .with_context(|| format!("cannot write {}", a.out.display()))?;
     println!("wrote {}", a.out.display());

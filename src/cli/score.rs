@@ -187,9 +187,7 @@ fn explain_ids(asked: &[usize], rank: &[usize]) -> Result<Vec<usize>> {
     if !asked.is_empty() {
         return Ok(asked.to_vec());
     }
-    let mut order: Vec<usize> = (0..rank.len()).collect();
-    order.sort_by_key(|&i| rank[i]);
-    Ok(order.into_iter().take(3).collect())
+    Ok(by_rank(rank).into_iter().take(3).collect())
 }
 
 /// Writes `hypothesis_<index>.png` for every id (see `--explain`).
@@ -258,9 +256,15 @@ pub fn verdict_counts(evals: &[Evaluation]) -> String {
 }
 
 /// Prints the best `top` hypotheses (with their physical terms when given).
-pub fn print_table(records: &[ScoreRecord], evals: Option<&[Evaluation]>, rank: &[usize], top: usize) {
-    let mut order: Vec<usize> = (0..records.len()).collect();
+/// Hypothesis indices, best rank first.
+fn by_rank(rank: &[usize]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..rank.len()).collect();
     order.sort_by_key(|&i| rank[i]);
+    order
+}
+
+pub fn print_table(records: &[ScoreRecord], evals: Option<&[Evaluation]>, rank: &[usize], top: usize) {
+    let order = by_rank(&rank[..records.len()]);
     print!("{:>5} {:>7} {:>7} {:>7} {:>7} {:>7}", "rank", "index", "score", "a_d", "a_n", "|V|");
     if evals.is_some() {
         print!(" {:>12} {:>5} {:>5} {:>5} {:>9} {:>10}", "verdict", "|I|", "|C|", "|S|", "min δ mm", "margin mm");

@@ -185,17 +185,22 @@ pub const MAX_YAW_STEPS: usize = 3600;
 /// Roll angles a rolling family is sampled at (30° apart).
 pub const ROLL_STEPS: usize = 12;
 
+/// `mesh` in the plane frame, rotated by `r`, with its lowest vertex on the
+/// plane z = 0 and its model origin over `xy`.
+pub fn rest_on_plane(mesh: &Mesh, r: DMat3, xy: DVec2) -> Pose {
+    let low = mesh.vertices.iter().map(|&v| (r * v).z).fold(f64::INFINITY, f64::min);
+    Pose::new(r, xy.extend(-low))
+}
+
 fn rows(r: &[f64; 9]) -> DMat3 {
     DMat3::from_cols_array(r).transpose()
 }
 
 /// The observed object's points (camera frame): masked pixels with depth.
 fn observed_points(obs: &DepthImage, mask: &[bool]) -> Vec<DVec3> {
-    let k = &obs.intrinsics;
-    let w = k.width as usize;
     (0..obs.depth.len())
         .filter(|&i| mask[i] && obs.depth[i] > 0.0)
-        .map(|i| k.ray((i % w) as f64, (i / w) as f64) * obs.depth[i] as f64)
+        .map(|i| obs.intrinsics.pixel_point(i, obs.depth[i] as f64))
         .collect()
 }
 
@@ -242,7 +247,6 @@ pub fn on_plane_hypotheses(
     let (mass, _) = MassProperties::of_mesh(mesh)?;
     let rmesh = RenderMesh::new(mesh)?;
     let k = obs.intrinsics;
-    let w = k.width as usize;
     let jobs: Vec<(usize, usize)> = rests
         .iter()
         .enumerate()
@@ -254,15 +258,14 @@ pub fn on_plane_hypotheses(
         .map(|&(i, y)| {
             let yaw = std::f64::consts::TAU * y as f64 / p.yaw_steps as f64;
             let r = axis_angle(DVec3::Z, yaw) * rests[i].r_model_to_plane;
-            let low = mesh.vertices.iter().map(|&v| (r * v).z).fold(f64::INFINITY, f64::min);
             let com = (r * mass.com).truncate();
-            let mut t = (observed - com).extend(-low);
+            let mut t = rest_on_plane(mesh, r, observed - com).t;
             for _ in 0..p.align_iterations {
                 let cam = from_plane.compose(&Pose::new(r, t));
                 let img = render_cpu(&rmesh, &cam, &k);
                 let seen: Vec<DVec3> = (0..img.depth.len())
                     .filter(|&j| img.depth[j] > 0.0)
-                    .map(|j| k.ray((j % w) as f64, (j / w) as f64) * img.depth[j] as f64)
+                    .map(|j| k.pixel_point(j, img.depth[j] as f64))
                     .collect();
                 if seen.is_empty() {
                     break; // out of view: keep the centre-of-mass placement

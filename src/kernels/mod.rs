@@ -165,7 +165,7 @@ impl RenderMesh {
 pub fn shader_sources() -> Vec<(&'static str, String)> {
     vec![
         ("render", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"))),
-        ("score", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"))),
+        ("score", score::SCORE_WGSL.to_string()),
         ("contacts", crate::physical::gpu::CONTACTS_WGSL.to_string()),
         ("plane_contacts", score::SCORE_PHYSICS_WGSL.to_string()),
     ]

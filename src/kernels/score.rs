@@ -11,7 +11,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::raster::{raster_ids, raster_params, resolve, RasterBuffers};
-use super::{GpuPose, RenderMesh, RASTER_WGSL};
+use super::{GpuPose, RenderMesh};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::observation::ScoreTarget;
@@ -151,6 +151,9 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
         )
         .collect()
 }
+
+/// The WGSL of the score kernel as compiled: the rasterizer, then the score.
+pub const SCORE_WGSL: &str = concat!(include_str!("../../shaders/raster.wgsl"), "\n", include_str!("../../shaders/score.wgsl"));
 
 /// The WGSL of the score kernel with the fused plane stage
 /// (`shaders/plane_contacts.wgsl`).
@@ -302,9 +305,8 @@ impl GpuScorer {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/score.wgsl"));
-        let pipeline = ctx.pipeline("score", &src, "score_main");
-        let raster_pipeline = ctx.pipeline("score/raster", &src, "raster_main");
+        let pipeline = ctx.pipeline("score", SCORE_WGSL, "score_main");
+        let raster_pipeline = ctx.pipeline("score/raster", SCORE_WGSL, "raster_main");
         let plane = physics.map(|phys| plane_stage(ctx, phys, bufs.chunk)).transpose()?;
         Ok(GpuScorer {
             ctx: ctx.clone(),

@@ -43,6 +43,15 @@ impl Plane {
     pub fn distance(&self, x: DVec3) -> f64 {
         self.normal.dot(x - self.point)
     }
+
+    /// A camera-frame plane with its normal made unit and turned towards
+    /// the camera centre (the origin): the camera looks at a support plane
+    /// from above, so that side is up.
+    pub fn facing_camera(self) -> Plane {
+        let normal = self.normal.normalize();
+        let normal = if normal.dot(self.point) > 0.0 { -normal } else { normal };
+        Plane { point: self.point, normal }
+    }
 }
 
 /// One object of the scene, in the world frame.
@@ -75,11 +84,7 @@ pub struct Scene {
 /// along the plane normal turned towards the camera (gravity −z), x along
 /// the camera's x projected onto the plane.
 pub fn camera_to_plane_frame(plane: &Plane) -> Pose {
-    let point = plane.point;
-    let mut up = plane.normal.normalize();
-    if up.dot(-point) < 0.0 {
-        up = -up; // the camera looks at the plane from above
-    }
+    let Plane { point, normal: up } = plane.facing_camera();
     let helper = if DVec3::X.cross(up).length() > 0.1 {
         DVec3::X
     } else {
@@ -107,6 +112,17 @@ pub struct CameraPlaneJson {
     pub normal: Vec<f64>,
     #[serde(default)]
     pub units: Option<String>,
+}
+
+impl CameraPlaneJson {
+    /// A camera-frame plane (metres) as written to files: point in mm.
+    pub fn from_plane(plane: &Plane) -> CameraPlaneJson {
+        CameraPlaneJson {
+            point: (plane.point * 1e3).to_array().to_vec(),
+            normal: plane.normal.to_array().to_vec(),
+            units: Some("mm".into()),
+        }
+    }
 }
 
 /// Parses JSON, saying so when the text holds NaN or Infinity (which JSON
@@ -146,7 +162,7 @@ pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
     if len <= 1e-12 {
         return Err(bad("normal has zero length".into()));
     }
-    let mut normal = normal / len;
+    let normal = normal / len;
     let dist = normal.dot(point).abs();
     if dist < 0.01 {
         let hint = if scale == 1e-3 && dist > 1e-5 {
@@ -162,10 +178,7 @@ pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
             dist * 1e3
         )));
     }
-    if normal.dot(point) > 0.0 {
-        normal = -normal; // the camera looks at the plane from above
-    }
-    Ok(Plane { point, normal })
+    Ok(Plane { point, normal }.facing_camera())
 }
 
 #[derive(Deserialize)]
