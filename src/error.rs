@@ -53,6 +53,9 @@ pub enum Error {
     #[error("{path}: {reason}")]
     BadJson { path: PathBuf, reason: String },
 
+    #[error("{path}, line {line}: {reason}")]
+    BadLine { path: PathBuf, line: usize, reason: String },
+
     #[error("{0}")]
     InvalidInput(String),
 

@@ -27,3 +27,7 @@ pub mod visual;
 pub mod explain;
 pub mod physical;
 pub mod support_plane;
+pub mod bop;
+pub mod eval;
+pub mod io;
+pub mod metrics;

@@ -31,6 +31,8 @@ enum Command {
     StablePoses(cli::stable::StableArgs),
     /// Physical plausibility of a scene: intersecting, floating, unstable (eq. 6-13).
     Check(cli::check::CheckArgs),
+    /// Evaluate a BOP results file: AR from VSD, MSSD, MSPD (and ADD/ADI), as the BOP toolkit does, on any GPU.
+    Eval(cli::eval::EvalArgs),
 }
 
 fn main() {
@@ -64,6 +66,7 @@ fn main() {
         Command::Bench(a) => cli::bench::run(a, cli.verbose),
         Command::StablePoses(a) => cli::stable::stable_poses(a),
         Command::Check(a) => cli::check::run(a),
+        Command::Eval(a) => cli::eval::run(a, cli.verbose),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_physics;
 pub mod check;
 pub mod demo;
+pub mod eval;
 pub mod hypotheses;
 pub mod plane;
 pub mod score;

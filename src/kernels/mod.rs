@@ -12,6 +12,7 @@
 //! that with the eq. 3-5 alignment and a workgroup reduction, so only one
 //! record per hypothesis leaves the GPU.
 
+pub mod depth;
 pub mod raster;
 pub mod score;
 
@@ -166,6 +167,7 @@ pub fn shader_sources() -> Vec<(&'static str, String)> {
     vec![
         ("render", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"))),
         ("score", score::SCORE_WGSL.to_string()),
+        ("depth", depth::depth_wgsl()),
         ("contacts", crate::physical::gpu::CONTACTS_WGSL.to_string()),
         ("plane_contacts", score::SCORE_PHYSICS_WGSL.to_string()),
     ]

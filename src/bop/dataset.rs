@@ -1,0 +1,518 @@
+//! A BOP dataset on disk: models and their `models_info.json`, the scenes
+//! of a split (`scene_gt.json`, `scene_camera.json`, `scene_gt_info.json`,
+//! 16-bit depth PNGs, `mask_visib/`), and the evaluation targets.
+//!
+//! Everything is read as the files store it (millimetres, row-major R), in
+//! [`PoseMm`]; [`PoseMm::to_pose`] converts to the library's metres at the
+//! point where a pose leaves the BOP world (rendering). Every malformed
+//! file is an error naming the file (and serde's line and column).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DVec3};
+use serde::de::DeserializeOwned;
+use serde::Deserialize;
+
+use crate::camera::Intrinsics;
+use crate::error::{Error, Result};
+use crate::pose::Pose;
+
+/// How far `RᵀR` of a BOP rotation may be from the identity. BOP files are
+/// not exactly orthonormal (LM-O's own ground truth is off by up to 2e-3),
+/// and the toolkit uses them as they are, so only matrices that are no
+/// rotation at all are refused.
+pub const BOP_ORTHONORMAL_TOL: f64 = 0.05;
+
+/// A pose as BOP files store it: model to camera, translation in mm. The
+/// rotation is kept exactly as written (not re-orthonormalized), as the BOP
+/// toolkit uses it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseMm {
+    pub r: DMat3,
+    pub t: DVec3,
+}
+
+impl PoseMm {
+    /// From a row-major rotation and a translation in mm.
+    pub fn from_row_major(r: &[f64], t: &[f64]) -> std::result::Result<PoseMm, String> {
+        if r.len() != 9 || t.len() != 3 {
+            return Err(format!("expected 9 rotation and 3 translation numbers, got {} and {}", r.len(), t.len()));
+        }
+        if r.iter().chain(t).any(|v| !v.is_finite()) {
+            return Err("pose holds NaN or infinity".into());
+        }
+        let p = PoseMm { r: DMat3::from_cols_array(&r.try_into().unwrap()).transpose(), t: DVec3::new(t[0], t[1], t[2]) };
+        let err = p.to_pose().orthonormality_error();
+        if err > BOP_ORTHONORMAL_TOL {
+            return Err(format!("R is not a rotation (|RᵀR − I| up to {err:.2e})"));
+        }
+        Ok(p)
+    }
+
+    /// Row-major rotation, as BOP files write it.
+    pub fn r_row_major(&self) -> [f64; 9] {
+        self.r.transpose().to_cols_array()
+    }
+
+    /// The same pose in metres.
+    pub fn to_pose(&self) -> Pose {
+        Pose::new(self.r, self.t * 1e-3)
+    }
+}
+
+/// A continuous rotational symmetry (`models_info.json`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContinuousSymmetry {
+    pub axis: DVec3,
+    /// A point on the axis, mm.
+    pub offset: DVec3,
+}
+
+/// One object's entry of `models_info.json`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelInfo {
+    /// Largest distance between two model points, mm.
+    pub diameter: f64,
+    /// Discrete symmetries as 4×4 row-major matrices, translation in mm.
+    pub symmetries_discrete: Vec<[f64; 16]>,
+    pub symmetries_continuous: Vec<ContinuousSymmetry>,
+}
+
+impl ModelInfo {
+    pub fn is_symmetric(&self) -> bool {
+        !self.symmetries_discrete.is_empty() || !self.symmetries_continuous.is_empty()
+    }
+}
+
+/// One annotated object instance of an image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GtInstance {
+    pub obj_id: u32,
+    pub pose: PoseMm,
+}
+
+/// One image's camera (`scene_camera.json`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameCamera {
+    /// Row-major 3×3 intrinsics.
+    pub k: [f64; 9],
+    /// Depth PNG value × `depth_scale` = millimetres.
+    pub depth_scale: f64,
+}
+
+/// An evaluation target: `inst_count` instances of `obj_id` in an image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Target {
+    pub scene_id: u32,
+    pub im_id: u32,
+    pub obj_id: u32,
+    pub inst_count: u32,
+}
+
+/// A depth image as the BOP toolkit reads it: PNG value × depth_scale in
+/// f32 millimetres (0 = no measurement).
+#[derive(Clone, Debug)]
+pub struct DepthMm {
+    pub width: u32,
+    pub height: u32,
+    pub mm: Vec<f32>,
+}
+
+/// A dataset split on disk.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    pub root: PathBuf,
+    pub split: String,
+    /// `models_eval/` when present (what BOP evaluates with), else `models/`.
+    pub models_dir: PathBuf,
+    pub models_info: BTreeMap<u32, ModelInfo>,
+    /// Image size from the dataset's `camera.json`, when it has one.
+    pub image_size: Option<(u32, u32)>,
+}
+
+/// Largest image side we read (BOP's largest sensors are under 4k).
+pub const MAX_IMAGE_SIDE: u32 = 8192;
+
+impl Dataset {
+    /// Opens `root` (the folder holding `models*/` and `<split>/`).
+    pub fn open(root: &Path, split: &str) -> Result<Dataset> {
+        if !root.is_dir() {
+            return Err(Error::InvalidInput(format!("{}: no such dataset folder", root.display())));
+        }
+        let models_dir = ["models_eval", "models"]
+            .iter()
+            .map(|d| root.join(d))
+            .find(|d| d.join("models_info.json").is_file())
+            .ok_or_else(|| {
+                Error::InvalidInput(format!("{}: neither models_eval/ nor models/ holds a models_info.json", root.display()))
+            })?;
+        let models_info = read_models_info(&models_dir.join("models_info.json"))?;
+        let split_dir = root.join(split);
+        if !split_dir.is_dir() {
+            return Err(Error::InvalidInput(format!("{}: no split folder '{split}'", root.display())));
+        }
+        let image_size = read_image_size(&root.join("camera.json"))?;
+        Ok(Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size })
+    }
+
+    /// The model file of an object (`obj_000001.ply`).
+    pub fn model_path(&self, obj_id: u32) -> PathBuf {
+        self.models_dir.join(format!("obj_{obj_id:06}.ply"))
+    }
+
+    /// Folder of a scene of the split.
+    pub fn scene_dir(&self, scene_id: u32) -> PathBuf {
+        self.root.join(&self.split).join(format!("{scene_id:06}"))
+    }
+
+    /// Scene ids of the split (numeric folder names), ascending.
+    pub fn scene_ids(&self) -> Result<Vec<u32>> {
+        let dir = self.root.join(&self.split);
+        let mut ids: Vec<u32> = std::fs::read_dir(&dir)
+            .map_err(|e| Error::io(&dir, e))?
+            .filter_map(|e| e.ok())
+            .filter(|e| e.path().is_dir())
+            .filter_map(|e| e.file_name().to_str().and_then(|s| s.parse().ok()))
+            .collect();
+        ids.sort_unstable();
+        Ok(ids)
+    }
+
+    /// Reads a scene's annotations.
+    pub fn scene(&self, scene_id: u32) -> Result<Scene> {
+        let dir = self.scene_dir(scene_id);
+        if !dir.is_dir() {
+            return Err(Error::InvalidInput(format!("{}: scene {scene_id} is not in the dataset", dir.display())));
+        }
+        let gt = read_scene_gt(&dir.join("scene_gt.json"))?;
+        let camera = read_scene_camera(&dir.join("scene_camera.json"))?;
+        let info_path = dir.join("scene_gt_info.json");
+        let gt_info = if info_path.is_file() { Some(read_scene_gt_info(&info_path, &gt)?) } else { None };
+        for (im, insts) in &gt {
+            for g in insts {
+                if !self.models_info.contains_key(&g.obj_id) {
+                    return Err(Error::BadJson {
+                        path: dir.join("scene_gt.json"),
+                        reason: format!("image {im}: object {} is not in models_info.json", g.obj_id),
+                    });
+                }
+            }
+        }
+        Ok(Scene { id: scene_id, dir, gt, camera, gt_info, image_size: self.image_size })
+    }
+
+    /// The evaluation targets: `file` (or `test_targets_bop19.json` in the
+    /// dataset when `file` is `None` and it exists), else every annotated
+    /// instance. The second value says which.
+    pub fn targets(&self, file: Option<&Path>) -> Result<(Vec<Target>, TargetSource)> {
+        let default = self.root.join("test_targets_bop19.json");
+        let path = match file {
+            Some(f) => Some(f.to_path_buf()),
+            None if default.is_file() => Some(default),
+            None => None,
+        };
+        match path {
+            Some(p) => Ok((read_targets(&p, self)?, TargetSource::File(p))),
+            None => {
+                let mut out = Vec::new();
+                for scene_id in self.scene_ids()? {
+                    let scene = self.scene(scene_id)?;
+                    for (&im_id, insts) in &scene.gt {
+                        let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
+                        for g in insts {
+                            *counts.entry(g.obj_id).or_default() += 1;
+                        }
+                        out.extend(counts.into_iter().map(|(obj_id, inst_count)| Target { scene_id, im_id, obj_id, inst_count }));
+                    }
+                }
+                Ok((out, TargetSource::AllInstances))
+            }
+        }
+    }
+}
+
+/// Where the targets came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TargetSource {
+    File(PathBuf),
+    /// No targets file: every annotated instance is a target.
+    AllInstances,
+}
+
+/// One scene's annotations.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub id: u32,
+    pub dir: PathBuf,
+    /// Per image, the annotated instances in file order (the index is the
+    /// BOP `gt_id`).
+    pub gt: BTreeMap<u32, Vec<GtInstance>>,
+    pub camera: BTreeMap<u32, FrameCamera>,
+    /// Per image and instance, the visible fraction (`scene_gt_info.json`),
+    /// `None` when the file is missing.
+    pub gt_info: Option<BTreeMap<u32, Vec<f64>>>,
+    image_size: Option<(u32, u32)>,
+}
+
+impl Scene {
+    /// The depth PNG of an image.
+    pub fn depth_path(&self, im_id: u32) -> PathBuf {
+        self.dir.join("depth").join(format!("{im_id:06}.png"))
+    }
+
+    /// An image's camera, or an error naming the scene file.
+    pub fn frame_camera(&self, im_id: u32) -> Result<&FrameCamera> {
+        self.camera.get(&im_id).ok_or_else(|| Error::BadJson {
+            path: self.dir.join("scene_camera.json"),
+            reason: format!("no entry for image {im_id}"),
+        })
+    }
+
+    /// Intrinsics of an image of `width × height`.
+    pub fn intrinsics(&self, im_id: u32, width: u32, height: u32) -> Result<Intrinsics> {
+        let cam = self.frame_camera(im_id)?;
+        Intrinsics::from_k(&cam.k, width, height).map_err(|e| Error::BadJson {
+            path: self.dir.join("scene_camera.json"),
+            reason: format!("image {im_id}: {e}"),
+        })
+    }
+
+    /// The size of an image: the dataset's `camera.json`, else the depth
+    /// PNG's header.
+    pub fn image_size(&self, im_id: u32) -> Result<(u32, u32)> {
+        if let Some(s) = self.image_size {
+            return Ok(s);
+        }
+        let path = self.depth_path(im_id);
+        let reader = image::ImageReader::open(&path).map_err(|e| Error::io(&path, e))?;
+        let reader = reader.with_guessed_format().map_err(|e| Error::io(&path, e))?;
+        reader.into_dimensions().map_err(|e| Error::BadImage { path: path.clone(), reason: e.to_string() })
+    }
+
+    /// Reads an image's depth as the BOP toolkit does (value × depth_scale,
+    /// f32 mm). The PNG header is checked against the dataset's image size
+    /// before anything is decoded.
+    pub fn read_depth(&self, im_id: u32) -> Result<DepthMm> {
+        let path = self.depth_path(im_id);
+        let cam = self.frame_camera(im_id)?;
+        let bad = |reason: String| Error::BadImage { path: path.clone(), reason };
+        let reader = image::ImageReader::open(&path).map_err(|e| Error::io(&path, e))?;
+        let reader = reader.with_guessed_format().map_err(|e| Error::io(&path, e))?;
+        let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;
+        if let Some((cw, ch)) = self.image_size {
+            if (w, h) != (cw, ch) {
+                return Err(bad(format!("depth is {w}x{h} but the dataset's camera.json says {cw}x{ch}")));
+            }
+        } else if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+            return Err(bad(format!("depth is {w}x{h}; at most {MAX_IMAGE_SIDE} pixels a side are read")));
+        }
+        let img = image::open(&path).map_err(|e| bad(e.to_string()))?;
+        let image::DynamicImage::ImageLuma16(img) = img else {
+            return Err(bad(format!("depth must be a 16-bit single-channel PNG (BOP convention), got {:?}", img.color())));
+        };
+        let s = cam.depth_scale as f32;
+        Ok(DepthMm { width: w, height: h, mm: img.as_raw().iter().map(|&v| v as f32 * s).collect() })
+    }
+}
+
+fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| Error::BadJson { path: path.to_path_buf(), reason: e.to_string() })
+}
+
+fn parse_id(path: &Path, key: &str, what: &str) -> Result<u32> {
+    key.parse()
+        .map_err(|_| Error::BadJson { path: path.to_path_buf(), reason: format!("'{key}' is not a {what} id (expected an integer)") })
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawContinuous {
+    axis: Vec<f64>,
+    offset: Vec<f64>,
+}
+
+#[derive(Deserialize)]
+struct RawModelInfo {
+    diameter: f64,
+    #[serde(default)]
+    symmetries_discrete: Vec<Vec<f64>>,
+    #[serde(default)]
+    symmetries_continuous: Vec<RawContinuous>,
+}
+
+/// Reads `models_info.json`.
+pub fn read_models_info(path: &Path) -> Result<BTreeMap<u32, ModelInfo>> {
+    let raw: BTreeMap<String, RawModelInfo> = read_json(path)?;
+    let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
+    let mut out = BTreeMap::new();
+    for (key, m) in raw {
+        let id = parse_id(path, &key, "object")?;
+        if !(m.diameter.is_finite() && m.diameter > 0.0) {
+            return Err(bad(format!("object {id}: diameter must be a positive number of mm, got {}", m.diameter)));
+        }
+        let mut disc = Vec::new();
+        for (i, s) in m.symmetries_discrete.iter().enumerate() {
+            let arr: [f64; 16] = s
+                .as_slice()
+                .try_into()
+                .map_err(|_| bad(format!("object {id}: symmetries_discrete[{i}] has {} numbers, expected 16 (4x4 row-major)", s.len())))?;
+            if arr.iter().any(|v| !v.is_finite()) || arr[12..] != [0.0, 0.0, 0.0, 1.0] {
+                return Err(bad(format!("object {id}: symmetries_discrete[{i}] is not a rigid 4x4 transform")));
+            }
+            let r = DMat3::from_cols_array(&[arr[0], arr[4], arr[8], arr[1], arr[5], arr[9], arr[2], arr[6], arr[10]]);
+            let err = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            if err > BOP_ORTHONORMAL_TOL {
+                return Err(bad(format!("object {id}: symmetries_discrete[{i}] is not a rotation (|RᵀR − I| up to {err:.2e})")));
+            }
+            disc.push(arr);
+        }
+        let mut cont = Vec::new();
+        for (i, s) in m.symmetries_continuous.iter().enumerate() {
+            let ok = s.axis.len() == 3 && s.offset.len() == 3 && s.axis.iter().chain(&s.offset).all(|v| v.is_finite());
+            let axis = if ok { DVec3::from_slice(&s.axis) } else { DVec3::ZERO };
+            if !ok || axis.length() < 1e-9 {
+                return Err(bad(format!("object {id}: symmetries_continuous[{i}] needs a non-zero 'axis' and an 'offset' of 3 numbers")));
+            }
+            cont.push(ContinuousSymmetry { axis, offset: DVec3::from_slice(&s.offset) });
+        }
+        out.insert(id, ModelInfo { diameter: m.diameter, symmetries_discrete: disc, symmetries_continuous: cont });
+    }
+    if out.is_empty() {
+        return Err(bad("lists no object".into()));
+    }
+    Ok(out)
+}
+
+#[derive(Deserialize)]
+struct RawSize {
+    width: u32,
+    height: u32,
+}
+
+fn read_image_size(path: &Path) -> Result<Option<(u32, u32)>> {
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let raw: RawSize = read_json(path)?;
+    if raw.width == 0 || raw.height == 0 || raw.width > MAX_IMAGE_SIDE || raw.height > MAX_IMAGE_SIDE {
+        return Err(Error::BadJson {
+            path: path.to_path_buf(),
+            reason: format!("image size {}x{} is not between 1 and {MAX_IMAGE_SIDE} pixels a side", raw.width, raw.height),
+        });
+    }
+    Ok(Some((raw.width, raw.height)))
+}
+
+#[derive(Deserialize)]
+struct RawGt {
+    #[serde(rename = "cam_R_m2c")]
+    r: Vec<f64>,
+    #[serde(rename = "cam_t_m2c")]
+    t: Vec<f64>,
+    obj_id: u32,
+}
+
+/// Reads `scene_gt.json`.
+pub fn read_scene_gt(path: &Path) -> Result<BTreeMap<u32, Vec<GtInstance>>> {
+    let raw: BTreeMap<String, Vec<RawGt>> = read_json(path)?;
+    let mut out = BTreeMap::new();
+    for (key, list) in raw {
+        let im = parse_id(path, &key, "image")?;
+        let mut insts = Vec::with_capacity(list.len());
+        for (i, g) in list.iter().enumerate() {
+            let pose = PoseMm::from_row_major(&g.r, &g.t)
+                .map_err(|reason| Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}, instance {i}: {reason}") })?;
+            insts.push(GtInstance { obj_id: g.obj_id, pose });
+        }
+        out.insert(im, insts);
+    }
+    Ok(out)
+}
+
+#[derive(Deserialize)]
+struct RawCamera {
+    #[serde(rename = "cam_K")]
+    k: Vec<f64>,
+    depth_scale: Option<f64>,
+}
+
+/// Reads `scene_camera.json`; `depth_scale` is required (BOP depth without
+/// it has no unit).
+pub fn read_scene_camera(path: &Path) -> Result<BTreeMap<u32, FrameCamera>> {
+    let raw: BTreeMap<String, RawCamera> = read_json(path)?;
+    let mut out = BTreeMap::new();
+    for (key, c) in raw {
+        let im = parse_id(path, &key, "image")?;
+        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: {reason}") };
+        let k: [f64; 9] = c.k.as_slice().try_into().map_err(|_| bad(format!("cam_K has {} numbers, expected 9", c.k.len())))?;
+        Intrinsics::from_k(&k, 1, 1).map_err(|e| bad(e.to_string()))?;
+        let depth_scale = c.depth_scale.ok_or_else(|| bad("no depth_scale (PNG value × depth_scale = mm)".into()))?;
+        if !(depth_scale.is_finite() && depth_scale > 1e-6 && depth_scale < 1e3) {
+            return Err(bad(format!("depth_scale {depth_scale} is not a plausible scale to millimetres")));
+        }
+        out.insert(im, FrameCamera { k, depth_scale });
+    }
+    Ok(out)
+}
+
+#[derive(Deserialize)]
+struct RawGtInfo {
+    visib_fract: f64,
+}
+
+/// Reads the visible fractions of `scene_gt_info.json`, checked against
+/// the scene's annotations (same images, same instance counts).
+pub fn read_scene_gt_info(path: &Path, gt: &BTreeMap<u32, Vec<GtInstance>>) -> Result<BTreeMap<u32, Vec<f64>>> {
+    let raw: BTreeMap<String, Vec<RawGtInfo>> = read_json(path)?;
+    let mut out = BTreeMap::new();
+    for (key, list) in raw {
+        let im = parse_id(path, &key, "image")?;
+        let fr: Vec<f64> = list.iter().map(|i| i.visib_fract).collect();
+        if fr.iter().any(|v| !v.is_finite()) {
+            return Err(Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: visib_fract is not a number") });
+        }
+        if let Some(g) = gt.get(&im) {
+            if g.len() != fr.len() {
+                return Err(Error::BadJson {
+                    path: path.to_path_buf(),
+                    reason: format!("image {im} has {} entries but scene_gt.json annotates {} instances", fr.len(), g.len()),
+                });
+            }
+        }
+        out.insert(im, fr);
+    }
+    Ok(out)
+}
+
+#[derive(Deserialize)]
+struct RawTarget {
+    scene_id: u32,
+    im_id: u32,
+    obj_id: u32,
+    inst_count: Option<u32>,
+}
+
+/// Reads a BOP targets file (`test_targets_bop19.json`): a list of
+/// `{scene_id, im_id, obj_id, inst_count}`. Objects must be in the dataset.
+pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
+    let raw: Vec<RawTarget> = read_json(path)?;
+    let mut seen = std::collections::HashMap::new();
+    let mut out = Vec::with_capacity(raw.len());
+    for (i, t) in raw.iter().enumerate() {
+        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") };
+        let inst_count = t.inst_count.ok_or_else(|| bad("no inst_count (needed by the BOP'19 protocol)".into()))?;
+        if inst_count == 0 {
+            return Err(bad("inst_count is 0".into()));
+        }
+        if !ds.models_info.contains_key(&t.obj_id) {
+            return Err(bad(format!("object {} is not in models_info.json", t.obj_id)));
+        }
+        if let Some(j) = seen.insert((t.scene_id, t.im_id, t.obj_id), i) {
+            return Err(bad(format!("scene {}, image {}, object {} is already entry {j}", t.scene_id, t.im_id, t.obj_id)));
+        }
+        out.push(Target { scene_id: t.scene_id, im_id: t.im_id, obj_id: t.obj_id, inst_count });
+    }
+    Ok(out)
+}

@@ -1,0 +1,122 @@
+//! BOP results files: `scene_id,im_id,obj_id,score,R,t,time`, one pose
+//! estimate a line, R row-major (9 numbers) and t in mm (3 numbers), each
+//! space-separated; the header line is optional; time in seconds (-1 when
+//! unknown), the same for every estimate of an image.
+
+use std::collections::HashMap;
+use std::io::{BufRead, Write};
+use std::path::Path;
+
+use super::dataset::PoseMm;
+use crate::error::{Error, Result};
+
+/// The header BOP results files start with.
+pub const HEADER: &str = "scene_id,im_id,obj_id,score,R,t,time";
+
+/// One pose estimate of a results file.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Estimate {
+    pub scene_id: u32,
+    pub im_id: u32,
+    pub obj_id: u32,
+    pub score: f64,
+    pub pose: PoseMm,
+    /// Seconds spent on the image (-1 = unknown).
+    pub time: f64,
+    /// 1-based line in the file it came from (0 when made in memory).
+    pub line: usize,
+}
+
+fn numbers(field: &str, n: usize, what: &str) -> std::result::Result<Vec<f64>, String> {
+    let v: Vec<f64> = field
+        .split_whitespace()
+        .map(|s| s.parse::<f64>().map_err(|_| format!("{what}: '{s}' is not a number")))
+        .collect::<std::result::Result<_, _>>()?;
+    if v.len() != n {
+        return Err(format!("{what} has {} numbers, expected {n} (space-separated)", v.len()));
+    }
+    Ok(v)
+}
+
+/// Parses one line (no header).
+pub fn parse_line(line: &str) -> std::result::Result<Estimate, String> {
+    let f: Vec<&str> = line.trim_end_matches(['\r', '\n']).split(',').collect();
+    if f.len() != 7 {
+        return Err(format!("{} comma-separated fields, expected 7 ({HEADER})", f.len()));
+    }
+    let id = |s: &str, what: &str| s.trim().parse::<u32>().map_err(|_| format!("{what} '{}' is not a non-negative integer", s.trim()));
+    let scalar = |s: &str, what: &str| match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("{what} '{}' is not a finite number", s.trim())),
+    };
+    let r = numbers(f[4], 9, "R")?;
+    let t = numbers(f[5], 3, "t")?;
+    Ok(Estimate {
+        scene_id: id(f[0], "scene_id")?,
+        im_id: id(f[1], "im_id")?,
+        obj_id: id(f[2], "obj_id")?,
+        score: scalar(f[3], "score")?,
+        pose: PoseMm::from_row_major(&r, &t)?,
+        time: scalar(f[6], "time")?,
+        line: 0,
+    })
+}
+
+/// Reads a results file, streaming it line by line. Malformed lines and
+/// duplicated estimates (the same object, image and pose twice) are errors
+/// naming the line.
+pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let reader = std::io::BufReader::new(file);
+    let mut out = Vec::new();
+    let mut seen: HashMap<(u32, u32, u32, [u64; 12]), usize> = HashMap::new();
+    for (i, line) in reader.lines().enumerate() {
+        let n = i + 1;
+        let line = line.map_err(|e| Error::BadLine { path: path.to_path_buf(), line: n, reason: e.to_string() })?;
+        if line.trim().is_empty() || (n == 1 && line.contains(HEADER)) {
+            continue;
+        }
+        let mut e = parse_line(&line).map_err(|reason| Error::BadLine { path: path.to_path_buf(), line: n, reason })?;
+        e.line = n;
+        let mut key = [0u64; 12];
+        for (k, v) in key.iter_mut().zip(e.pose.r_row_major().iter().chain(e.pose.t.to_array().iter())) {
+            *k = v.to_bits();
+        }
+        if let Some(first) = seen.insert((e.scene_id, e.im_id, e.obj_id, key), n) {
+            return Err(Error::BadLine {
+                path: path.to_path_buf(),
+                line: n,
+                reason: format!("duplicates line {first} (same scene, image, object and pose)"),
+            });
+        }
+        out.push(e);
+    }
+    Ok(out)
+}
+
+/// Formats one estimate as a results line (shortest round-trip floats).
+pub fn format_line(e: &Estimate) -> String {
+    let join = |v: &[f64]| v.iter().map(|x| format!("{x:?}")).collect::<Vec<_>>().join(" ");
+    format!(
+        "{},{},{},{:?},{},{},{:?}",
+        e.scene_id,
+        e.im_id,
+        e.obj_id,
+        e.score,
+        join(&e.pose.r_row_major()),
+        join(&e.pose.t.to_array()),
+        e.time
+    )
+}
+
+/// Writes a results file (header first). The file is written beside the
+/// target and renamed into place, so a failure never leaves half a file.
+pub fn write_results(path: &Path, estimates: &[Estimate]) -> Result<()> {
+    crate::io::write_atomically(path, |w| {
+        writeln!(w, "{HEADER}")?;
+        for e in estimates {
+            writeln!(w, "{}", format_line(e))?;
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,161 @@
+//! `plausible eval`: BOP'19 evaluation of a results file (AR from VSD, MSSD,
+//! MSPD; ADD/ADI), as the BOP toolkit computes it, on any GPU or the CPU.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _, Result};
+use plausible::bop::{read_results, write_results, Dataset, TargetSource};
+use plausible::eval::{evaluate, gt_as_results, ErrorType, EvalOptions, EvalReport};
+
+use super::DeviceArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// BOP dataset folder: models_eval/ or models/ (with models_info.json),
+    /// the split folder, and usually test_targets_bop19.json.
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Split folder inside the dataset.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm).
+    #[arg(long, required_unless_present = "gt_as_results")]
+    pub results: Option<PathBuf>,
+    /// Targets file (default: test_targets_bop19.json in the dataset; without
+    /// one, every annotated instance is a target).
+    #[arg(long)]
+    pub targets: Option<PathBuf>,
+    /// Error types, comma-separated: vsd, mssd, mspd (their mean recall is
+    /// BOP's AR), ad (ADI for symmetric objects, ADD otherwise), add, adi.
+    #[arg(long, value_delimiter = ',', default_value = "vsd,mssd,mspd")]
+    pub errors: Vec<ErrorType>,
+    /// Correctness threshold of ad/add/adi, as a fraction of the diameter.
+    #[arg(long, default_value_t = 0.1)]
+    pub add_threshold: f64,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write every (estimate, instance) pair's errors here, one JSON object a line.
+    #[arg(long)]
+    pub errors_out: Option<PathBuf>,
+    /// Write the ground truth of the targets as a results file here, and
+    /// evaluate it (its AR is 1 by construction: a check of the setup).
+    #[arg(long, conflicts_with = "results")]
+    pub gt_as_results: Option<PathBuf>,
+    /// Images per batch (memory holds one batch's depth and renders).
+    #[arg(long, default_value_t = 100)]
+    pub batch_images: usize,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub device: DeviceArgs,
+}
+
+pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
+    let opts = EvalOptions { errors: a.errors.clone(), add_threshold: a.add_threshold, batch_images: a.batch_images, ..Default::default() };
+    opts.validate().context("check --errors, --add-threshold and --batch-images")?;
+    for p in [&a.out, &a.errors_out, &a.gt_as_results].into_iter().flatten() {
+        plausible::io::check_writable(p)?;
+    }
+    let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
+    if targets.is_empty() {
+        bail!("no targets to evaluate");
+    }
+    if source == TargetSource::AllInstances {
+        eprintln!("note: no targets file: every annotated instance is a target");
+    }
+    let results = match (&a.results, &a.gt_as_results) {
+        (Some(r), _) => read_results(r).context("--results")?,
+        (None, Some(out)) => {
+            let gt = gt_as_results(&ds, &targets)?;
+            write_results(out, &gt)?;
+            eprintln!("wrote the ground truth of {} targets as {} estimates to {}", targets.len(), gt.len(), out.display());
+            read_results(out)?
+        }
+        (None, None) => bail!("give --results or --gt-as-results"),
+    };
+    let device = a.device.open(verbose, true)?;
+    let n_images = {
+        let mut ims: Vec<(u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id)).collect();
+        ims.sort_unstable();
+        ims.dedup();
+        ims.len()
+    };
+    let pb = super::progress(n_images as u64, "images");
+    if a.quiet {
+        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let (report, records) = evaluate(&ds, &results, &targets, &device, &opts, &mut |done| pb.set_position(done as u64))?;
+    pb.finish_and_clear();
+    print_report(&report, &opts);
+    if let Some(p) = &a.out {
+        let mut v = serde_json::to_value(&report)?;
+        v["dataset"] = serde_json::json!(a.dataset.display().to_string());
+        v["results"] = serde_json::json!(a.results.as_ref().or(a.gt_as_results.as_ref()).map(|p| p.display().to_string()));
+        v["targets"] = serde_json::json!(match &source {
+            TargetSource::File(f) => f.display().to_string(),
+            TargetSource::AllInstances => "all annotated instances".into(),
+        });
+        plausible::io::write_atomically(p, |w| {
+            serde_json::to_writer_pretty(&mut *w, &v)?;
+            writeln!(w)
+        })?;
+        eprintln!("wrote {}", p.display());
+    }
+    if let Some(p) = &a.errors_out {
+        plausible::io::write_atomically(p, |w| {
+            for r in &records {
+                serde_json::to_writer(&mut *w, r)?;
+                writeln!(w)?;
+            }
+            Ok(())
+        })?;
+        eprintln!("wrote {} error records to {}", records.len(), p.display());
+    }
+    Ok(())
+}
+
+fn fmt(v: Option<f64>) -> String {
+    v.map_or("-".into(), |x| format!("{x:.4}"))
+}
+
+/// The table: recall per object and error type, AR, then the totals.
+pub fn print_report(r: &EvalReport, opts: &EvalOptions) {
+    println!(
+        "evaluated {} estimates against {} targets in {} images in {:.2} s on {} (visibility: {})",
+        r.n_estimates, r.n_targets, r.n_images, r.time_s.total_s, r.device, r.visibility
+    );
+    if r.n_ignored > 0 || r.n_not_top > 0 {
+        println!("ignored {} estimates for non-target objects or images, {} beyond the top inst_count of their target", r.n_ignored, r.n_not_top);
+    }
+    let cols: Vec<&str> = ["vsd", "mssd", "mspd", "ad", "add", "adi"].into_iter().filter(|c| opts.errors.iter().any(|e| e.name() == *c)).collect();
+    let mut head = format!("{:>5} {:>8} {:>7}", "obj", "targets", "AR");
+    for c in &cols {
+        head += &format!(" {:>7}", c.to_uppercase());
+    }
+    println!("{head}");
+    for (o, s) in &r.per_object {
+        let mut line = format!("{o:>5} {:>8} {:>7}", s.targets, fmt(s.ar));
+        for c in &cols {
+            line += &format!(" {:>7}", fmt(s.by_error.get(*c).copied()));
+        }
+        println!("{line}");
+    }
+    let mut line = format!("{:>5} {:>8} {:>7}", "all", r.n_targets, fmt(r.ar));
+    for c in &cols {
+        let v = match *c {
+            "vsd" => r.ar_vsd,
+            "mssd" => r.ar_mssd,
+            "mspd" => r.ar_mspd,
+            "ad" => r.recall_ad,
+            "add" => r.recall_add,
+            _ => r.recall_adi,
+        };
+        line += &format!(" {:>7}", fmt(v));
+    }
+    println!("{line}");
+    println!("(VSD, MSSD, MSPD: average recall over the BOP'19 thresholds; AD/ADD/ADI: recall at {} x diameter)", r.add_threshold);
+}

@@ -1,0 +1,750 @@
+//! Evaluation of a BOP results file against a dataset, exactly as the BOP
+//! toolkit's `eval_bop19_pose.py` does it (errors, then BOP'19 scoring),
+//! with the renders for VSD on any wgpu adapter or the CPU twin.
+//!
+//! Data flows one way: targets and estimates are indexed, models loaded
+//! once, then images are taken in batches: depth read (in parallel), GT
+//! and kept estimates rendered per object in one batched `depth` kernel
+//! call, errors computed per (estimate, instance) pair in parallel, and
+//! finally the matching and recalls over the whole dataset.
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Instant;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::bop::{Dataset, DepthMm, Estimate, GtInstance, ModelInfo, PoseMm, Scene, Target};
+use crate::camera::Intrinsics;
+use crate::error::{Error, Result};
+use crate::kernels::depth::{depth_tiles_cpu, DepthTile, GpuDepth};
+use crate::kernels::RenderMesh;
+use crate::mesh::Mesh;
+use crate::metrics::pose_error::{self, PointTree, Symmetry};
+use crate::metrics::recall::{self, EstimateErrors, TargetErrors};
+use crate::metrics::vsd::{self, VsdImage};
+use crate::pose::Pose;
+use crate::visual::Device;
+
+/// The pose errors `evaluate` can compute.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ErrorType {
+    Vsd,
+    Mssd,
+    Mspd,
+    /// ADI for symmetric objects, ADD otherwise (BOP's `ad`).
+    Ad,
+    Add,
+    Adi,
+}
+
+impl ErrorType {
+    pub const ALL: [ErrorType; 6] = [ErrorType::Vsd, ErrorType::Mssd, ErrorType::Mspd, ErrorType::Ad, ErrorType::Add, ErrorType::Adi];
+    /// The BOP'19 set, whose recalls make AR.
+    pub const BOP19: [ErrorType; 3] = [ErrorType::Vsd, ErrorType::Mssd, ErrorType::Mspd];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ErrorType::Vsd => "vsd",
+            ErrorType::Mssd => "mssd",
+            ErrorType::Mspd => "mspd",
+            ErrorType::Ad => "ad",
+            ErrorType::Add => "add",
+            ErrorType::Adi => "adi",
+        }
+    }
+}
+
+impl std::str::FromStr for ErrorType {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        ErrorType::ALL
+            .into_iter()
+            .find(|e| e.name() == s.trim().to_ascii_lowercase())
+            .ok_or_else(|| format!("unknown error type '{s}' (expected vsd, mssd, mspd, ad, add or adi)"))
+    }
+}
+
+/// What to compute and with which protocol constants (BOP'19 defaults).
+#[derive(Clone, Debug)]
+pub struct EvalOptions {
+    pub errors: Vec<ErrorType>,
+    /// VSD visibility tolerance δ, mm.
+    pub vsd_delta_mm: f32,
+    /// VSD τ as fractions of the diameter.
+    pub vsd_taus: Vec<f64>,
+    /// Correctness thresholds of VSD and MSSD (MSSD as fractions of the diameter).
+    pub thresholds: Vec<f64>,
+    /// MSPD thresholds in pixels (at 640 px image width).
+    pub mspd_px: Vec<f64>,
+    /// ADD/ADI/AD correctness threshold, fraction of the diameter.
+    pub add_threshold: f64,
+    pub max_sym_disc_step: f64,
+    /// Images per batch: bounds memory (depth and renders of a batch are
+    /// held at once) while giving the GPU enough poses per dispatch.
+    pub batch_images: usize,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        EvalOptions {
+            errors: ErrorType::BOP19.to_vec(),
+            vsd_delta_mm: vsd::DELTA_MM,
+            vsd_taus: recall::bop19_fractions(),
+            thresholds: recall::bop19_fractions(),
+            mspd_px: recall::bop19_mspd_px(),
+            add_threshold: 0.1,
+            max_sym_disc_step: pose_error::MAX_SYM_DISC_STEP,
+            batch_images: 100,
+        }
+    }
+}
+
+impl EvalOptions {
+    fn has(&self, e: ErrorType) -> bool {
+        self.errors.contains(&e)
+    }
+
+    /// Checks the numbers before any work.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |what: &str, why: String| Err(Error::InvalidInput(format!("{what}: {why}")));
+        if self.errors.is_empty() {
+            return bad("error types", "none chosen".into());
+        }
+        if !(self.vsd_delta_mm.is_finite() && self.vsd_delta_mm >= 0.0) {
+            return bad("VSD delta", format!("must be a non-negative number of mm, got {}", self.vsd_delta_mm));
+        }
+        for (what, v) in [("VSD tau", &self.vsd_taus), ("threshold", &self.thresholds), ("MSPD threshold", &self.mspd_px)] {
+            if v.is_empty() || v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+                return bad(what, "needs one or more positive numbers".into());
+            }
+        }
+        if !(self.add_threshold.is_finite() && self.add_threshold > 0.0) {
+            return bad("ADD threshold", format!("must be positive, got {}", self.add_threshold));
+        }
+        if !(self.max_sym_disc_step.is_finite() && self.max_sym_disc_step >= 1e-4 && self.max_sym_disc_step <= 1.0) {
+            return bad("max_sym_disc_step", format!("must lie in [1e-4, 1], got {}", self.max_sym_disc_step));
+        }
+        if self.batch_images == 0 {
+            return bad("batch size", "must be at least 1 image".into());
+        }
+        Ok(())
+    }
+}
+
+/// Error columns of a pair: point errors first, then one per VSD τ.
+const MSSD: usize = 0;
+const MSPD: usize = 1;
+const AD: usize = 2;
+const ADD: usize = 3;
+const ADI: usize = 4;
+const VSD0: usize = 5;
+
+/// The errors of one estimate against one instance, for inspection.
+#[derive(Clone, Debug, Serialize)]
+pub struct ErrorRecord {
+    pub scene_id: u32,
+    pub im_id: u32,
+    pub obj_id: u32,
+    /// Line of the estimate in the results file.
+    pub line: usize,
+    pub score: f64,
+    pub gt_id: usize,
+    /// VSD per τ (absent when not computed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vsd: Option<Vec<f64>>,
+    /// MSSD in mm, MSPD in px, ADD/ADI in mm (absent when not computed;
+    /// `null` for the toolkit's "infinite" shortcut).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mssd_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mspd_px: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub add_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adi_mm: Option<f64>,
+    /// Rotation error (degrees) and translation error (mm).
+    pub re_deg: f64,
+    pub te_mm: f64,
+}
+
+/// Recall at one threshold.
+#[derive(Clone, Debug, Serialize)]
+pub struct ThresholdRecall {
+    /// The threshold (and τ for VSD).
+    pub threshold: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tau: Option<f64>,
+    pub recall: f64,
+    pub tp: usize,
+}
+
+/// Scores of one object.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ObjectScores {
+    pub targets: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ar: Option<f64>,
+    /// AR (mean recall over the thresholds) per error type, and for
+    /// ad/add/adi the recall at the ADD threshold.
+    pub by_error: BTreeMap<String, f64>,
+}
+
+/// Wall time per stage, seconds.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Timings {
+    pub load_s: f64,
+    pub render_s: f64,
+    pub vsd_s: f64,
+    pub point_errors_s: f64,
+    pub scoring_s: f64,
+    pub total_s: f64,
+}
+
+/// The result of an evaluation.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct EvalReport {
+    /// Mean of AR_VSD, AR_MSSD and AR_MSPD (when all three were computed).
+    pub ar: Option<f64>,
+    pub ar_vsd: Option<f64>,
+    pub ar_mssd: Option<f64>,
+    pub ar_mspd: Option<f64>,
+    /// Recall at `add_threshold` × diameter for ad, add, adi.
+    pub recall_ad: Option<f64>,
+    pub recall_add: Option<f64>,
+    pub recall_adi: Option<f64>,
+    pub add_threshold: f64,
+    pub per_object: BTreeMap<u32, ObjectScores>,
+    pub per_threshold: BTreeMap<String, Vec<ThresholdRecall>>,
+    /// Estimates evaluated (the kept top-`inst_count` of each target).
+    pub n_estimates: usize,
+    /// Estimates of the file that are not for a target (ignored), and
+    /// those dropped by the top-`inst_count` rule.
+    pub n_ignored: usize,
+    pub n_not_top: usize,
+    /// Valid ground-truth instances (the recall denominator).
+    pub n_targets: usize,
+    pub n_images: usize,
+    /// Where visible fractions came from.
+    pub visibility: String,
+    /// Mean time per image from the results file, −1 when unknown.
+    pub average_time_per_image: f64,
+    pub device: String,
+    pub time_s: Timings,
+}
+
+/// One object's model, prepared once.
+struct Model {
+    info: ModelInfo,
+    /// Vertices as the file has them (mm), for the point errors.
+    pts: Vec<DVec3>,
+    syms: Vec<Symmetry>,
+    tree: Option<PointTree>,
+    render: Option<RenderMesh>,
+}
+
+fn load_models(ds: &Dataset, obj_ids: &[u32], opts: &EvalOptions, need_render: bool) -> Result<HashMap<u32, Model>> {
+    let need_tree = opts.has(ErrorType::Adi) || opts.has(ErrorType::Ad);
+    obj_ids
+        .par_iter()
+        .map(|&id| {
+            let info = ds.models_info[&id].clone();
+            let path = ds.model_path(id);
+            let (pts, tris) = crate::mesh::load_positions(&path)?;
+            let render = if need_render {
+                let metres: Vec<DVec3> = pts.iter().map(|p| *p * 1e-3).collect();
+                let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
+                Some(RenderMesh::new(&mesh)?)
+            } else {
+                None
+            };
+            let syms = pose_error::symmetries(&info, opts.max_sym_disc_step);
+            let tree = need_tree.then(|| PointTree::new(&pts));
+            Ok((id, Model { info, pts, syms, tree, render }))
+        })
+        .collect()
+}
+
+/// Estimates per (scene, image, object) in file order.
+type EstimateIndex<'a> = HashMap<(u32, u32, u32), Vec<&'a Estimate>>;
+
+/// The kept estimates of a target: the `inst_count` highest-scored, ties in
+/// file order (the toolkit's stable sort).
+fn kept<'a>(index: &EstimateIndex<'a>, t: &Target) -> Vec<&'a Estimate> {
+    let mut v = index.get(&(t.scene_id, t.im_id, t.obj_id)).cloned().unwrap_or_default();
+    v.sort_by(|a, b| b.score.total_cmp(&a.score));
+    v.truncate(t.inst_count as usize);
+    v
+}
+
+/// One (estimate, instance) pair to compute errors for.
+struct Pair<'a> {
+    target: usize,
+    est_rank: usize,
+    est: &'a Estimate,
+    gt_id: usize,
+    gt: GtInstance,
+}
+
+/// Per-image inputs of a batch.
+struct Frame {
+    im_id: u32,
+    k: [f64; 9],
+    /// Image width (MSPD is scaled to 640 px).
+    width: u32,
+    depth: Option<DepthMm>,
+}
+
+/// Evaluates `results` on `targets` of `ds`. `progress(images_done)` is
+/// called as images finish. Returns the report and every pair's errors.
+pub fn evaluate(
+    ds: &Dataset,
+    results: &[Estimate],
+    targets: &[Target],
+    device: &Device,
+    opts: &EvalOptions,
+    progress: &mut dyn FnMut(usize),
+) -> Result<(EvalReport, Vec<ErrorRecord>)> {
+    opts.validate()?;
+    let t_start = Instant::now();
+    let mut report = EvalReport { add_threshold: opts.add_threshold, device: device.describe(), ..Default::default() };
+    let target_keys: std::collections::HashSet<(u32, u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id, t.obj_id)).collect();
+    let mut index: EstimateIndex = HashMap::new();
+    for e in results {
+        if !ds.models_info.contains_key(&e.obj_id) {
+            return Err(Error::InvalidInput(format!("results line {}: object {} is not in the dataset's models_info.json", e.line, e.obj_id)));
+        }
+        if target_keys.contains(&(e.scene_id, e.im_id, e.obj_id)) {
+            index.entry((e.scene_id, e.im_id, e.obj_id)).or_default().push(e);
+        } else {
+            report.n_ignored += 1;
+        }
+    }
+    report.average_time_per_image = average_time_per_image(results);
+    let mut obj_ids: Vec<u32> = targets.iter().map(|t| t.obj_id).collect();
+    obj_ids.sort_unstable();
+    obj_ids.dedup();
+    let mut by_scene: BTreeMap<u32, BTreeMap<u32, Vec<Target>>> = BTreeMap::new();
+    for t in targets {
+        by_scene.entry(t.scene_id).or_default().entry(t.im_id).or_default().push(*t);
+    }
+    report.n_images = by_scene.values().map(|m| m.len()).sum();
+    // Open every scene before the long work, so a bad file fails at once.
+    let scenes: Vec<Scene> = by_scene.keys().map(|&s| ds.scene(s)).collect::<Result<_>>()?;
+    let computed_visibility = scenes.iter().any(|s| s.gt_info.is_none());
+    let need_depth = opts.has(ErrorType::Vsd) || computed_visibility;
+    let t0 = Instant::now();
+    let models = load_models(ds, &obj_ids, opts, need_depth)?;
+    report.time_s.load_s += t0.elapsed().as_secs_f64();
+    report.visibility = if computed_visibility {
+        "computed from depth (bop19 rule, δ = 15 mm) where scene_gt_info.json is missing".into()
+    } else {
+        "scene_gt_info.json".into()
+    };
+    let mut all_targets: Vec<TargetErrors> = Vec::new();
+    let mut records = Vec::new();
+    let mut done = 0;
+    for scene in &scenes {
+        let images: Vec<(&u32, &Vec<Target>)> = by_scene[&scene.id].iter().collect();
+        for batch in images.chunks(opts.batch_images) {
+            let ctx = BatchCtx { scene, models: &models, opts, device, need_depth };
+            let (t, r) = ctx.run(batch, &index, &mut report)?;
+            all_targets.extend(t);
+            records.extend(r);
+            done += batch.len();
+            progress(done);
+        }
+    }
+    report.n_estimates = all_targets.iter().map(|t| t.estimates.len()).sum();
+    report.n_not_top = index.values().map(|v| v.len()).sum::<usize>() - report.n_estimates;
+    report.n_targets = all_targets.iter().map(|t| t.valid.len()).sum();
+    let t0 = Instant::now();
+    score(&all_targets, opts, &mut report);
+    report.time_s.scoring_s = t0.elapsed().as_secs_f64();
+    report.time_s.total_s = t_start.elapsed().as_secs_f64();
+    Ok((report, records))
+}
+
+/// The toolkit's `average_time_per_image`: −1 unless every estimate has a
+/// time ≥ 0 and all estimates of an image agree.
+fn average_time_per_image(results: &[Estimate]) -> f64 {
+    let mut per_image: HashMap<(u32, u32), f64> = HashMap::new();
+    for e in results {
+        if e.time < 0.0 {
+            return -1.0;
+        }
+        if let Some(&t) = per_image.get(&(e.scene_id, e.im_id)) {
+            if t != e.time {
+                tracing::warn!("estimates of scene {} image {} carry different times; average time per image is unknown", e.scene_id, e.im_id);
+                return -1.0;
+            }
+        }
+        per_image.insert((e.scene_id, e.im_id), e.time);
+    }
+    if per_image.is_empty() {
+        return -1.0;
+    }
+    per_image.values().sum::<f64>() / per_image.len() as f64
+}
+
+/// What a batch of images needs from the caller.
+struct BatchCtx<'a> {
+    scene: &'a Scene,
+    models: &'a HashMap<u32, Model>,
+    opts: &'a EvalOptions,
+    device: &'a Device,
+    need_depth: bool,
+}
+
+impl BatchCtx<'_> {
+    fn run(&self, batch: &[(&u32, &Vec<Target>)], index: &EstimateIndex, report: &mut EvalReport) -> Result<(Vec<TargetErrors>, Vec<ErrorRecord>)> {
+        let t0 = Instant::now();
+        let frames = self.read_frames(batch)?;
+        report.time_s.load_s += t0.elapsed().as_secs_f64();
+        let visib = self.visible_fractions(&frames, report)?;
+        let mut targets = Vec::new();
+        let mut pairs = Vec::new();
+        for (f, (im_id, tlist)) in frames.iter().zip(batch) {
+            let gt = &self.scene.gt[im_id];
+            let objs: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
+            for t in tlist.iter() {
+                let ests = kept(index, t);
+                let ti = targets.len();
+                for (rank, est) in ests.iter().enumerate() {
+                    for (gt_id, g) in gt.iter().enumerate().filter(|(_, g)| g.obj_id == t.obj_id) {
+                        pairs.push((f.im_id, Pair { target: ti, est_rank: rank, est, gt_id, gt: *g }));
+                    }
+                }
+                targets.push(TargetErrors {
+                    obj_id: t.obj_id,
+                    valid: recall::valid_instances(&objs, &visib[im_id], t.obj_id, t.inst_count),
+                    estimates: ests.iter().map(|e| EstimateErrors { score: e.score, errors: Vec::new() }).collect(),
+                });
+            }
+        }
+        let t0 = Instant::now();
+        let mut errors: Vec<Vec<f64>> = pairs.par_iter().map(|(im, p)| self.point_errors(&frames, *im, p)).collect();
+        report.time_s.point_errors_s += t0.elapsed().as_secs_f64();
+        if self.opts.has(ErrorType::Vsd) {
+            self.vsd_errors(&frames, &pairs, &mut errors, report)?;
+        }
+        let mut records = Vec::with_capacity(pairs.len());
+        for ((im_id, p), errs) in pairs.iter().zip(errors) {
+            records.push(self.record(*im_id, p, &errs));
+            targets[p.target].estimates[p.est_rank].errors.push((p.gt_id, errs));
+        }
+        Ok((targets, records))
+    }
+
+    fn read_frames(&self, batch: &[(&u32, &Vec<Target>)]) -> Result<Vec<Frame>> {
+        batch
+            .par_iter()
+            .map(|(&im_id, _)| {
+                if !self.scene.gt.contains_key(&im_id) {
+                    return Err(Error::BadJson {
+                        path: self.scene.dir.join("scene_gt.json"),
+                        reason: format!("target image {im_id} is not annotated"),
+                    });
+                }
+                let k = self.scene.frame_camera(im_id)?.k;
+                let depth = if self.need_depth { Some(self.scene.read_depth(im_id)?) } else { None };
+                let width = match &depth {
+                    Some(d) => d.width,
+                    None => self.scene.image_size(im_id)?.0,
+                };
+                Ok(Frame { im_id, k, width, depth })
+            })
+            .collect()
+    }
+
+    fn intrinsics(&self, f: &Frame) -> Result<Intrinsics> {
+        let d = f.depth.as_ref().expect("depth is read when rendering");
+        self.scene.intrinsics(f.im_id, d.width, d.height)
+    }
+
+    /// Visible fraction of every instance of the batch's images, from
+    /// `scene_gt_info.json` or computed from the depth.
+    fn visible_fractions(&self, frames: &[Frame], report: &mut EvalReport) -> Result<HashMap<u32, Vec<f64>>> {
+        if let Some(info) = &self.scene.gt_info {
+            return frames
+                .iter()
+                .map(|f| {
+                    info.get(&f.im_id).cloned().map(|v| (f.im_id, v)).ok_or_else(|| Error::BadJson {
+                        path: self.scene.dir.join("scene_gt_info.json"),
+                        reason: format!("no entry for image {}", f.im_id),
+                    })
+                })
+                .collect();
+        }
+        let t0 = Instant::now();
+        let mut out = HashMap::new();
+        for f in frames {
+            let k = self.intrinsics(f)?;
+            let gt = &self.scene.gt[&f.im_id];
+            let mut fr = vec![0.0; gt.len()];
+            for (i, g) in gt.iter().enumerate() {
+                if let Some(m) = self.models.get(&g.obj_id) {
+                    fr[i] = visible_fraction(self.device, m.render.as_ref().expect("render mesh"), &g.pose, &k, f, self.opts.vsd_delta_mm)?;
+                }
+            }
+            out.insert(f.im_id, fr);
+        }
+        report.time_s.render_s += t0.elapsed().as_secs_f64();
+        Ok(out)
+    }
+
+    /// MSSD, MSPD and the ADD family of one pair (normalized columns; VSD
+    /// columns are filled later).
+    fn point_errors(&self, frames: &[Frame], im_id: u32, p: &Pair) -> Vec<f64> {
+        let m = &self.models[&p.est.obj_id];
+        let d = m.info.diameter;
+        let (e, g) = (&p.est.pose, &p.gt.pose);
+        let mut out = vec![f64::NAN; VSD0 + self.opts.vsd_taus.len()];
+        let overlap = pose_error::spheres_overlap(e.t, g.t, d);
+        let far = |f: &dyn Fn() -> f64| if overlap { f() } else { f64::INFINITY };
+        if self.opts.has(ErrorType::Mssd) {
+            out[MSSD] = far(&|| pose_error::mssd(e, g, &m.pts, &m.syms)) / d;
+        }
+        if self.opts.has(ErrorType::Mspd) {
+            let f = frames.iter().find(|f| f.im_id == im_id).expect("frame of the pair");
+            out[MSPD] = pose_error::mspd(e, g, &f.k, &m.pts, &m.syms) * (640.0 / f.width as f64);
+        }
+        let add = || far(&|| pose_error::add(e, g, &m.pts)) / d;
+        let adi = || far(&|| pose_error::adi(e, g, &m.pts, m.tree.as_ref().expect("point tree"))) / d;
+        if self.opts.has(ErrorType::Add) {
+            out[ADD] = add();
+        }
+        if self.opts.has(ErrorType::Adi) {
+            out[ADI] = adi();
+        }
+        if self.opts.has(ErrorType::Ad) {
+            out[AD] = if m.info.is_symmetric() {
+                if self.opts.has(ErrorType::Adi) { out[ADI] } else { adi() }
+            } else if self.opts.has(ErrorType::Add) {
+                out[ADD]
+            } else {
+                add()
+            };
+        }
+        out
+    }
+
+    /// Renders the batch's estimates and instances per object (one batched
+    /// kernel call per object and camera) and fills the VSD columns.
+    fn vsd_errors(&self, frames: &[Frame], pairs: &[(u32, Pair)], errors: &mut [Vec<f64>], report: &mut EvalReport) -> Result<()> {
+        // Which pairs need renders (the toolkit's sphere shortcut gives 1).
+        let need: Vec<bool> = pairs
+            .iter()
+            .map(|(_, p)| pose_error::sphere_projections_overlap(0.5 * self.models[&p.est.obj_id].info.diameter, p.est.pose.t, p.gt.pose.t))
+            .collect();
+        // Unique poses to render, grouped by object and camera (images with
+        // the same intrinsics share one batched kernel call).
+        let mut groups: BTreeMap<GroupKey, (Intrinsics, Vec<PoseMm>)> = BTreeMap::new();
+        let mut slot: HashMap<(u32, RenderKey), usize> = HashMap::new();
+        let mut idx = Vec::with_capacity(pairs.len());
+        for ((im, p), &n) in pairs.iter().zip(&need) {
+            if !n {
+                idx.push(None);
+                continue;
+            }
+            let f = frames.iter().find(|f| f.im_id == *im).expect("frame");
+            let k = self.intrinsics(f)?;
+            let key = (p.est.obj_id, camera_key(&k));
+            let group = &mut groups.entry(key).or_insert_with(|| (k, Vec::new())).1;
+            let mut add = |rk: RenderKey, pose: PoseMm| {
+                *slot.entry((*im, rk)).or_insert_with(|| {
+                    group.push(pose);
+                    group.len() - 1
+                })
+            };
+            let e = add(RenderKey::Estimate(p.target, p.est_rank), p.est.pose);
+            let g = add(RenderKey::Gt(p.gt_id), p.gt.pose);
+            idx.push(Some((key, e, g)));
+        }
+        let t0 = Instant::now();
+        let mut renders: HashMap<GroupKey, Vec<Option<DepthTile>>> = HashMap::new();
+        for (key, (k, poses)) in &groups {
+            let mesh = self.models[&key.0].render.as_ref().expect("render mesh");
+            let metres: Vec<Pose> = poses.iter().map(|p| p.to_pose()).collect();
+            renders.insert(*key, render_depth(self.device, mesh, &metres, k)?);
+        }
+        report.time_s.render_s += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let images: HashMap<u32, VsdImage> =
+            frames.iter().map(|f| (f.im_id, VsdImage::new(f.depth.as_ref().expect("depth"), &f.k))).collect();
+        let taus = &self.opts.vsd_taus;
+        errors.par_iter_mut().zip(pairs.par_iter().zip(idx.par_iter())).for_each(|(out, ((im, p), ix))| {
+            let v = match ix {
+                None => vec![1.0; taus.len()],
+                Some((key, e, g)) => {
+                    let r = &renders[key];
+                    let d = self.models[&p.est.obj_id].info.diameter;
+                    vsd::vsd(&images[im], r[*e].as_ref(), r[*g].as_ref(), self.opts.vsd_delta_mm, taus, d)
+                }
+            };
+            out[VSD0..].copy_from_slice(&v);
+        });
+        report.time_s.vsd_s += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn record(&self, im_id: u32, p: &Pair, errs: &[f64]) -> ErrorRecord {
+        let d = self.models[&p.est.obj_id].info.diameter;
+        let has = |e| self.opts.has(e);
+        let finite = |v: f64| v.is_finite().then_some(v);
+        ErrorRecord {
+            scene_id: self.scene.id,
+            im_id,
+            obj_id: p.est.obj_id,
+            line: p.est.line,
+            score: p.est.score,
+            gt_id: p.gt_id,
+            vsd: has(ErrorType::Vsd).then(|| errs[VSD0..].to_vec()),
+            mssd_mm: if has(ErrorType::Mssd) { finite(errs[MSSD] * d) } else { None },
+            mspd_px: if has(ErrorType::Mspd) { finite(errs[MSPD]) } else { None },
+            add_mm: if has(ErrorType::Add) { finite(errs[ADD] * d) } else { None },
+            adi_mm: if has(ErrorType::Adi) { finite(errs[ADI] * d) } else { None },
+            re_deg: pose_error::re(&p.est.pose.r, &p.gt.pose.r),
+            te_mm: pose_error::te(p.est.pose.t, p.gt.pose.t),
+        }
+    }
+}
+
+/// Identifies a render of an image: a kept estimate (target, rank) or an
+/// annotated instance (gt id).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum RenderKey {
+    Estimate(usize, usize),
+    Gt(usize),
+}
+
+/// Renders are grouped by object and camera (intrinsics bits and size).
+type GroupKey = (u32, ([u64; 4], u32, u32));
+
+fn camera_key(k: &Intrinsics) -> ([u64; 4], u32, u32) {
+    ([k.fx.to_bits(), k.fy.to_bits(), k.cx.to_bits(), k.cy.to_bits()], k.width, k.height)
+}
+
+/// Depth tiles of `poses` on `device` (GPU kernel or CPU twin).
+pub fn render_depth(device: &Device, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Result<Vec<Option<DepthTile>>> {
+    match device {
+        Device::Gpu(ctx) => GpuDepth::new(ctx, mesh, k)?.render(poses),
+        Device::Cpu => Ok(depth_tiles_cpu(mesh, poses, k)),
+    }
+}
+
+/// The visible fraction of one instance as BOP's `calc_gt_info.py` computes
+/// it: the object rendered alone on a canvas three times the image (so
+/// parts outside the image count), visible pixels by the bop19 rule against
+/// the test depth, divided by all rendered pixels.
+fn visible_fraction(device: &Device, mesh: &RenderMesh, pose: &PoseMm, k: &Intrinsics, f: &Frame, delta: f32) -> Result<f64> {
+    let depth = f.depth.as_ref().expect("depth");
+    let (w, h) = (k.width as usize, k.height as usize);
+    let canvas = Intrinsics { cx: k.cx + w as f64, cy: k.cy + h as f64, width: k.width * 3, height: k.height * 3, ..*k };
+    let tile = render_depth(device, mesh, &[pose.to_pose()], &canvas)?.pop().flatten();
+    let Some(tile) = tile else { return Ok(0.0) };
+    let all = tile.covered();
+    if all == 0 {
+        return Ok(0.0);
+    }
+    let img = VsdImage::new(depth, &f.k);
+    let mut visible = 0usize;
+    for y in 0..h {
+        for x in 0..w {
+            let d = (tile.at(x + w, y + h) as f64 * 1000.0) as f32;
+            if d > 0.0 {
+                let dm = img.distance(d, x, y);
+                let dt = img.distance(depth.mm[y * w + x], x, y);
+                if (dm as f32 - dt as f32) <= delta || dt == 0.0 {
+                    visible += 1;
+                }
+            }
+        }
+    }
+    Ok(visible as f64 / all as f64)
+}
+
+/// Matching and recalls over every target; fills the report's AR fields.
+fn score(targets: &[TargetErrors], opts: &EvalOptions, report: &mut EvalReport) {
+    let mut per_obj_sums: BTreeMap<u32, BTreeMap<String, (f64, usize)>> = BTreeMap::new();
+    let mut ar_of = |name: &str, rows: Vec<(f64, Option<f64>, usize)>, report: &mut EvalReport| -> f64 {
+        let mut out = Vec::new();
+        let mut sum = 0.0;
+        for (th, tau, col) in &rows {
+            let r = recall::recall(targets, *th, *col);
+            sum += r.recall;
+            for (o, rec) in &r.per_object {
+                let e = per_obj_sums.entry(*o).or_default().entry(name.to_string()).or_default();
+                e.0 += rec;
+                e.1 += 1;
+            }
+            out.push(ThresholdRecall { threshold: *th, tau: *tau, recall: r.recall, tp: r.tp });
+        }
+        report.per_threshold.insert(name.to_string(), out);
+        sum / rows.len() as f64
+    };
+    if opts.has(ErrorType::Vsd) {
+        let rows = opts.vsd_taus.iter().enumerate().flat_map(|(i, &tau)| opts.thresholds.iter().map(move |&th| (th, Some(tau), VSD0 + i))).collect();
+        report.ar_vsd = Some(ar_of("vsd", rows, report));
+    }
+    if opts.has(ErrorType::Mssd) {
+        report.ar_mssd = Some(ar_of("mssd", opts.thresholds.iter().map(|&t| (t, None, MSSD)).collect(), report));
+    }
+    if opts.has(ErrorType::Mspd) {
+        report.ar_mspd = Some(ar_of("mspd", opts.mspd_px.iter().map(|&t| (t, None, MSPD)).collect(), report));
+    }
+    for (e, col) in [(ErrorType::Ad, AD), (ErrorType::Add, ADD), (ErrorType::Adi, ADI)] {
+        if opts.has(e) {
+            let r = ar_of(e.name(), vec![(opts.add_threshold, None, col)], report);
+            match e {
+                ErrorType::Ad => report.recall_ad = Some(r),
+                ErrorType::Add => report.recall_add = Some(r),
+                _ => report.recall_adi = Some(r),
+            }
+        }
+    }
+    if let (Some(a), Some(b), Some(c)) = (report.ar_vsd, report.ar_mssd, report.ar_mspd) {
+        report.ar = Some((a + b + c) / 3.0);
+    }
+    let mut counts: BTreeMap<u32, usize> = BTreeMap::new();
+    for t in targets {
+        *counts.entry(t.obj_id).or_default() += t.valid.len();
+    }
+    for (o, sums) in per_obj_sums {
+        let by_error: BTreeMap<String, f64> = sums.into_iter().map(|(k, (s, n))| (k, s / n as f64)).collect();
+        let ar = match (by_error.get("vsd"), by_error.get("mssd"), by_error.get("mspd")) {
+            (Some(a), Some(b), Some(c)) => Some((a + b + c) / 3.0),
+            _ => None,
+        };
+        report.per_object.insert(o, ObjectScores { targets: counts.get(&o).copied().unwrap_or(0), ar, by_error });
+    }
+}
+
+/// The ground truth of `targets` as a results file: for each target its
+/// valid instances (the most visible `inst_count`, or every instance when
+/// the scene has no `scene_gt_info.json`), score 1, time −1. Its AR is 1.
+pub fn gt_as_results(ds: &Dataset, targets: &[Target]) -> Result<Vec<Estimate>> {
+    let mut out = Vec::new();
+    let mut scenes: BTreeMap<u32, Scene> = BTreeMap::new();
+    for t in targets {
+        if !scenes.contains_key(&t.scene_id) {
+            scenes.insert(t.scene_id, ds.scene(t.scene_id)?);
+        }
+        let scene = &scenes[&t.scene_id];
+        let gt = scene.gt.get(&t.im_id).ok_or_else(|| Error::BadJson {
+            path: scene.dir.join("scene_gt.json"),
+            reason: format!("target image {} is not annotated", t.im_id),
+        })?;
+        let objs: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
+        let ids: Vec<usize> = match scene.gt_info.as_ref().and_then(|i| i.get(&t.im_id)) {
+            Some(vis) => recall::valid_instances(&objs, vis, t.obj_id, t.inst_count),
+            None => (0..gt.len()).filter(|&i| objs[i] == t.obj_id).collect(),
+        };
+        for i in ids {
+            out.push(Estimate { scene_id: t.scene_id, im_id: t.im_id, obj_id: t.obj_id, score: 1.0, pose: gt[i].pose, time: -1.0, line: 0 });
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,8 @@
+//! BOP pose-error metrics and scoring, defined exactly as the BOP toolkit
+//! computes them: pose errors (ADD, ADI, MSSD, MSPD, rotation and
+//! translation error), VSD from rendered depth, and the BOP'19 matching,
+//! recall and average recall.
+
+pub mod pose_error;
+pub mod recall;
+pub mod vsd;
