@@ -486,7 +486,9 @@ impl BatchCtx<'_> {
             let mut fr = vec![0.0; gt.len()];
             for (i, g) in gt.iter().enumerate() {
                 if let Some(m) = self.models.get(&g.obj_id) {
-                    fr[i] = visible_fraction(self.device, m.render.as_ref().expect("render mesh"), &g.pose, &k, f, self.opts.vsd_delta_mm)?;
+                    let depth = f.depth.as_ref().expect("depth is read without scene_gt_info.json");
+                    let mesh = m.render.as_ref().expect("render mesh");
+                    fr[i] = visible_fraction(self.device, mesh, &g.pose, &k, depth, &f.k, self.opts.vsd_delta_mm)?;
                 }
             }
             out.insert(f.im_id, fr);
@@ -639,8 +641,7 @@ pub fn render_depth(device: &Device, mesh: &RenderMesh, poses: &[Pose], k: &Intr
 /// it: the object rendered alone on a canvas three times the image (so
 /// parts outside the image count), visible pixels by the bop19 rule against
 /// the test depth, divided by all rendered pixels.
-fn visible_fraction(device: &Device, mesh: &RenderMesh, pose: &PoseMm, k: &Intrinsics, f: &Frame, delta: f32) -> Result<f64> {
-    let depth = f.depth.as_ref().expect("depth");
+fn visible_fraction(device: &Device, mesh: &RenderMesh, pose: &PoseMm, k: &Intrinsics, depth: &DepthMm, kk: &[f64; 9], delta: f32) -> Result<f64> {
     let (w, h) = (k.width as usize, k.height as usize);
     let canvas = Intrinsics { cx: k.cx + w as f64, cy: k.cy + h as f64, width: k.width * 3, height: k.height * 3, ..*k };
     let tile = render_depth(device, mesh, &[pose.to_pose()], &canvas)?.pop().flatten();
@@ -649,7 +650,7 @@ fn visible_fraction(device: &Device, mesh: &RenderMesh, pose: &PoseMm, k: &Intri
     if all == 0 {
         return Ok(0.0);
     }
-    let img = VsdImage::new(depth, &f.k);
+    let img = VsdImage::new(depth, kk);
     let mut visible = 0usize;
     for y in 0..h {
         for x in 0..w {
@@ -664,6 +665,33 @@ fn visible_fraction(device: &Device, mesh: &RenderMesh, pose: &PoseMm, k: &Intri
         }
     }
     Ok(visible as f64 / all as f64)
+}
+
+/// Visible fractions of every instance in the first `max_images` images of
+/// `scene`, computed from the depth as [`evaluate`] does without
+/// `scene_gt_info.json`; instances whose model file is missing get 0.
+pub fn visible_fractions(ds: &Dataset, scene: &Scene, device: &Device, max_images: usize) -> Result<BTreeMap<u32, Vec<f64>>> {
+    let mut meshes: HashMap<u32, Option<RenderMesh>> = HashMap::new();
+    let mut out = BTreeMap::new();
+    for (&im, gt) in scene.gt.iter().take(max_images) {
+        let depth = scene.read_depth(im)?;
+        let k = scene.intrinsics(im, depth.width, depth.height)?;
+        let kk = scene.frame_camera(im)?.k;
+        let mut fr = Vec::with_capacity(gt.len());
+        for g in gt {
+            if !meshes.contains_key(&g.obj_id) {
+                let path = ds.model_path(g.obj_id);
+                let mesh = if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
+                meshes.insert(g.obj_id, mesh);
+            }
+            fr.push(match &meshes[&g.obj_id] {
+                Some(m) => visible_fraction(device, m, &g.pose, &k, &depth, &kk, vsd::DELTA_MM)?,
+                None => 0.0,
+            });
+        }
+        out.insert(im, fr);
+    }
+    Ok(out)
 }
 
 /// Matching and recalls over every target; fills the report's AR fields.
