@@ -314,7 +314,10 @@ pub fn evaluate(
     let mut index: EstimateIndex = HashMap::new();
     for e in results {
         if !ds.models_info.contains_key(&e.obj_id) {
-            return Err(Error::InvalidInput(format!("results line {}: object {} is not in the dataset's models_info.json", e.line, e.obj_id)));
+            return Err(Error::InvalidInput(format!(
+                "results line {}: object {} is not in the dataset's models_info.json",
+                e.line, e.obj_id
+            )));
         }
         if target_keys.contains(&(e.scene_id, e.im_id, e.obj_id)) {
             index.entry((e.scene_id, e.im_id, e.obj_id)).or_default().push(e);
@@ -377,7 +380,11 @@ fn average_time_per_image(results: &[Estimate]) -> f64 {
         }
         if let Some(&t) = per_image.get(&(e.scene_id, e.im_id)) {
             if t != e.time {
-                tracing::warn!("estimates of scene {} image {} carry different times; average time per image is unknown", e.scene_id, e.im_id);
+                tracing::warn!(
+                    "estimates of scene {} image {} carry different times; average time per image is unknown",
+                    e.scene_id,
+                    e.im_id
+                );
                 return -1.0;
             }
         }
@@ -399,7 +406,12 @@ struct BatchCtx<'a> {
 }
 
 impl BatchCtx<'_> {
-    fn run(&self, batch: &[(&u32, &Vec<Target>)], index: &EstimateIndex, report: &mut EvalReport) -> Result<(Vec<TargetErrors>, Vec<ErrorRecord>)> {
+    fn run(
+        &self,
+        batch: &[(&u32, &Vec<Target>)],
+        index: &EstimateIndex,
+        report: &mut EvalReport,
+    ) -> Result<(Vec<TargetErrors>, Vec<ErrorRecord>)> {
         let t0 = Instant::now();
         let frames = self.read_frames(batch)?;
         report.time_s.load_s += t0.elapsed().as_secs_f64();
@@ -523,7 +535,11 @@ impl BatchCtx<'_> {
         }
         if self.opts.has(ErrorType::Ad) {
             out[AD] = if m.info.is_symmetric() {
-                if self.opts.has(ErrorType::Adi) { out[ADI] } else { adi() }
+                if self.opts.has(ErrorType::Adi) {
+                    out[ADI]
+                } else {
+                    adi()
+                }
             } else if self.opts.has(ErrorType::Add) {
                 out[ADD]
             } else {
@@ -641,7 +657,15 @@ pub fn render_depth(device: &Device, mesh: &RenderMesh, poses: &[Pose], k: &Intr
 /// it: the object rendered alone on a canvas three times the image (so
 /// parts outside the image count), visible pixels by the bop19 rule against
 /// the test depth, divided by all rendered pixels.
-fn visible_fraction(device: &Device, mesh: &RenderMesh, pose: &PoseMm, k: &Intrinsics, depth: &DepthMm, kk: &[f64; 9], delta: f32) -> Result<f64> {
+fn visible_fraction(
+    device: &Device,
+    mesh: &RenderMesh,
+    pose: &PoseMm,
+    k: &Intrinsics,
+    depth: &DepthMm,
+    kk: &[f64; 9],
+    delta: f32,
+) -> Result<f64> {
     let (w, h) = (k.width as usize, k.height as usize);
     let canvas = Intrinsics { cx: k.cx + w as f64, cy: k.cy + h as f64, width: k.width * 3, height: k.height * 3, ..*k };
     let tile = render_depth(device, mesh, &[pose.to_pose()], &canvas)?.pop().flatten();
@@ -681,7 +705,8 @@ pub fn visible_fractions(ds: &Dataset, scene: &Scene, device: &Device, max_image
         for g in gt {
             if !meshes.contains_key(&g.obj_id) {
                 let path = ds.model_path(g.obj_id);
-                let mesh = if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
+                let mesh =
+                    if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
                 meshes.insert(g.obj_id, mesh);
             }
             fr.push(match &meshes[&g.obj_id] {
@@ -714,7 +739,12 @@ fn score(targets: &[TargetErrors], opts: &EvalOptions, report: &mut EvalReport) 
         sum / rows.len() as f64
     };
     if opts.has(ErrorType::Vsd) {
-        let rows = opts.vsd_taus.iter().enumerate().flat_map(|(i, &tau)| opts.thresholds.iter().map(move |&th| (th, Some(tau), VSD0 + i))).collect();
+        let rows = opts
+            .vsd_taus
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &tau)| opts.thresholds.iter().map(move |&th| (th, Some(tau), VSD0 + i)))
+            .collect();
         report.ar_vsd = Some(ar_of("vsd", rows, report));
     }
     if opts.has(ErrorType::Mssd) {
@@ -771,7 +801,15 @@ pub fn gt_as_results(ds: &Dataset, targets: &[Target]) -> Result<Vec<Estimate>> 
             None => (0..gt.len()).filter(|&i| objs[i] == t.obj_id).collect(),
         };
         for i in ids {
-            out.push(Estimate { scene_id: t.scene_id, im_id: t.im_id, obj_id: t.obj_id, score: 1.0, pose: gt[i].pose, time: -1.0, line: 0 });
+            out.push(Estimate {
+                scene_id: t.scene_id,
+                im_id: t.im_id,
+                obj_id: t.obj_id,
+                score: 1.0,
+                pose: gt[i].pose,
+                time: -1.0,
+                line: 0,
+            });
         }
     }
     Ok(out)

@@ -5,7 +5,11 @@ mod cli;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "plausible", version, about = "How plausible is an object pose? Visual and physical plausibility of 6D pose hypotheses, batched on any GPU.")]
+#[command(
+    name = "plausible",
+    version,
+    about = "How plausible is an object pose? Visual and physical plausibility of 6D pose hypotheses, batched on any GPU."
+)]
 struct Cli {
     /// More output: -v prints the adapter and backend, -vv debug logs.
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]

@@ -97,7 +97,9 @@ fn perturbed_results_match_the_bop_toolkit() {
 fn flipped(ds: &Dataset, e: &Estimate) -> Estimate {
     let info = &ds.models_info[&e.obj_id];
     let s = match info.symmetries_discrete.first() {
-        Some(m) => PoseMm { r: DMat3::from_cols_array(&[m[0], m[4], m[8], m[1], m[5], m[9], m[2], m[6], m[10]]), t: DVec3::new(m[3], m[7], m[11]) },
+        Some(m) => {
+            PoseMm { r: DMat3::from_cols_array(&[m[0], m[4], m[8], m[1], m[5], m[9], m[2], m[6], m[10]]), t: DVec3::new(m[3], m[7], m[11]) }
+        }
         // No symmetry: a plain 180° turn about the model's z axis.
         None => PoseMm { r: rotation_about(DVec3::Z, std::f64::consts::PI), t: DVec3::ZERO },
     };
@@ -316,7 +318,9 @@ fn bad_dataset_files_are_clear_errors() {
     assert!(e.contains("scene_camera.json") && e.contains("depth_scale"), "{e}");
     let e = corrupt("models/models_info.json", &|p| std::fs::write(p, "{\"1\": {\"diameter\": -3}}").unwrap());
     assert!(e.contains("models_info.json") && e.contains("diameter"), "{e}");
-    let e = corrupt("test_targets_bop19.json", &|p| std::fs::write(p, "[{\"scene_id\": 2, \"im_id\": 3, \"obj_id\": 4, \"inst_count\": 1}]").unwrap());
+    let e = corrupt("test_targets_bop19.json", &|p| {
+        std::fs::write(p, "[{\"scene_id\": 2, \"im_id\": 3, \"obj_id\": 4, \"inst_count\": 1}]").unwrap()
+    });
     assert!(e.contains("test_targets_bop19.json") && e.contains("object 4"), "{e}");
     let e = corrupt("models/obj_000001.ply", &|p| std::fs::remove_file(p).unwrap());
     assert!(e.contains("obj_000001.ply") && e.contains("not found"), "{e}");

@@ -140,11 +140,8 @@ impl Dataset {
         if !root.is_dir() {
             return Err(Error::InvalidInput(format!("{}: no such dataset folder", root.display())));
         }
-        let models_dir = ["models_eval", "models"]
-            .iter()
-            .map(|d| root.join(d))
-            .find(|d| d.join("models_info.json").is_file())
-            .ok_or_else(|| {
+        let models_dir =
+            ["models_eval", "models"].iter().map(|d| root.join(d)).find(|d| d.join("models_info.json").is_file()).ok_or_else(|| {
                 Error::InvalidInput(format!("{}: neither models_eval/ nor models/ holds a models_info.json", root.display()))
             })?;
         let models_info = read_models_info(&models_dir.join("models_info.json"))?;
@@ -263,19 +260,16 @@ impl Scene {
 
     /// An image's camera, or an error naming the scene file.
     pub fn frame_camera(&self, im_id: u32) -> Result<&FrameCamera> {
-        self.camera.get(&im_id).ok_or_else(|| Error::BadJson {
-            path: self.dir.join("scene_camera.json"),
-            reason: format!("no entry for image {im_id}"),
-        })
+        self.camera
+            .get(&im_id)
+            .ok_or_else(|| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("no entry for image {im_id}") })
     }
 
     /// Intrinsics of an image of `width × height`.
     pub fn intrinsics(&self, im_id: u32, width: u32, height: u32) -> Result<Intrinsics> {
         let cam = self.frame_camera(im_id)?;
-        Intrinsics::from_k(&cam.k, width, height).map_err(|e| Error::BadJson {
-            path: self.dir.join("scene_camera.json"),
-            reason: format!("image {im_id}: {e}"),
-        })
+        Intrinsics::from_k(&cam.k, width, height)
+            .map_err(|e| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("image {im_id}: {e}") })
     }
 
     /// The size of an image: the dataset's `camera.json`, else the depth

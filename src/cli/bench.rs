@@ -34,6 +34,8 @@ pub enum BenchKind {
     Stable(super::stable::BenchStableArgs),
     /// Physical plausibility: signed-distance queries/s against a plane and a mesh grid.
     Physics(super::bench_physics::BenchPhysicsArgs),
+    /// BOP evaluation: estimates/s for VSD, MSSD + MSPD and the BOP'19 set.
+    Eval(super::bench_eval::BenchEvalArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -88,6 +90,7 @@ pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
         BenchKind::Score(s) => bench_score(s, verbose),
         BenchKind::Stable(s) => super::stable::bench_stable(s),
         BenchKind::Physics(p) => super::bench_physics::bench_physics(p, verbose),
+        BenchKind::Eval(e) => super::bench_eval::bench_eval(e, verbose),
     }
 }
 

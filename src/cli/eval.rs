@@ -8,8 +8,6 @@ use anyhow::{bail, Context as _, Result};
 use plausible::bop::{read_results, write_results, Dataset, TargetSource};
 use plausible::eval::{evaluate, gt_as_results, ErrorType, EvalOptions, EvalReport};
 
-use super::DeviceArgs;
-
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
     /// BOP dataset folder: models_eval/ or models/ (with models_info.json),
@@ -49,8 +47,15 @@ pub struct EvalArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-    #[command(flatten)]
-    pub device: DeviceArgs,
+    /// `auto` (a hardware GPU when there is one, else the CPU twin, which
+    /// beats a software adapter like lavapipe on the same cores), `gpu` (any
+    /// wgpu adapter, lavapipe included) or `cpu` (the CPU twin).
+    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
+    pub device: String,
+    /// Use the first adapter whose name contains this text. WGPU_BACKEND
+    /// (vulkan, metal, dx12, gl) and WGPU_POWER_PREF are honoured too.
+    #[arg(long)]
+    pub adapter: Option<String>,
 }
 
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
@@ -77,7 +82,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         }
         (None, None) => bail!("give --results or --gt-as-results"),
     };
-    let device = a.device.open(verbose, true)?;
+    let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
     let n_images = {
         let mut ims: Vec<(u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id)).collect();
         ims.sort_unstable();
@@ -129,9 +134,13 @@ pub fn print_report(r: &EvalReport, opts: &EvalOptions) {
         r.n_estimates, r.n_targets, r.n_images, r.time_s.total_s, r.device, r.visibility
     );
     if r.n_ignored > 0 || r.n_not_top > 0 {
-        println!("ignored {} estimates for non-target objects or images, {} beyond the top inst_count of their target", r.n_ignored, r.n_not_top);
+        println!(
+            "ignored {} estimates for non-target objects or images, {} beyond the top inst_count of their target",
+            r.n_ignored, r.n_not_top
+        );
     }
-    let cols: Vec<&str> = ["vsd", "mssd", "mspd", "ad", "add", "adi"].into_iter().filter(|c| opts.errors.iter().any(|e| e.name() == *c)).collect();
+    let cols: Vec<&str> =
+        ["vsd", "mssd", "mspd", "ad", "add", "adi"].into_iter().filter(|c| opts.errors.iter().any(|e| e.name() == *c)).collect();
     let mut head = format!("{:>5} {:>8} {:>7}", "obj", "targets", "AR");
     for c in &cols {
         head += &format!(" {:>7}", c.to_uppercase());

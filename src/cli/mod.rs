@@ -2,6 +2,7 @@
 //! library).
 
 pub mod bench;
+pub mod bench_eval;
 pub mod bench_physics;
 pub mod check;
 pub mod demo;
@@ -107,25 +108,39 @@ impl DeviceArgs {
     /// Opens the requested device. With `fallback`, a missing GPU adapter is
     /// reported and the CPU twin is used instead.
     pub fn open(&self, verbose: u8, fallback: bool) -> Result<Device> {
-        if self.device == "cpu" {
-            return Ok(Device::Cpu);
+        open_device(&self.device, self.adapter.as_deref(), verbose, fallback)
+    }
+}
+
+/// Opens `gpu`, `cpu` or `auto`: a hardware adapter when there is one, the
+/// CPU twin when the only adapter is a software rasterizer (lavapipe runs
+/// the same kernels on the same cores, measurably slower than the twin).
+pub fn open_device(device: &str, adapter: Option<&str>, verbose: u8, fallback: bool) -> Result<Device> {
+    if device == "cpu" {
+        return Ok(Device::Cpu);
+    }
+    match Context::new(&GpuOptions { adapter: adapter.map(str::to_string), limits: None }) {
+        Ok(ctx) if device == "auto" && ctx.is_software() => {
+            eprintln!(
+                "note: the only adapter is {} (software): using the CPU twin, which is faster there (--device gpu to use the adapter)",
+                ctx.info.name
+            );
+            Ok(Device::Cpu)
         }
-        match Context::new(&GpuOptions { adapter: self.adapter.clone(), limits: None }) {
-            Ok(ctx) => {
-                if verbose > 0 {
-                    eprintln!("adapter: {} (backend {:?}, {:?})", ctx.info.name, ctx.info.backend, ctx.info.device_type);
-                }
-                if ctx.info.backend == wgpu::Backend::Gl {
-                    eprintln!("note: running on the OpenGL backend; a Vulkan driver is faster and more robust");
-                }
-                Ok(Device::Gpu(Box::new(ctx)))
+        Ok(ctx) => {
+            if verbose > 0 {
+                eprintln!("adapter: {} (backend {:?}, {:?})", ctx.info.name, ctx.info.backend, ctx.info.device_type);
             }
-            Err(e) if fallback => {
-                eprintln!("note: {e}\nnote: falling back to the CPU twin");
-                Ok(Device::Cpu)
+            if ctx.info.backend == wgpu::Backend::Gl {
+                eprintln!("note: running on the OpenGL backend; a Vulkan driver is faster and more robust");
             }
-            Err(e) => Err(e.into()),
+            Ok(Device::Gpu(Box::new(ctx)))
         }
+        Err(e) if fallback || device == "auto" => {
+            eprintln!("note: {e}\nnote: falling back to the CPU twin");
+            Ok(Device::Cpu)
+        }
+        Err(e) => Err(e.into()),
     }
 }
 
@@ -143,9 +158,7 @@ pub fn asset(rel: &str) -> PathBuf {
 pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     let pb = indicatif::ProgressBar::new(len);
     pb.set_style(
-        indicatif::ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {per_sec} ETA {eta}")
-            .unwrap()
-            .progress_chars("=> "),
+        indicatif::ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {per_sec} ETA {eta}").unwrap().progress_chars("=> "),
     );
     pb.set_message(what.to_string());
     pb

@@ -106,11 +106,7 @@ pub fn depth_tile_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics, zbuf: &mut
         for x in rect[0]..=rect[2] {
             let inside = drawn.is_some_and(|d| x >= d[0] && x <= d[2] && y >= d[1] && y <= d[3]);
             let id = if inside { ids[y * w + x] } else { u32::MAX };
-            depth.push(if id == u32::MAX {
-                0.0
-            } else {
-                resolve(&mesh.triangles[id as usize], &gp, mesh.radius, k, x as f32, y as f32).0
-            });
+            depth.push(if id == u32::MAX { 0.0 } else { resolve(&mesh.triangles[id as usize], &gp, mesh.radius, k, x as f32, y as f32).0 });
         }
     }
     Some(DepthTile { rect, depth })
@@ -122,10 +118,7 @@ pub fn depth_tiles_cpu(mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Vec
     let n = k.pixels();
     poses
         .par_iter()
-        .map_init(
-            || (vec![f32::INFINITY; n], vec![u32::MAX; n]),
-            |(zbuf, ids), pose| depth_tile_cpu(mesh, pose, k, zbuf, ids),
-        )
+        .map_init(|| (vec![f32::INFINITY; n], vec![u32::MAX; n]), |(zbuf, ids), pose| depth_tile_cpu(mesh, pose, k, zbuf, ids))
         .collect()
 }
 
@@ -156,7 +149,11 @@ impl<'a> GpuDepth<'a> {
         });
         let out_pixels = (ctx.limits.max_items(4) as usize).min(BATCH_PIXELS);
         if out_pixels < MAX_GPU_TILE_PIXELS {
-            return Err(Error::Gpu(format!("the adapter binds at most {} bytes of storage; the depth kernel needs {}", out_pixels * 4, MAX_GPU_TILE_PIXELS * 4)));
+            return Err(Error::Gpu(format!(
+                "the adapter binds at most {} bytes of storage; the depth kernel needs {}",
+                out_pixels * 4,
+                MAX_GPU_TILE_PIXELS * 4
+            )));
         }
         let out = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("depths"),

@@ -127,6 +127,11 @@ const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
 #[derive(Clone, Debug)]
 pub struct RenderMesh {
     pub triangles: Vec<GpuTriangle>,
+    /// f32 vertices and each triangle's corner indices (the CPU twin
+    /// transforms and projects each vertex once per pose, not once per
+    /// corner; the corners are the same f32 values as in `triangles`).
+    pub vertices: Vec<Vec3>,
+    pub indices: Vec<[u32; 3]>,
     pub radius: f32,
     pub cull_back_faces: bool,
 }
@@ -149,8 +154,11 @@ impl RenderMesh {
             .collect();
         let mut welded = mesh.clone();
         welded.weld();
+        let vertices = mesh.vertices.iter().map(|v| v.as_vec3()).collect();
         Ok(RenderMesh {
             triangles,
+            vertices,
+            indices: mesh.triangles.clone(),
             radius: (mesh.radius_about_origin() * 1.0001) as f32,
             cull_back_faces: welded.is_closed(),
         })

@@ -59,59 +59,70 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
     }
     let mut drawn: Option<[usize; 4]> = None;
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
-    let project = |v: Vec3| -> (f32, f32) { (fx * v.x / v.z + cx, fy * v.y / v.z + cy) };
     let cross2 = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
     let sub = |a: (f32, f32), b: (f32, f32)| (a.0 - b.0, a.1 - b.1);
     // Camera centre in model coordinates: a face is a back face when the
     // camera lies on the inner side of its plane.
     let cam = pose.inverse_translation();
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        if mesh.cull_back_faces && Vec3::from_slice(&tri.plane[..3]).dot(cam) <= tri.plane[3] {
-            continue;
-        }
-        let a = pose.transform(Vec3::from_slice(&tri.v0[..3]));
-        let b = pose.transform(Vec3::from_slice(&tri.v1[..3]));
-        let c = pose.transform(Vec3::from_slice(&tri.v2[..3]));
-        if a.z.min(b.z).min(c.z) < NEAR_M {
-            continue;
-        }
-        let (sa, sb, sc) = (project(a), project(b), project(c));
-        let area = cross2(sub(sb, sa), sub(sc, sa));
-        if area.abs() < 1e-12 {
-            continue;
-        }
-        let x_lo = sa.0.min(sb.0).min(sc.0).ceil().max(rect[0] as f32);
-        let y_lo = sa.1.min(sb.1).min(sc.1).ceil().max(rect[1] as f32);
-        let x_hi = sa.0.max(sb.0).max(sc.0).floor().min(rect[2] as f32);
-        let y_hi = sa.1.max(sb.1).max(sc.1).floor().min(rect[3] as f32);
-        if x_lo > x_hi || y_lo > y_hi {
-            continue;
-        }
-        let (bx0, by0, bx1, by1) = (x_lo as usize, y_lo as usize, x_hi as usize, y_hi as usize);
-        drawn = Some(match drawn {
-            None => [bx0, by0, bx1, by1],
-            Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
-        });
-        let inv = 1.0 / area;
-        for y in y_lo as usize..=y_hi as usize {
-            for x in x_lo as usize..=x_hi as usize {
-                let q = (x as f32, y as f32);
-                let w0 = cross2(sub(sc, sb), sub(q, sb)) * inv;
-                let w1 = cross2(sub(sa, sc), sub(q, sc)) * inv;
-                let w2 = cross2(sub(sb, sa), sub(q, sa)) * inv;
-                if w0.min(w1).min(w2) < 0.0 {
-                    continue;
-                }
-                let z = 1.0 / (w0 / a.z + w1 / b.z + w2 / c.z);
-                let i = y * w + x;
-                if z < zbuf[i] {
-                    zbuf[i] = z;
-                    ids[i] = t as u32;
+    PROJECTED.with_borrow_mut(|proj| {
+        // Every vertex transformed and projected once (the same f32 operations
+        // the kernel does per corner, so the results are identical).
+        proj.clear();
+        proj.extend(mesh.vertices.iter().map(|&v| {
+            let p = pose.transform(v);
+            (p, (fx * p.x / p.z + cx, fy * p.y / p.z + cy))
+        }));
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            if mesh.cull_back_faces && Vec3::from_slice(&tri.plane[..3]).dot(cam) <= tri.plane[3] {
+                continue;
+            }
+            let [ia, ib, ic] = mesh.indices[t];
+            let ((a, sa), (b, sb), (c, sc)) = (proj[ia as usize], proj[ib as usize], proj[ic as usize]);
+            if a.z.min(b.z).min(c.z) < NEAR_M {
+                continue;
+            }
+            let area = cross2(sub(sb, sa), sub(sc, sa));
+            if area.abs() < 1e-12 {
+                continue;
+            }
+            let x_lo = sa.0.min(sb.0).min(sc.0).ceil().max(rect[0] as f32);
+            let y_lo = sa.1.min(sb.1).min(sc.1).ceil().max(rect[1] as f32);
+            let x_hi = sa.0.max(sb.0).max(sc.0).floor().min(rect[2] as f32);
+            let y_hi = sa.1.max(sb.1).max(sc.1).floor().min(rect[3] as f32);
+            if x_lo > x_hi || y_lo > y_hi {
+                continue;
+            }
+            let (bx0, by0, bx1, by1) = (x_lo as usize, y_lo as usize, x_hi as usize, y_hi as usize);
+            drawn = Some(match drawn {
+                None => [bx0, by0, bx1, by1],
+                Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
+            });
+            let inv = 1.0 / area;
+            for y in y_lo as usize..=y_hi as usize {
+                for x in x_lo as usize..=x_hi as usize {
+                    let q = (x as f32, y as f32);
+                    let w0 = cross2(sub(sc, sb), sub(q, sb)) * inv;
+                    let w1 = cross2(sub(sa, sc), sub(q, sc)) * inv;
+                    let w2 = cross2(sub(sb, sa), sub(q, sa)) * inv;
+                    if w0.min(w1).min(w2) < 0.0 {
+                        continue;
+                    }
+                    let z = 1.0 / (w0 / a.z + w1 / b.z + w2 / c.z);
+                    let i = y * w + x;
+                    if z < zbuf[i] {
+                        zbuf[i] = z;
+                        ids[i] = t as u32;
+                    }
                 }
             }
         }
-    }
+    });
     drawn
+}
+
+thread_local! {
+    /// Per-thread scratch of camera-frame vertices and their projections.
+    static PROJECTED: std::cell::RefCell<Vec<(Vec3, (f32, f32))>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Exact depth and camera-facing normal at pixel `(x, y)` on triangle `tri`,

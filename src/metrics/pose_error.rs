@@ -294,8 +294,8 @@ mod tests {
         };
         let syms = symmetries(&info, MAX_SYM_DISC_STEP);
         assert_eq!(syms.len(), 315); // ceil(π / 0.01)
-        // A cylinder-like point set turned by an arbitrary angle about its axis
-        // is within one step's chord of a sample: 2π/315 rad at radius 50.
+                                     // A cylinder-like point set turned by an arbitrary angle about its axis
+                                     // is within one step's chord of a sample: 2π/315 rad at radius 50.
         let pts: Vec<DVec3> = (0..36).map(|i| DVec3::new(50.0 * (i as f64).cos(), 50.0 * (i as f64).sin(), 10.0)).collect();
         let gt = pose(DMat3::IDENTITY, DVec3::new(0.0, 0.0, 700.0));
         let est = pose(rotation_about(DVec3::Z, 1.234), gt.t);

@@ -92,12 +92,7 @@ pub fn recall(targets: &[TargetErrors], threshold: f64, column: usize) -> Recall
         o.1 += t.valid.len();
     }
     let ratio = |a: usize, b: usize| if b == 0 { 0.0 } else { a as f64 / b as f64 };
-    Recall {
-        recall: ratio(tp, n),
-        tp,
-        targets: n,
-        per_object: obj.into_iter().map(|(o, (a, b))| (o, ratio(a, b))).collect(),
-    }
+    Recall { recall: ratio(tp, n), tp, targets: n, per_object: obj.into_iter().map(|(o, (a, b))| (o, ratio(a, b))).collect() }
 }
 
 /// Thresholds as `numpy.arange(start, stop, step)` makes them:
@@ -150,7 +145,11 @@ mod tests {
     fn greedy_matching_is_strict_and_takes_the_lowest_error() {
         // Two instances; the first estimate is closer to instance 1 and takes
         // it, the second gets instance 0.
-        let t = TargetErrors { obj_id: 1, valid: vec![0, 1], estimates: vec![est(0.9, &[(0, 0.2), (1, 0.1)]), est(0.8, &[(0, 0.15), (1, 0.05)])] };
+        let t = TargetErrors {
+            obj_id: 1,
+            valid: vec![0, 1],
+            estimates: vec![est(0.9, &[(0, 0.2), (1, 0.1)]), est(0.8, &[(0, 0.15), (1, 0.05)])],
+        };
         assert_eq!(matched(&t, 0.3, 0), 2);
         // Error equal to the threshold does not match.
         assert_eq!(matched(&t, 0.15, 0), 1);

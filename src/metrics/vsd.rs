@@ -170,9 +170,9 @@ mod tests {
         let img = VsdImage::new(&depth, &K);
         let gt = tile([0, 0, 9, 9], 1.0);
         let est = tile([0, 0, 9, 9], 0.9); // 100 mm nearer: visible where occluded too
-        // GT visible only on the right half (50 px); the estimate is in front
-        // of the occluder, so visible everywhere (100 px): union 100, inter
-        // 50, every intersecting pixel off by 0.1 m = 1 diameter.
+                                           // GT visible only on the right half (50 px); the estimate is in front
+                                           // of the occluder, so visible everywhere (100 px): union 100, inter
+                                           // 50, every intersecting pixel off by 0.1 m = 1 diameter.
         let e = vsd(&img, Some(&est), Some(&gt), DELTA_MM, &[0.5, 2.0], 100.0);
         assert_eq!(e, vec![1.0, 0.5]);
     }

@@ -1,0 +1,130 @@
+//! `plausible bench eval`: BOP evaluation throughput (estimates/s) for VSD,
+//! MSSD + MSPD and the whole BOP'19 set, GPU and CPU twin side by side in
+//! the same run, on the shipped LM-O frames (or any dataset).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context as _, Result};
+use plausible::bop::{read_results, Dataset};
+use plausible::eval::{evaluate, ErrorType, EvalOptions};
+use plausible::visual::Device;
+use serde::Serialize;
+
+#[derive(clap::Args, Debug)]
+pub struct BenchEvalArgs {
+    /// BOP dataset (default: the shipped 12-frame LM-O subset).
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Results file (default: the shipped perturbed estimates).
+    #[arg(long)]
+    pub results: Option<PathBuf>,
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Timed runs per row (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Print JSON (one object per row) instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Skip the CPU twin (not recommended: figures are meant side by side).
+    #[arg(long)]
+    pub no_cpu: bool,
+    /// The device measured beside the CPU twin: `gpu` (any wgpu adapter,
+    /// lavapipe included) or `cpu` (the twin alone).
+    #[arg(long, default_value = "gpu", value_parser = ["gpu", "cpu"])]
+    pub device: String,
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+#[derive(Serialize, Debug)]
+pub struct EvalBenchRow {
+    pub what: String,
+    pub device: String,
+    pub estimates: usize,
+    pub images: usize,
+    pub estimates_per_s: f64,
+    pub wall_s: f64,
+    pub render_s: f64,
+    pub ar: Option<f64>,
+    pub cpu_model: String,
+    pub cpu_threads: usize,
+}
+
+/// The CPU's model name (Linux), so figures from different machines are
+/// not compared blindly.
+pub fn cpu_model() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| s.lines().find(|l| l.starts_with("model name")).and_then(|l| l.split(':').nth(1)).map(|m| m.trim().to_string()))
+        .unwrap_or_else(|| "unknown".into())
+}
+
+pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
+    if a.repeat == 0 || a.repeat > 1000 {
+        anyhow::bail!("--repeat must be between 1 and 1000");
+    }
+    let root = a.dataset.clone().unwrap_or_else(|| super::asset("assets/lmo-synth"));
+    let results_path = a.results.clone().unwrap_or_else(|| root.join("perturbed.csv"));
+    let ds = Dataset::open(&root, &a.split).context("--dataset")?;
+    let (targets, _) = ds.targets(None)?;
+    let results = read_results(&results_path).context("--results")?;
+    let mut devices = vec![super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?];
+    if !a.no_cpu && !matches!(devices[0], Device::Cpu) {
+        devices.push(Device::Cpu);
+    }
+    let sets: [(&str, Vec<ErrorType>); 3] = [
+        ("vsd", vec![ErrorType::Vsd]),
+        ("mssd+mspd", vec![ErrorType::Mssd, ErrorType::Mspd]),
+        ("bop19 (vsd+mssd+mspd)", ErrorType::BOP19.to_vec()),
+    ];
+    let mut rows = Vec::new();
+    for (what, errors) in &sets {
+        for device in &devices {
+            let opts = EvalOptions { errors: errors.clone(), ..Default::default() };
+            // Warm-up: pipelines compiled, files in the page cache.
+            evaluate(&ds, &results, &targets, device, &opts, &mut |_| {})?;
+            let mut runs = Vec::new();
+            for _ in 0..a.repeat {
+                let t = Instant::now();
+                let (r, _) = evaluate(&ds, &results, &targets, device, &opts, &mut |_| {})?;
+                runs.push((t.elapsed().as_secs_f64(), r));
+            }
+            runs.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let (wall, r) = runs.swap_remove(runs.len() / 2);
+            rows.push(EvalBenchRow {
+                what: what.to_string(),
+                device: device.describe(),
+                estimates: r.n_estimates,
+                images: r.n_images,
+                estimates_per_s: r.n_estimates as f64 / wall,
+                wall_s: wall,
+                render_s: r.time_s.render_s,
+                ar: r.ar.or(r.ar_vsd).or(r.ar_mssd),
+                cpu_model: cpu_model(),
+                cpu_threads: rayon::current_num_threads(),
+            });
+        }
+    }
+    if a.json {
+        for r in &rows {
+            println!("{}", serde_json::to_string(r)?);
+        }
+        return Ok(());
+    }
+    println!(
+        "{} ({} estimates, {} images; {}, {} threads; wall clock, median of {})",
+        root.display(),
+        rows[0].estimates,
+        rows[0].images,
+        rows[0].cpu_model,
+        rows[0].cpu_threads,
+        a.repeat
+    );
+    println!("{:<24} {:<44} {:>12} {:>9} {:>9}", "errors", "device", "estimates/s", "wall s", "render s");
+    for r in &rows {
+        println!("{:<24} {:<44} {:>12.0} {:>9.3} {:>9.3}", r.what, r.device, r.estimates_per_s, r.wall_s, r.render_s);
+    }
+    Ok(())
+}
