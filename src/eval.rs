@@ -85,6 +85,43 @@ pub struct EvalOptions {
     /// Images per batch: bounds memory (depth and renders of a batch are
     /// held at once) while giving the GPU enough poses per dispatch.
     pub batch_images: usize,
+    /// Objects that `ad` scores with ADI. `None`: the objects with
+    /// symmetries in `models_info.json`; the BOP toolkit uses a fixed list
+    /// per dataset ([`bop_symmetric_obj_ids`]).
+    pub symmetric_obj_ids: Option<Vec<u32>>,
+}
+
+/// The BOP toolkit's `symmetric_obj_ids` per dataset name (which objects
+/// its `ad` error scores with ADI); `None` for an unknown name.
+pub fn bop_symmetric_obj_ids(dataset: &str) -> Option<Vec<u32>> {
+    Some(match dataset {
+        "lm" => vec![3, 7, 10, 11],
+        "lmo" => vec![10, 11],
+        "tless" => (1..=30).collect(),
+        "tudl" | "hope" | "hopev2" => vec![],
+        "tyol" => vec![3, 4, 5, 6, 7, 8, 10, 11, 12, 13, 15, 16, 17, 18, 19, 21],
+        "ruapc" => vec![8, 9, 12, 13],
+        "icmi" => vec![1, 2, 6],
+        "icbin" => vec![1],
+        "itodd" | "itoddmv" => vec![2, 3, 4, 5, 7, 8, 9, 11, 12, 14, 17, 18, 19, 23, 24, 25, 27, 28],
+        "hbs" => vec![10, 12, 18, 29],
+        "hb" => vec![6, 10, 11, 12, 13, 14, 18, 24, 29],
+        "ycbv" => vec![1, 13, 14, 16, 18, 19, 20, 21],
+        "hot3d" => vec![1, 2, 3, 5, 22, 24, 25, 29, 30, 32],
+        "handal" => vec![26, 35, 36, 37, 38, 39, 40],
+        "ipd" => vec![8, 14, 18, 19, 20],
+        "xyzibd" => vec![1, 2, 5, 8, 9, 11, 12, 16, 17],
+        _ => return None,
+    })
+}
+
+/// The BOP toolkit's VSD δ per dataset name (mm): 5 for ITODD, 15 otherwise.
+pub fn bop_vsd_delta_mm(dataset: &str) -> f32 {
+    if dataset.starts_with("itodd") {
+        5.0
+    } else {
+        vsd::DELTA_MM
+    }
 }
 
 impl Default for EvalOptions {
@@ -98,6 +135,7 @@ impl Default for EvalOptions {
             add_threshold: 0.1,
             max_sym_disc_step: pose_error::MAX_SYM_DISC_STEP,
             batch_images: 100,
+            symmetric_obj_ids: None,
         }
     }
 }
@@ -534,7 +572,11 @@ impl BatchCtx<'_> {
             out[ADI] = adi();
         }
         if self.opts.has(ErrorType::Ad) {
-            out[AD] = if m.info.is_symmetric() {
+            let symmetric = match &self.opts.symmetric_obj_ids {
+                Some(ids) => ids.contains(&p.est.obj_id),
+                None => m.info.is_symmetric(),
+            };
+            out[AD] = if symmetric {
                 if self.opts.has(ErrorType::Adi) {
                     out[ADI]
                 } else {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::{read_results, write_results, Dataset, TargetSource};
-use plausible::eval::{evaluate, gt_as_results, ErrorType, EvalOptions, EvalReport};
+use plausible::eval::{bop_symmetric_obj_ids, bop_vsd_delta_mm, evaluate, gt_as_results, ErrorType, EvalOptions, EvalReport};
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -41,6 +41,13 @@ pub struct EvalArgs {
     /// evaluate it (its AR is 1 by construction: a check of the setup).
     #[arg(long, conflicts_with = "results")]
     pub gt_as_results: Option<PathBuf>,
+    /// BOP dataset name (lm, lmo, tless, ycbv, itodd, ...) for the toolkit's
+    /// per-dataset constants: the objects `ad` scores with ADI, and VSD δ
+    /// (5 mm for ITODD, else 15 mm). Default: the dataset folder's name when
+    /// it is one of them; otherwise symmetric objects are those with
+    /// symmetries in models_info.json and δ is 15 mm.
+    #[arg(long)]
+    pub dataset_name: Option<String>,
     /// Images per batch (memory holds one batch's depth and renders).
     #[arg(long, default_value_t = 100)]
     pub batch_images: usize,
@@ -59,8 +66,29 @@ pub struct EvalArgs {
 }
 
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
-    let opts = EvalOptions { errors: a.errors.clone(), add_threshold: a.add_threshold, batch_images: a.batch_images, ..Default::default() };
+    let folder = a.dataset.canonicalize().ok().and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).unwrap_or_default();
+    let name = match &a.dataset_name {
+        Some(n) => {
+            if bop_symmetric_obj_ids(n).is_none() {
+                bail!("--dataset-name '{n}' is not a BOP dataset the toolkit knows (lm, lmo, tless, tudl, tyol, ruapc, icmi, icbin, itodd, hb, ycbv, hope, ...)");
+            }
+            Some(n.clone())
+        }
+        None => bop_symmetric_obj_ids(&folder).map(|_| folder.clone()),
+    };
+    let opts = EvalOptions {
+        errors: a.errors.clone(),
+        add_threshold: a.add_threshold,
+        batch_images: a.batch_images,
+        symmetric_obj_ids: name.as_deref().and_then(bop_symmetric_obj_ids),
+        vsd_delta_mm: name.as_deref().map_or(EvalOptions::default().vsd_delta_mm, bop_vsd_delta_mm),
+        ..Default::default()
+    };
     opts.validate().context("check --errors, --add-threshold and --batch-images")?;
+    match &name {
+        Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
+        None => eprintln!("note: '{folder}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)"),
+    }
     for p in [&a.out, &a.errors_out, &a.gt_as_results].into_iter().flatten() {
         plausible::io::check_writable(p)?;
     }
@@ -93,7 +121,9 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     if a.quiet {
         pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
-    let (report, records) = evaluate(&ds, &results, &targets, &device, &opts, &mut |done| pb.set_position(done as u64))?;
+    let results_name = a.results.as_ref().or(a.gt_as_results.as_ref()).map(|p| p.display().to_string()).unwrap_or_default();
+    let (report, records) = evaluate(&ds, &results, &targets, &device, &opts, &mut |done| pb.set_position(done as u64))
+        .with_context(|| format!("evaluating {results_name}"))?;
     pb.finish_and_clear();
     print_report(&report, &opts);
     if let Some(p) = &a.out {
