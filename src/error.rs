@@ -10,12 +10,10 @@ pub enum Error {
     #[error("{path}: file not found")]
     NotFound { path: PathBuf },
 
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    /// The message already holds the I/O error's text, so it is not also
+    /// chained as a source (`{:#}` would print it twice).
+    #[error("{path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
 
     #[error("{path}: unsupported mesh format '{ext}' (expected .obj, .ply, .stl, .gltf or .glb)")]
     UnsupportedFormat { path: PathBuf, ext: String },
@@ -83,7 +81,7 @@ impl Error {
         if source.kind() == std::io::ErrorKind::NotFound {
             Error::NotFound { path }
         } else {
-            Error::Io { path, source }
+            Error::Io { path, error: source }
         }
     }
 }

@@ -165,12 +165,19 @@ impl EvalOptions {
         if !(self.max_sym_disc_step.is_finite() && self.max_sym_disc_step >= 1e-4 && self.max_sym_disc_step <= 1.0) {
             return bad("max_sym_disc_step", format!("must lie in [1e-4, 1], got {}", self.max_sym_disc_step));
         }
-        if self.batch_images == 0 {
-            return bad("batch size", "must be at least 1 image".into());
+        if self.batch_images == 0 || self.batch_images > MAX_BATCH_IMAGES {
+            return bad("batch size", format!("must be 1 to {MAX_BATCH_IMAGES} images (a batch's depth images are held in memory), got {}", self.batch_images));
         }
         Ok(())
     }
 }
+
+/// Largest canvas for visible fractions (3× the image each way): 30 M
+/// pixels, a 1920×1080 image.
+const MAX_CANVAS_PIXELS: usize = 30_000_000;
+
+/// Most images per batch: 1,000 VGA depth images are 1.2 GB of f32.
+pub const MAX_BATCH_IMAGES: usize = 1000;
 
 /// Error columns of a pair: point errors first, then one per VSD τ.
 const MSSD: usize = 0;
@@ -709,6 +716,12 @@ fn visible_fraction(
     delta: f32,
 ) -> Result<f64> {
     let (w, h) = (k.width as usize, k.height as usize);
+    if 9 * w * h > MAX_CANVAS_PIXELS {
+        return Err(Error::InvalidInput(format!(
+            "a {w}x{h} image is too large to compute visible fractions the BOP way (a 3x canvas of {} pixels); give the scene a scene_gt_info.json",
+            9 * w * h
+        )));
+    }
     let canvas = Intrinsics { cx: k.cx + w as f64, cy: k.cy + h as f64, width: k.width * 3, height: k.height * 3, ..*k };
     let tile = render_depth(device, mesh, &[pose.to_pose()], &canvas)?.pop().flatten();
     let Some(tile) = tile else { return Ok(0.0) };

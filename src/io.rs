@@ -8,7 +8,20 @@ use crate::error::{Error, Result};
 /// Writes `path` through a temporary file beside it, renamed into place
 /// only when everything was written: a full disk or a kill leaves the old
 /// file (or none), never half a new one.
+///
+/// A path that exists and is not a regular file (`/dev/stdout`, a FIFO,
+/// `/dev/full`) is written in place: renaming over it would replace the
+/// device.
 pub fn write_atomically(path: &Path, body: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>) -> Result<()> {
+    if path.exists() && !path.is_file() && !path.is_dir() {
+        let result = (|| {
+            let file = std::fs::OpenOptions::new().write(true).open(path)?;
+            let mut w = std::io::BufWriter::new(file);
+            body(&mut w)?;
+            w.flush()
+        })();
+        return result.map_err(|e| Error::io(path, e));
+    }
     let tmp = temp_beside(path);
     let result = (|| {
         let file = std::fs::File::create(&tmp)?;
@@ -45,6 +58,11 @@ pub fn check_writable(path: &Path) -> Result<()> {
     }
     if path.is_dir() {
         return Err(Error::InvalidInput(format!("{}: is a folder, expected a file name", path.display())));
+    }
+    if path.exists() && !path.is_file() {
+        // A device or FIFO: it must open for writing.
+        std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::io(path, e))?;
+        return Ok(());
     }
     let probe = temp_beside(path);
     std::fs::File::create(&probe).map_err(|e| Error::io(path, e))?;

@@ -131,8 +131,9 @@ pub struct Dataset {
     pub image_size: Option<(u32, u32)>,
 }
 
-/// Largest image side we read (BOP's largest sensors are under 4k).
-pub const MAX_IMAGE_SIDE: u32 = 8192;
+/// Largest image side we read (BOP's largest images are 2400 px a side;
+/// the CPU renderer holds a z-buffer of the whole image per thread).
+pub const MAX_IMAGE_SIDE: u32 = 4096;
 
 impl Dataset {
     /// Opens `root` (the folder holding `models*/` and `<split>/`).

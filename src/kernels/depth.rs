@@ -35,6 +35,12 @@ pub fn depth_wgsl() -> String {
 /// image.
 pub const MAX_GPU_TILE_PIXELS: usize = 300_000;
 
+/// Most triangles the GPU kernel takes. Each of a workgroup's 64
+/// invocations sets up n/64 triangles (and loops over their few pixels), so
+/// a million triangles would approach lavapipe's silent 65,535-iteration
+/// cap; larger meshes are rendered by the CPU twin, with a warning.
+pub const MAX_GPU_TRIANGLES: usize = 500_000;
+
 /// Most tile pixels one dispatch batch writes (64 MB of f32).
 const BATCH_PIXELS: usize = 16 << 20;
 
@@ -167,6 +173,13 @@ impl<'a> GpuDepth<'a> {
     /// Depth tiles of `poses`, in input order. Poses whose tile exceeds
     /// [`MAX_GPU_TILE_PIXELS`] are rendered by the CPU twin.
     pub fn render(&self, poses: &[Pose]) -> Result<Vec<Option<DepthTile>>> {
+        if self.mesh.triangles.len() > MAX_GPU_TRIANGLES {
+            tracing::warn!(
+                "the mesh has {} triangles, more than the depth kernel's {MAX_GPU_TRIANGLES} (lavapipe's loop cap): rendering with the CPU twin",
+                self.mesh.triangles.len()
+            );
+            return Ok(depth_tiles_cpu(self.mesh, poses, &self.k));
+        }
         let rects: Vec<Option<[usize; 4]>> = poses.iter().map(|p| tile_rect(self.mesh, p, &self.k)).collect();
         let area = |r: &[usize; 4]| (r[2] - r[0] + 1) * (r[3] - r[1] + 1);
         let mut out: Vec<Option<DepthTile>> = vec![None; poses.len()];
