@@ -37,6 +37,26 @@ impl Intrinsics {
         Ok(i)
     }
 
+    /// Checks the intrinsics belong to an image of this size: the principal
+    /// point within half an image of it, focal lengths between 1/100 and
+    /// 100 image widths (fields of view from 0.6° to 179°).
+    pub fn check_against_image(&self) -> std::result::Result<(), String> {
+        let (w, h) = (self.width as f64, self.height as f64);
+        if self.cx < -0.5 * w || self.cx > 1.5 * w || self.cy < -0.5 * h || self.cy > 1.5 * h {
+            return Err(format!(
+                "the principal point ({:.1}, {:.1}) lies far outside the {}x{} image: is the camera for another image size?",
+                self.cx, self.cy, self.width, self.height
+            ));
+        }
+        let side = w.max(h);
+        for (name, f) in [("fx", self.fx), ("fy", self.fy)] {
+            if f < side / 100.0 || f > side * 100.0 {
+                return Err(format!("focal length {name} = {f} px is not plausible for a {}x{} image", self.width, self.height));
+            }
+        }
+        Ok(())
+    }
+
     /// Projects a camera-frame point to pixel coordinates.
     pub fn project(&self, p: DVec3) -> (f64, f64) {
         (self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy)

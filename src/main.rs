@@ -48,6 +48,29 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // println! panics when standard output cannot be written (a full disk,
+    // /dev/full): report it as an error and exit 1 instead of a panic (101).
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let msg = info.payload().downcast_ref::<String>().map(String::as_str).or_else(|| info.payload().downcast_ref::<&str>().copied());
+        if let Some(m) = msg.filter(|m| m.starts_with("failed printing to stdout")) {
+            eprintln!("error: cannot write the output: {}", m.trim_start_matches("failed printing to stdout: "));
+            std::process::exit(1);
+        }
+        default_hook(info);
+    }));
+    // On a headless server Mesa's device-select Vulkan layer tries to reach
+    // a Wayland display and prints "XDG_RUNTIME_DIR is invalid" on every
+    // start; without a display session it has nothing to select by. Set
+    // here, before any thread exists (the library never touches the
+    // process environment).
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none()
+        && std::env::var_os("NODEVICE_SELECT").is_none()
+        && std::env::var_os("MESA_VK_DEVICE_SELECT").is_none()
+    {
+        // SAFETY: first thing in main, no other thread exists yet.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => "warn",

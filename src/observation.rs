@@ -23,52 +23,102 @@ pub struct DepthImage {
 pub struct BopCamera {
     #[serde(rename = "cam_K")]
     pub cam_k: Vec<f64>,
-    #[serde(default = "one")]
     pub depth_scale: f64,
 }
 
-fn one() -> f64 {
-    1.0
+/// The dataset-level BOP `camera.json`: `fx, fy, cx, cy, width, height,
+/// depth_scale`.
+#[derive(Deserialize)]
+struct DatasetCamera {
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    depth_scale: f64,
 }
 
-/// Reads a camera JSON holding one BOP `scene_camera.json` entry
-/// (`{"cam_K": [...], "depth_scale": s}`), or a whole `scene_camera.json`
-/// from which `frame` picks the entry (optional when it holds one entry).
+/// Reads a camera JSON: one BOP `scene_camera.json` entry (`{"cam_K":
+/// [...], "depth_scale": s}`), a BOP dataset `camera.json` (`fx, fy, cx, cy,
+/// width, height, depth_scale`), or a whole `scene_camera.json` from which
+/// `frame` picks the entry (optional when it holds one entry). A frame id
+/// given for a file without frames is an error, not ignored.
 pub fn read_camera(path: &Path, frame: Option<&str>) -> Result<BopCamera> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
-    let entry = if v.get("cam_K").is_some() {
-        v
-    } else if let Some(map) = v.as_object() {
-        match frame {
-            Some(f) => map.get(f).cloned().ok_or_else(|| bad(format!("no frame '{f}' in the file")))?,
-            None if map.len() == 1 => map.values().next().cloned().unwrap(),
-            None => {
-                return Err(bad(format!(
-                    "holds {} frames; pick one with --frame (e.g. --frame {})",
-                    map.len(),
-                    map.keys().next().map(String::as_str).unwrap_or("0")
-                )))
-            }
-        }
+    let single = v.get("cam_K").is_some() || v.get("fx").is_some();
+    if single && frame.is_some() {
+        return Err(bad(format!(
+            "holds a single camera, not a scene_camera.json with frames: frame '{}' cannot be picked",
+            frame.unwrap_or_default()
+        )));
+    }
+    let cam = if v.get("fx").is_some() {
+        let c: DatasetCamera = serde_json::from_value(v)
+            .map_err(|e| bad(format!("{e}; a BOP camera.json has fx, fy, cx, cy, width, height and depth_scale")))?;
+        BopCamera { cam_k: vec![c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0], depth_scale: c.depth_scale }
     } else {
-        return Err(bad("expected a BOP camera entry {\"cam_K\": [9 numbers], \"depth_scale\": s}".into()));
+        let entry = if single {
+            v
+        } else if let Some(map) = v.as_object() {
+            match frame {
+                Some(f) => map.get(f).cloned().ok_or_else(|| bad(format!("no frame '{f}' in the file")))?,
+                None if map.len() == 1 => map.values().next().cloned().unwrap(),
+                None => {
+                    return Err(bad(format!(
+                        "holds {} frames; pick one by its id (e.g. {})",
+                        map.len(),
+                        map.keys().next().map(String::as_str).unwrap_or("0")
+                    )))
+                }
+            }
+        } else {
+            return Err(bad("expected a BOP camera entry {\"cam_K\": [9 numbers], \"depth_scale\": s}".into()));
+        };
+        serde_json::from_value(entry)
+            .map_err(|e| bad(format!("{e}; expected {{\"cam_K\": [9 numbers], \"depth_scale\": s}} (depth_scale: PNG value x depth_scale = mm)")))?
     };
-    let cam: BopCamera = serde_json::from_value(entry)
-        .map_err(|e| bad(format!("{e}; expected {{\"cam_K\": [9 numbers], \"depth_scale\": s}}")))?;
     if !(cam.depth_scale.is_finite() && cam.depth_scale > 0.0) {
         return Err(bad(format!("depth_scale must be positive, got {}", cam.depth_scale)));
+    }
+    if !(MIN_DEPTH_SCALE..=MAX_DEPTH_SCALE).contains(&cam.depth_scale) {
+        return Err(bad(format!(
+            "depth_scale {} is not a plausible scale from PNG values to millimetres (expected {MIN_DEPTH_SCALE} to {MAX_DEPTH_SCALE}, usually 0.1 or 1)",
+            cam.depth_scale
+        )));
     }
     Ok(cam)
 }
 
-/// Reads a BOP depth PNG (16-bit, `value * depth_scale` = millimetres).
+/// Plausible `depth_scale` range (PNG value × scale = mm).
+pub const MIN_DEPTH_SCALE: f64 = 1e-3;
+pub const MAX_DEPTH_SCALE: f64 = 100.0;
+
+/// Size of a PNG from its header, refusing images above [`MAX_IMAGE_SIDE`]
+/// before anything is decoded.
+pub fn png_size(path: &Path) -> Result<(u32, u32)> {
+    let bad = |reason: String| Error::BadImage { path: path.to_path_buf(), reason };
+    let reader = image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
+    let reader = reader.with_guessed_format().map_err(|e| Error::io(path, e))?;
+    let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;
+    if w == 0 || h == 0 || w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        return Err(bad(format!("image is {w}x{h}; 1 to {MAX_IMAGE_SIDE} pixels a side are read")));
+    }
+    Ok((w, h))
+}
+
+/// Reads a BOP depth PNG (16-bit, `value * depth_scale` = millimetres). The
+/// intrinsics are checked against the image size: a principal point far
+/// outside the image or an absurd focal length means the camera belongs to
+/// another image.
 pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
     let bad = |reason: String| Error::BadImage { path: path.to_path_buf(), reason };
     if !path.exists() {
         return Err(Error::NotFound { path: path.to_path_buf() });
     }
+    let (w, h) = png_size(path)?;
+    let intrinsics = Intrinsics::from_k(&cam.cam_k, w, h)?;
+    intrinsics.check_against_image().map_err(|reason| bad(reason))?;
     let img = image::open(path).map_err(|e| bad(e.to_string()))?;
     let img = match img {
         image::DynamicImage::ImageLuma16(i) => i,
@@ -79,8 +129,6 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
             )))
         }
     };
-    let (w, h) = img.dimensions();
-    let intrinsics = Intrinsics::from_k(&cam.cam_k, w, h)?;
     let s = (cam.depth_scale * 1e-3) as f32;
     let depth: Vec<f32> = img.as_raw().iter().map(|&v| v as f32 * s).collect();
     if depth.iter().all(|&d| d == 0.0) {
@@ -102,6 +150,10 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     if !path.exists() {
         return Err(Error::NotFound { path: path.to_path_buf() });
     }
+    let (mw, mh) = png_size(path)?;
+    if (mw, mh) != (width, height) {
+        return Err(bad(format!("mask is {mw}x{mh} but the depth image is {width}x{height}")));
+    }
     let img = image::open(path).map_err(|e| bad(e.to_string()))?.to_luma8();
     if img.dimensions() != (width, height) {
         return Err(bad(format!(
@@ -116,6 +168,15 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     }
     Ok(mask)
 }
+
+/// Largest margin of the region around the mask (fraction of its size).
+pub const MAX_ROI_MARGIN: f64 = 10.0;
+/// Largest resampled region side (pixels): 4096² pixels hold 1.3 GB of
+/// per-pixel data per visibility slot and image.
+pub const MAX_ROI_SIDE: u32 = 4096;
+/// Largest depth or mask image side read (pixels), checked from the PNG
+/// header before decoding.
+pub const MAX_IMAGE_SIDE: u32 = 8192;
 
 /// Depth jump (metres) between neighbours above which they are taken to lie
 /// on different surfaces, so no normal is estimated across them.
@@ -230,6 +291,16 @@ impl ScoreTarget {
     /// Builds the scoring region from an observation. `mask` (same size as
     /// the depth) selects the object; without it the whole frame counts.
     pub fn new(obs: &DepthImage, mask: Option<&[bool]>, sampling: RoiSampling, margin: f64) -> Result<Self> {
+        if !(margin.is_finite() && (0.0..=MAX_ROI_MARGIN).contains(&margin)) {
+            return Err(Error::InvalidInput(format!(
+                "the region's margin must lie in [0, {MAX_ROI_MARGIN}] (a fraction of the mask's size on each side), got {margin}"
+            )));
+        }
+        if let RoiSampling::Square(n) = sampling {
+            if n == 0 || n > MAX_ROI_SIDE {
+                return Err(Error::InvalidInput(format!("the region's resolution must be 1 to {MAX_ROI_SIDE} pixels a side, got {n}")));
+            }
+        }
         let k = obs.intrinsics;
         let (w, h) = (k.width as usize, k.height as usize);
         let masked: Vec<f32> = match mask {

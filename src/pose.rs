@@ -19,6 +19,10 @@ pub struct Pose {
     pub t: DVec3,
 }
 
+/// Largest `|RᵀR - I|` that orthonormalization projects onto SO(3); beyond
+/// it the matrix is scaled or sheared (2·I is not a noisy rotation).
+pub const MAX_ORTHONORMALIZE_ERR: f64 = 0.1;
+
 /// How far `RᵀR` may be from the identity before a rotation is rejected.
 pub const ORTHONORMAL_TOL: f64 = 1e-3;
 
@@ -81,6 +85,11 @@ impl Pose {
             )));
         }
         let err = self.orthonormality_error();
+        if err > MAX_ORTHONORMALIZE_ERR {
+            return Err(bad(format!(
+                "rotation is far from orthonormal (max |RᵀR - I| = {err:.2e}): a scaled or sheared matrix is not a rotation, even to project"
+            )));
+        }
         if err > ORTHONORMAL_TOL {
             if orthonormalize {
                 self.r = orthonormalize_rotation(self.r);

@@ -14,7 +14,7 @@ pub mod stable;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use plausible::gpu::{Context, GpuOptions};
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{read_camera, read_depth_png, read_mask_png, DepthImage};
@@ -67,8 +67,8 @@ pub struct ObservationArgs {
 impl ObservationArgs {
     /// Reads the depth and, when given, the mask.
     pub fn load(&self) -> Result<(DepthImage, Option<Vec<bool>>)> {
-        let cam = read_camera(&self.camera, self.frame.as_deref())?;
-        let obs = read_depth_png(&self.depth, &cam)?;
+        let cam = read_camera(&self.camera, self.frame.as_deref()).context("--camera (a frame of a scene_camera.json is picked with --frame)")?;
+        let obs = read_depth_png(&self.depth, &cam).context("--depth")?;
         let mask = match &self.mask {
             Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
             None => None,

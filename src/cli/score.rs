@@ -90,6 +90,9 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     if !a.physics && (sm.samples != DEFAULT_SAMPLES || sm.seed != DEFAULT_SEED || sm.epsilon.is_some()) {
         bail!("--samples, --seed and --epsilon set the physical terms: add --plane P.json --physics");
     }
+    if let Some(out) = &a.out {
+        check_out(out)?;
+    }
     let mesh = a.mesh.load()?;
     let (obs, mask) = a.obs.load()?;
     let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
@@ -298,9 +301,8 @@ pub fn write_records(
     rank: &[usize],
 ) -> Result<()> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    let mut f = std::io::BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
-    );
+    let mut body = Vec::new();
+    let f = &mut body;
     match ext.as_str() {
         "json" => {
             let v: Vec<serde_json::Value> = records
@@ -325,7 +327,7 @@ pub fn write_records(
                     v
                 })
                 .collect();
-            serde_json::to_writer_pretty(&mut f, &v)?;
+            serde_json::to_writer_pretty(&mut *f, &v)?;
             writeln!(f)?;
         }
         "csv" => {
@@ -356,6 +358,16 @@ pub fn write_records(
         }
         _ => bail!("--out {}: use a .json or .csv file name", path.display()),
     }
-    f.flush()?;
+    plausible::io::write_atomically(path, |w| w.write_all(&body))?;
+    Ok(())
+}
+
+/// Checks `--out` before the work: a .json or .csv name in a folder that exists.
+fn check_out(path: &std::path::Path) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if ext != "json" && ext != "csv" {
+        bail!("--out {}: use a .json or .csv file name", path.display());
+    }
+    plausible::io::check_writable(path).context("--out")?;
     Ok(())
 }

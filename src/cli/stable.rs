@@ -281,9 +281,20 @@ fn short_name(p: &Path) -> String {
         .unwrap_or_else(|| p.display().to_string())
 }
 
+/// Writes JSON to `path` (atomically), or to standard output for `-`.
 fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(value)?;
-    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
+    if path.as_os_str() == "-" {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{text}")?;
+        return Ok(out.flush()?);
+    }
+    plausible::io::write_atomically(path, |w| {
+        use std::io::Write;
+        writeln!(w, "{text}")
+    })?;
+    Ok(())
 }
 
 fn fmt_vec(v: [f64; 3]) -> String {

@@ -76,16 +76,9 @@ impl Context {
     /// only prints noise, so GL is used only when asked for. Power
     /// preference: `WGPU_POWER_PREF` or the default.
     pub fn new(opts: &GpuOptions) -> Result<Context> {
-        // On a headless server Mesa's device-select Vulkan layer tries to
-        // reach a Wayland display and prints "XDG_RUNTIME_DIR is invalid" on
-        // every start. Without a display session it has nothing to select
-        // by, so switch it off unless the user configured it.
-        if std::env::var_os("XDG_RUNTIME_DIR").is_none()
-            && std::env::var_os("NODEVICE_SELECT").is_none()
-            && std::env::var_os("MESA_VK_DEVICE_SELECT").is_none()
-        {
-            std::env::set_var("NODEVICE_SELECT", "1");
-        }
+        // The process environment is never changed here (unsound with
+        // threads); the binary switches Mesa's device-select layer off at
+        // start-up.
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::PRIMARY;
         let desc = desc.with_env();

@@ -16,7 +16,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::raster::{raster_ids, raster_params, resolve, screen_rect, RasterBuffers};
-use super::{GpuPose, RenderMesh, RASTER_WGSL};
+use super::{GpuPose, RenderMesh, MAX_GPU_TRIANGLES, RASTER_WGSL};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -34,12 +34,6 @@ pub fn depth_wgsl() -> String {
 /// filling a big image) are rendered by the CPU twin, which gives the same
 /// image.
 pub const MAX_GPU_TILE_PIXELS: usize = 300_000;
-
-/// Most triangles the GPU kernel takes. Each of a workgroup's 64
-/// invocations sets up n/64 triangles (and loops over their few pixels), so
-/// a million triangles would approach lavapipe's silent 65,535-iteration
-/// cap; larger meshes are rendered by the CPU twin, with a warning.
-pub const MAX_GPU_TRIANGLES: usize = 500_000;
 
 /// Most tile pixels one dispatch batch writes (64 MB of f32).
 const BATCH_PIXELS: usize = 16 << 20;

@@ -30,6 +30,32 @@ pub const RASTER_WGSL: &str = include_str!("../../shaders/raster.wgsl");
 /// of the 32-bit visibility key, leaving at least 8 bits of depth.
 pub const MAX_TRIANGLES: usize = 1 << 24;
 
+/// Most triangles the GPU visual kernels take, and most region pixels of
+/// the score and render kernels. lavapipe silently ends every loop of an
+/// invocation after 65,535 iterations in total: each of a workgroup's 64
+/// invocations sets up n/64 triangles (about three loop iterations each with
+/// their pixels) and visits pixels/64 region pixels (twice), so these caps
+/// keep one hypothesis under ~57,000 iterations. Larger inputs are refused
+/// with an error (or, for evaluation renders, drawn by the CPU twin), never
+/// returned as silent zeros.
+pub const MAX_GPU_TRIANGLES: usize = 500_000;
+pub const MAX_GPU_PIXELS: usize = 1 << 20;
+
+/// Refuses work that would exceed a GPU kernel's loop budget.
+pub fn check_loop_budget(triangles: usize, pixels: usize) -> Result<()> {
+    if triangles > MAX_GPU_TRIANGLES {
+        return Err(Error::InvalidInput(format!(
+            "the mesh has {triangles} triangles; the GPU kernels take at most {MAX_GPU_TRIANGLES} (software adapters stop long loops silently): decimate it or use the CPU twin"
+        )));
+    }
+    if pixels > MAX_GPU_PIXELS {
+        return Err(Error::InvalidInput(format!(
+            "the region has {pixels} pixels; the GPU kernels take at most {MAX_GPU_PIXELS} (1024x1024): use a lower resolution or the CPU twin"
+        )));
+    }
+    Ok(())
+}
+
 /// Triangles closer to the camera than this (m) are not drawn.
 pub const NEAR_M: f32 = 1e-3;
 

@@ -321,6 +321,7 @@ const PARAMS_STRIDE: u64 = 256;
 /// GPU `render` kernel: depth and normals of every pose (for tests and
 /// pictures; scoring uses the fused `score` kernel instead).
 pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Result<Vec<RenderImage>> {
+    super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
     let pix = k.pixels();
     let bufs = RasterBuffers::new(ctx, mesh, k, poses.len(), pix as u64 * 16, usize::MAX)?;
     let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"));

@@ -278,6 +278,7 @@ impl GpuScorer {
     ) -> Result<Self> {
         use wgpu::util::DeviceExt;
         let k = target.intrinsics;
+        super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
         let words = physics.map_or(0, |p| p.kernel_params().words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;

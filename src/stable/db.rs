@@ -138,8 +138,24 @@ impl Db {
         db.conn
             .busy_timeout(std::time::Duration::from_secs(30))
             .map_err(|e| db.e(e))?;
+        db.check_integrity()?;
         db.conn.execute_batch(SCHEMA).map_err(|e| db.e(e))?;
         Ok(db)
+    }
+
+    /// `PRAGMA quick_check`: a corrupted page would otherwise give counts
+    /// that disagree between queries and a merge that silently loses drops.
+    fn check_integrity(&self) -> Result<()> {
+        let mut stmt = self.conn.prepare("PRAGMA quick_check").map_err(|e| self.e(e))?;
+        let rows: Vec<String> =
+            stmt.query_map([], |r| r.get::<_, String>(0)).map_err(|e| self.e(e))?.collect::<std::result::Result<_, _>>().map_err(|e| self.e(e))?;
+        if rows.len() == 1 && rows[0] == "ok" {
+            return Ok(());
+        }
+        Err(Error::Database {
+            path: self.path.clone(),
+            reason: format!("the file is corrupt (SQLite quick_check: {}); restore it or run the drops again", rows.join("; ")),
+        })
     }
 
     /// Opens an existing database read-only-ish (errors if it does not exist).
