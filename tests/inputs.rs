@@ -207,9 +207,22 @@ fn camera_errors() {
     let cam = read_camera(&p, None).unwrap();
     let e = plausible::camera::Intrinsics::from_k(&cam.cam_k, 640, 480).unwrap_err().to_string();
     assert!(e.contains("expected 9 numbers"), "{e}");
-    let p = write(d.path(), "c2.json", r#"{"1": {"cam_K": [1,0,0,0,1,0,0,0,1]}, "2": {"cam_K": [1,0,0,0,1,0,0,0,1]}}"#);
-    assert!(err_text(read_camera(&p, None)).contains("--frame"));
+    let p = write(d.path(), "c2.json", r#"{"1": {"cam_K": [1,0,0,0,1,0,0,0,1], "depth_scale": 1}, "2": {"cam_K": [1,0,0,0,1,0,0,0,1], "depth_scale": 1}}"#);
+    assert!(err_text(read_camera(&p, None)).contains("pick one by its id"));
     assert!(read_camera(&p, Some("2")).is_ok());
+    assert!(err_text(read_camera(&p, Some("3"))).contains("no frame '3'"));
+    // A frame id for a file with one camera is an error, not ignored.
+    let p = write(d.path(), "c4.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1}"#);
+    assert!(err_text(read_camera(&p, Some("7"))).contains("single camera"));
+    // depth_scale is required (BOP depth without it has no unit) and plausible.
+    let p = write(d.path(), "c5.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1]}"#);
+    assert!(err_text(read_camera(&p, None)).contains("depth_scale"));
+    let p = write(d.path(), "c6.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 1e-9}"#);
+    assert!(err_text(read_camera(&p, None)).contains("not a plausible scale"));
+    // The BOP dataset camera.json (fx, fy, cx, cy, width, height) is read.
+    let p = write(d.path(), "c7.json", r#"{"cx": 325.26, "cy": 242.05, "depth_scale": 0.1, "fx": 572.41, "fy": 573.57, "height": 480, "width": 640}"#);
+    let cam = read_camera(&p, None).unwrap();
+    assert_eq!(cam.cam_k, vec![572.41, 0.0, 325.26, 0.0, 573.57, 242.05, 0.0, 0.0, 1.0]);
     let p = write(d.path(), "c3.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": -1}"#);
     assert!(err_text(read_camera(&p, None)).contains("depth_scale must be positive"));
     assert!(err_text(read_camera(Path::new("/nonexistent/cam.json"), None)).contains("not found"));
@@ -218,7 +231,16 @@ fn camera_errors() {
 #[test]
 fn depth_png_errors() {
     let d = tempfile::tempdir().unwrap();
-    let cam = read_camera(&camera(d.path()), None).unwrap();
+    // A 640x480 camera does not belong to a 64x48 image: its principal
+    // point lies far outside.
+    let vga = read_camera(&camera(d.path()), None).unwrap();
+    let small = d.path().join("small.png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([7000u16])).save(&small).unwrap();
+    assert!(err_text(read_depth_png(&small, &vga)).contains("principal point"));
+    let cam = BopCamera { cam_k: vec![60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1 };
+    let absurd = BopCamera { cam_k: vec![1e6, 0.0, 31.5, 0.0, 1e6, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1 };
+    assert!(err_text(read_depth_png(&small, &absurd)).contains("focal length"));
+    assert!(read_depth_png(&small, &cam).is_ok());
     // 8-bit depth is not BOP depth.
     let p8 = d.path().join("d8.png");
     image::GrayImage::from_pixel(64, 48, image::Luma([7])).save(&p8).unwrap();

@@ -44,7 +44,7 @@ pub struct BenchScoreArgs {
     #[arg(long)]
     pub json: bool,
     /// Timed runs per configuration (the median is reported).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub repeat: usize,
     /// Only the 4k-triangle mesh and N <= 1024 (a quick look).
     #[arg(long)]

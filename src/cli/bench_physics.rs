@@ -26,13 +26,13 @@ pub struct BenchPhysicsArgs {
     #[arg(long)]
     pub json: bool,
     /// Hypotheses per batch.
-    #[arg(long, default_value_t = 4096)]
+    #[arg(long, default_value_t = 4096, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1_000_000))]
     pub n: usize,
     /// Surface samples per hypothesis.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = 1024, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=50_000))]
     pub samples: usize,
     /// Timed runs per configuration (the median is reported).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub repeat: usize,
     /// Seed of the samples and the hypotheses.
     #[arg(long, default_value_t = 0)]

@@ -119,6 +119,12 @@ fn to_json<'a>(o: &'a ObjectCheck, sim: Option<&Vec<Displacement>>) -> ObjectJso
 }
 
 pub fn run(a: CheckArgs) -> Result<()> {
+    if let Some(path) = &a.explain {
+        if path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
+            anyhow::bail!("--explain {}: the picture is a PNG; give a file name ending in .png", path.display());
+        }
+        plausible::io::check_writable(path).context("--explain")?;
+    }
     let scene =
         Scene::load(&a.scene).with_context(|| format!("reading scene {}", a.scene.display()))?;
     let opts = CheckOptions {

@@ -38,7 +38,7 @@ use super::DeviceArgs;
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
     /// Number of hypotheses.
-    #[arg(long, default_value_t = 4096, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    #[arg(long, default_value_t = 4096, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1_000_000))]
     pub n: usize,
     /// Seed of the noise and the hypotheses.
     #[arg(long, default_value_t = 42)]

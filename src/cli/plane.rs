@@ -18,7 +18,7 @@ pub struct PlaneArgs {
     #[arg(long, default_value_t = 5.0)]
     pub inlier_mm: f64,
     /// RANSAC hypotheses.
-    #[arg(long, default_value_t = 500)]
+    #[arg(long, default_value_t = 500, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1_000_000))]
     pub iterations: usize,
     /// Pixels the mask is grown by.
     #[arg(long, default_value_t = 5)]

@@ -118,7 +118,7 @@ pub struct ExportArgs {
 #[derive(clap::Args, Debug)]
 pub struct BenchStableArgs {
     /// Drops per mesh.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
     pub drops: u64,
     /// Worker threads (default: all cores).
     #[arg(long)]
@@ -126,8 +126,8 @@ pub struct BenchStableArgs {
     /// Meshes to use (default: the meshes shipped in assets/).
     #[arg(long)]
     pub mesh: Vec<PathBuf>,
-    /// Rescale every mesh to this bounding-box diagonal (m), as the pybullet peer does.
-    #[arg(long, default_value_t = 0.15)]
+    /// Rescale every mesh to this bounding-box diagonal (m), as the pybullet peer does (1 mm to 10 m).
+    #[arg(long, default_value_t = 0.15, value_parser = diameter_m)]
     pub diameter: f64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -444,6 +444,16 @@ fn bench_meshes() -> Vec<PathBuf> {
     .map(|p| super::asset(p))
     .filter(|p| p.exists())
     .collect()
+}
+
+/// Parses a benchmark diameter in metres: finite, 1 mm to 10 m (a larger
+/// world takes unbounded simulated time to settle).
+fn diameter_m(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if !(v.is_finite() && (0.001..=10.0).contains(&v)) {
+        return Err(format!("{v} m is outside 0.001-10 m"));
+    }
+    Ok(v)
 }
 
 /// Entry point of `plausible bench stable`.

@@ -44,6 +44,9 @@ pub fn static_equilibrium(
         return None;
     }
     let g = gravity.normalize();
+    if mu < FRICTIONLESS_BELOW {
+        return frictionless_equilibrium(points, normals, com, g, scale);
+    }
     let n_var = 3 * k;
     let (mut rows, mut cols, mut vals) = (Vec::new(), Vec::new(), Vec::new());
     let mut push = |r: usize, c: usize, v: f64| {
@@ -101,6 +104,55 @@ pub fn static_equilibrium(
     }
 }
 
+/// Below this μ the cones are solved as frictionless contacts (normal
+/// forces only, a linear program): a second-order cone of radius ~0 has no
+/// interior, and the interior-point solver then reported "balanced" at
+/// μ = 0 where every μ from 1e-6 up said not. Treating μ < 1e-6 as 0 keeps
+/// feasibility monotone in μ.
+pub const FRICTIONLESS_BELOW: f64 = 1e-6;
+
+/// Frictionless contacts: non-negative normal forces alone must balance
+/// gravity and its torque.
+fn frictionless_equilibrium(points: &[DVec3], normals: &[DVec3], com: DVec3, g: DVec3, scale: f64) -> Option<bool> {
+    let k = points.len();
+    let (mut rows, mut cols, mut vals) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, (&x, &n)) in points.iter().zip(normals).enumerate() {
+        let n = n.normalize_or_zero();
+        if n == DVec3::ZERO {
+            return None;
+        }
+        let torque = ((x - com) / scale).cross(n);
+        for d in 0..3 {
+            for (r, v) in [(d, n[d]), (3 + d, torque[d])] {
+                if v != 0.0 {
+                    rows.push(r);
+                    cols.push(i);
+                    vals.push(v);
+                }
+            }
+        }
+        rows.push(6 + i);
+        cols.push(i);
+        vals.push(-1.0);
+    }
+    let a = CscMatrix::new_from_triplets(6 + k, k, rows, cols, vals);
+    let p = CscMatrix::zeros((k, k));
+    let q = vec![0.0; k];
+    let mut b = vec![0.0; 6 + k];
+    b[0] = -g.x;
+    b[1] = -g.y;
+    b[2] = -g.z;
+    let cones = [SupportedConeT::ZeroConeT(6), SupportedConeT::NonnegativeConeT(k)];
+    let settings = DefaultSettingsBuilder::default().verbose(false).max_iter(200).build().ok()?;
+    let mut solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings).ok()?;
+    solver.solve();
+    match solver.solution.status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved => Some(true),
+        SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => Some(false),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,6 +184,31 @@ mod tests {
             static_equilibrium(&pts, &up, DVec3::new(1.3, 0.0, 1.0), g, 2.0, 1.0),
             Some(false)
         );
+    }
+
+    #[test]
+    fn feasibility_is_monotone_in_mu_down_to_zero() {
+        // A box leaning against a frictionless wall at 30° from vertical:
+        // needs μ_floor ≥ tan(30°)/2 ≈ 0.29 at the foot.
+        let angle = 30f64.to_radians();
+        let foot = DVec3::ZERO;
+        let top = DVec3::new(angle.sin(), 0.0, angle.cos());
+        let pts = vec![foot, top];
+        let normals = vec![DVec3::Z, -DVec3::X];
+        let com = top * 0.5;
+        let g = DVec3::new(0.0, 0.0, -9.81);
+        let mut prev = Some(false);
+        for mu in [0.0, 1e-12, 1e-9, 1e-6, 1e-3, 0.1, 0.28, 0.3, 0.5, 1.0] {
+            let r = static_equilibrium(&pts, &normals, com, g, mu, 1.0);
+            assert!(r.is_some(), "μ = {mu}: undecided");
+            assert!(!(prev == Some(true) && r == Some(false)), "not monotone at μ = {mu}");
+            if mu < 0.28 {
+                assert_eq!(r, Some(false), "μ = {mu}");
+            } else if mu >= 0.3 {
+                assert_eq!(r, Some(true), "μ = {mu}");
+            }
+            prev = r;
+        }
     }
 
     #[test]

@@ -95,6 +95,9 @@ impl Default for RunParams {
     }
 }
 
+/// Drop indices made at a time by [`run_into_db`] (8 MB).
+const PENDING_CHUNK: usize = 1 << 20;
+
 /// A subset of the drop indices: `--shard k/n` runs the drops with
 /// `index % n == k - 1`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -464,34 +467,46 @@ pub fn run_into_db(
     )?;
     db.set_analytic(run_id, &prepared.analytic.poses, &prepared.analytic.notes)?;
     let done = db.finished_drops(run_id)?;
-    let mine: Vec<u64> = (0..params.drops)
-        .filter(|i| shard.is_none_or(|s| s.contains(*i)))
-        .collect();
-    let pending: Vec<u64> = mine.iter().copied().filter(|i| !done.contains(i)).collect();
-    let total = mine.len() as u64;
-    let reused = total - pending.len() as u64;
+    let shard = shard.unwrap_or(Shard { k: 1, n: 1 });
+    // This shard's drops: k-1, k-1+n, ... below `drops`.
+    let total = if params.drops > shard.k - 1 { (params.drops - shard.k) / shard.n + 1 } else { 0 };
+    let reused = done.iter().filter(|&&i| i < params.drops && shard.contains(i)).count() as u64;
     let mut finished = reused;
+    let mut simulated = 0u64;
     progress(finished, total);
     let mut batch: Vec<DropResult> = Vec::with_capacity(64);
     let mut last_commit = std::time::Instant::now();
-    run_drops(prepared, params, &pending, threads, |r| {
-        batch.push(r);
-        finished += 1;
-        progress(finished, total);
-        if batch.len() >= 64 || last_commit.elapsed().as_secs_f64() > 1.0 {
-            db.insert_drops(run_id, &batch)?;
-            batch.clear();
-            last_commit = std::time::Instant::now();
+    // The pending indices are made a chunk at a time, so memory stays
+    // bounded however many drops are asked for.
+    let mut next = shard.k - 1;
+    while next < params.drops {
+        let mut pending = Vec::with_capacity(PENDING_CHUNK);
+        while next < params.drops && pending.len() < PENDING_CHUNK {
+            if !done.contains(&next) {
+                pending.push(next);
+            }
+            next = next.saturating_add(shard.n);
         }
-        Ok(())
-    })?;
+        simulated += pending.len() as u64;
+        run_drops(prepared, params, &pending, threads, |r| {
+            batch.push(r);
+            finished += 1;
+            progress(finished, total);
+            if batch.len() >= 64 || last_commit.elapsed().as_secs_f64() > 1.0 {
+                db.insert_drops(run_id, &batch)?;
+                batch.clear();
+                last_commit = std::time::Instant::now();
+            }
+            Ok(())
+        })?;
+    }
     db.insert_drops(run_id, &batch)?;
     let clusters = db.recompute_clusters(run_id, cluster_params)?;
     let stored = db.drops(run_id)?;
     Ok(RunSummary {
         run_id,
         reused,
-        simulated: pending.len() as u64,
+        simulated,
         stored: stored.len() as u64,
         settled: stored.iter().filter(|d| d.settled).count() as u64,
         clusters,

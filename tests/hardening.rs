@@ -1,0 +1,119 @@
+//! Regression tests for inputs tried as an attacker would: each case gave a
+//! panic, an abort, unbounded memory or a silent wrong answer before, and
+//! must now give a clear error (or the right answer).
+
+use std::path::Path;
+use std::process::Command;
+
+use plausible::kernels::{check_loop_budget, MAX_GPU_PIXELS, MAX_GPU_TRIANGLES};
+use plausible::observation::{DepthImage, RoiSampling, ScoreTarget};
+use plausible::pose::{read_poses, PoseUnits};
+
+fn plausible() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_plausible"))
+}
+
+/// Runs the binary; returns (exit code, stderr).
+fn run(args: &[&str]) -> (i32, String) {
+    let o = plausible().args(args).output().unwrap();
+    (o.status.code().unwrap_or(-1), String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+#[test]
+fn gpu_loop_budget_is_refused_not_returned_as_zeros() {
+    let e = check_loop_budget(MAX_GPU_TRIANGLES + 1, 100).unwrap_err().to_string();
+    assert!(e.contains("triangles") && e.contains("CPU twin"), "{e}");
+    let e = check_loop_budget(1000, MAX_GPU_PIXELS + 1).unwrap_err().to_string();
+    assert!(e.contains("pixels"), "{e}");
+    assert!(check_loop_budget(MAX_GPU_TRIANGLES, MAX_GPU_PIXELS).is_ok());
+}
+
+fn flat_observation() -> DepthImage {
+    let k = plausible::camera::Intrinsics { fx: 500.0, fy: 500.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
+    DepthImage { intrinsics: k, depth: vec![0.7; 64 * 48] }
+}
+
+#[test]
+fn region_margin_and_resolution_are_bounded() {
+    let obs = flat_observation();
+    let mut mask = vec![false; 64 * 48];
+    mask[24 * 64 + 32] = true;
+    for m in [-1.0, f64::NAN, 1e9] {
+        let e = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(128), m).unwrap_err().to_string();
+        assert!(e.contains("margin"), "{m}: {e}");
+    }
+    for n in [0, 100_000] {
+        let e = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(n), 0.1).unwrap_err().to_string();
+        assert!(e.contains("resolution"), "{n}: {e}");
+    }
+    assert!(ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(128), 0.1).is_ok());
+}
+
+#[test]
+fn orthonormalize_refuses_scaled_matrices() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("p.json");
+    std::fs::write(&p, r#"[{"cam_R_m2c": [2,0,0,0,2,0,0,0,2], "cam_t_m2c": [0,0,700]}]"#).unwrap();
+    let e = read_poses(&p, PoseUnits::Millimetres, true).unwrap_err().to_string();
+    assert!(e.contains("far from orthonormal"), "{e}");
+    // A slightly noisy rotation is still projected.
+    std::fs::write(&p, r#"[{"cam_R_m2c": [1.002,0,0,0,1,0,0,0,1], "cam_t_m2c": [0,0,700]}]"#).unwrap();
+    assert!(read_poses(&p, PoseUnits::Millimetres, true).is_ok());
+}
+
+#[test]
+fn corrupt_database_is_an_error() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.sqlite");
+    drop(plausible::stable::db::Db::open(&p).unwrap());
+    let mut bytes = std::fs::read(&p).unwrap();
+    assert!(bytes.len() > 8192, "the schema spans several pages");
+    for b in &mut bytes[4096..4096 + 200] {
+        *b = 0xA5;
+    }
+    std::fs::write(&p, &bytes).unwrap();
+    let e = plausible::stable::db::Db::open(&p).err().expect("a corrupt database must not open").to_string();
+    assert!(e.contains("s.sqlite") && (e.contains("corrupt") || e.contains("malformed")), "{e}");
+}
+
+#[test]
+fn writes_to_a_full_device_are_errors() {
+    if !Path::new("/dev/full").exists() {
+        return;
+    }
+    let e = plausible::io::write_atomically(Path::new("/dev/full"), |w| {
+        use std::io::Write;
+        w.write_all(&[0u8; 100_000])
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("No space left"), "{e}");
+    assert!(Path::new("/dev/full").exists() && !Path::new("/dev/full").is_file(), "the device is still a device");
+    let e = plausible::io::check_writable(Path::new("/nonexistent-dir/x.json")).unwrap_err().to_string();
+    assert!(e.contains("does not exist"), "{e}");
+    // The binary: stdout on a full device is an error (exit 1), not a panic (101).
+    let out = std::fs::File::create("/dev/full").unwrap();
+    let o = plausible().args(["eval", "--dataset", concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth"), "--gt-as-results", "/dev/null", "--device", "cpu", "--quiet"])
+        .stdout(out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot write the output"));
+}
+
+#[test]
+fn absurd_flags_are_refused_before_any_work() {
+    for (args, want) in [
+        (vec!["demo", "--n", "1000000000000"], "1000000000000"),
+        (vec!["bench", "physics", "--n", "1000000000"], "1000000000"),
+        (vec!["bench", "stable", "--diameter", "1e9"], "outside"),
+        (vec!["bench", "stable", "--diameter", "nan"], "outside"),
+        (vec!["plane", "--camera", "c", "--depth", "d", "--iterations", "100000000", "--out", "p.json"], "100000000"),
+        (vec!["check", "assets/physics/stack.json", "--explain", "pic"], ".png"),
+        (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--batch-images", "0"], "batch size"),
+    ] {
+        let (code, err) = run(&args);
+        assert!(code == 1 || code == 2, "{args:?}: exit {code}");
+        assert!(err.contains(want), "{args:?}: {err}");
+    }
+}
