@@ -40,19 +40,16 @@ struct DatasetCamera {
 /// Reads a camera JSON: one BOP `scene_camera.json` entry (`{"cam_K":
 /// [...], "depth_scale": s}`), a BOP dataset `camera.json` (`fx, fy, cx, cy,
 /// width, height, depth_scale`), or a whole `scene_camera.json` from which
-/// `frame` picks the entry (optional when it holds one entry). A frame id
-/// given for a file without frames is an error, not ignored.
+/// `frame` picks the entry (optional when it holds one entry; a frame id
+/// that the file does not hold is an error, never ignored).
 pub fn read_camera(path: &Path, frame: Option<&str>) -> Result<BopCamera> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    // A bare camera has no frames: a frame id (which may pick poses from a
+    // scene_gt.json) does not concern it. In a scene_camera.json the id
+    // must exist, even when the file holds one frame.
     let single = v.get("cam_K").is_some() || v.get("fx").is_some();
-    if single && frame.is_some() {
-        return Err(bad(format!(
-            "holds a single camera, not a scene_camera.json with frames: frame '{}' cannot be picked",
-            frame.unwrap_or_default()
-        )));
-    }
     let cam = if v.get("fx").is_some() {
         let c: DatasetCamera = serde_json::from_value(v)
             .map_err(|e| bad(format!("{e}; a BOP camera.json has fx, fy, cx, cy, width, height and depth_scale")))?;

@@ -134,13 +134,58 @@ struct BopPose {
     #[serde(rename = "cam_R_m2c")]
     cam_r_m2c: Vec<f64>,
     cam_t_m2c: Vec<f64>,
+    #[serde(default)]
+    obj_id: Option<u32>,
 }
 
 #[derive(Deserialize)]
-#[serde(untagged)]
-enum PoseFile {
-    List(Vec<BopPose>),
-    Object { poses: Vec<BopPose> },
+struct PosesObject {
+    poses: Vec<BopPose>,
+}
+
+/// Picks the poses of one image (and object) from a BOP `scene_gt.json`.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneGtSelection<'a> {
+    /// The image id (a key of the file).
+    pub frame: &'a str,
+    /// Only instances of this object (all instances of the image when `None`).
+    pub obj_id: Option<u32>,
+}
+
+/// Parses the pose file's text into its entries. Each layout is parsed
+/// into its own typed structs (no untagged enum: that buffers the whole
+/// document and reports "did not match any variant" instead of the field
+/// and line that are wrong).
+fn parse_pose_entries(path: &Path, text: &str, select: Option<SceneGtSelection>) -> Result<Vec<BopPose>> {
+    let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
+    let shape = "expected a list of {\"cam_R_m2c\": [9 numbers], \"cam_t_m2c\": [3 numbers, mm]}, {\"poses\": [...]}, or a BOP scene_gt.json with an image id and object id picked";
+    match text.trim_start().as_bytes().first() {
+        Some(b'[') => serde_json::from_str::<Vec<BopPose>>(text).map_err(|e| bad(format!("{e}; {shape}"))),
+        Some(b'{') => {
+            let v: serde_json::Map<String, serde_json::Value> = serde_json::from_str(text).map_err(|e| bad(format!("{e}; {shape}")))?;
+            if v.contains_key("poses") {
+                let o: PosesObject = serde_json::from_value(serde_json::Value::Object(v)).map_err(|e| bad(format!("{e}; {shape}")))?;
+                return Ok(o.poses);
+            }
+            // A BOP scene_gt.json: image id -> instances with obj_id.
+            let Some(sel) = select else {
+                return Err(bad(format!(
+                    "looks like a BOP scene_gt.json ({} images): pick an image id and an object id (e.g. {})",
+                    v.len(),
+                    v.keys().next().map(String::as_str).unwrap_or("0")
+                )));
+            };
+            let entry = v.get(sel.frame).ok_or_else(|| bad(format!("no image '{}' in the scene_gt.json", sel.frame)))?;
+            let all: Vec<BopPose> =
+                serde_json::from_value(entry.clone()).map_err(|e| bad(format!("image {}: {e}; {shape}", sel.frame)))?;
+            let picked: Vec<BopPose> = all.into_iter().filter(|p| sel.obj_id.is_none_or(|o| p.obj_id == Some(o))).collect();
+            if picked.is_empty() {
+                return Err(bad(format!("image {} has no instance of object {:?}", sel.frame, sel.obj_id)));
+            }
+            Ok(picked)
+        }
+        _ => Err(bad(format!("is not a JSON list or object; {shape}"))),
+    }
 }
 
 /// Units of pose translations in a file.
@@ -155,18 +200,16 @@ pub enum PoseUnits {
 /// `{"cam_R_m2c": [9, row-major], "cam_t_m2c": [3, mm]}` or an object with a
 /// `"poses"` list. Every pose is validated (see [`Pose::validated`]).
 pub fn read_poses(path: &Path, units: PoseUnits, orthonormalize: bool) -> Result<Vec<Pose>> {
+    read_poses_selected(path, units, orthonormalize, None)
+}
+
+/// [`read_poses`], also reading a BOP `scene_gt.json` when `select` picks an
+/// image (and object).
+pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, select: Option<SceneGtSelection>) -> Result<Vec<Pose>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
-    let file: PoseFile = serde_json::from_str(&text).map_err(|e| {
-        bad(format!(
-            "{e}; expected a list of {{\"cam_R_m2c\": [9 numbers], \"cam_t_m2c\": [3 numbers, mm]}} \
-             or {{\"poses\": [...]}}"
-        ))
-    })?;
-    let raw = match file {
-        PoseFile::List(v) => v,
-        PoseFile::Object { poses } => poses,
-    };
+    let raw = parse_pose_entries(path, &text, select)?;
+    drop(text);
     if raw.is_empty() {
         return Err(bad("contains no poses".into()));
     }

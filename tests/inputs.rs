@@ -211,9 +211,10 @@ fn camera_errors() {
     assert!(err_text(read_camera(&p, None)).contains("pick one by its id"));
     assert!(read_camera(&p, Some("2")).is_ok());
     assert!(err_text(read_camera(&p, Some("3"))).contains("no frame '3'"));
-    // A frame id for a file with one camera is an error, not ignored.
-    let p = write(d.path(), "c4.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1}"#);
-    assert!(err_text(read_camera(&p, Some("7"))).contains("single camera"));
+    // A frame id that a one-frame scene_camera.json does not hold is an error, not ignored.
+    let p = write(d.path(), "c4.json", r#"{"3": {"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1}}"#);
+    assert!(err_text(read_camera(&p, Some("7"))).contains("no frame '7'"));
+    assert!(read_camera(&p, None).is_ok());
     // depth_scale is required (BOP depth without it has no unit) and plausible.
     let p = write(d.path(), "c5.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1]}"#);
     assert!(err_text(read_camera(&p, None)).contains("depth_scale"));
@@ -226,6 +227,27 @@ fn camera_errors() {
     let p = write(d.path(), "c3.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": -1}"#);
     assert!(err_text(read_camera(&p, None)).contains("depth_scale must be positive"));
     assert!(err_text(read_camera(Path::new("/nonexistent/cam.json"), None)).contains("not found"));
+}
+
+#[test]
+fn pose_files_name_what_is_wrong() {
+    let d = tempfile::tempdir().unwrap();
+    // A pose missing cam_t_m2c: serde names the field and the line.
+    let p = write(d.path(), "p1.json", "[\n{\"cam_R_m2c\": [1,0,0,0,1,0,0,0,1]}\n]");
+    let e = err_text(read_poses(&p, PoseUnits::Millimetres, false));
+    assert!(e.contains("cam_t_m2c") && e.contains("line 2"), "{e}");
+    // A BOP scene_gt.json: says what it is, and reads with an image and object picked.
+    let gt = r#"{"3": [{"cam_R_m2c": [1,0,0,0,1,0,0,0,1], "cam_t_m2c": [0,0,700], "obj_id": 1},
+                       {"cam_R_m2c": [1,0,0,0,1,0,0,0,1], "cam_t_m2c": [10,0,800], "obj_id": 5}]}"#;
+    let p = write(d.path(), "scene_gt.json", gt);
+    let e = err_text(read_poses(&p, PoseUnits::Millimetres, false));
+    assert!(e.contains("scene_gt.json") && e.contains("image id"), "{e}");
+    let sel = plausible::pose::SceneGtSelection { frame: "3", obj_id: Some(5) };
+    let poses = plausible::pose::read_poses_selected(&p, PoseUnits::Millimetres, false, Some(sel)).unwrap();
+    assert_eq!(poses.len(), 1);
+    assert!((poses[0].t.z - 0.8).abs() < 1e-12);
+    let sel = plausible::pose::SceneGtSelection { frame: "4", obj_id: Some(5) };
+    assert!(err_text(plausible::pose::read_poses_selected(&p, PoseUnits::Millimetres, false, Some(sel))).contains("no image '4'"));
 }
 
 #[test]

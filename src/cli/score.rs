@@ -8,7 +8,7 @@ use anyhow::{bail, Context as _, Result};
 use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams, ScoreRecord};
 use plausible::kernels::RenderMesh;
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
-use plausible::pose::{read_poses, PoseUnits};
+use plausible::pose::{read_poses_selected, PoseUnits, SceneGtSelection};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::read_camera_plane;
@@ -26,6 +26,10 @@ pub struct ScoreArgs {
     /// Hypotheses: JSON list of {"cam_R_m2c": [9, row-major], "cam_t_m2c": [3, mm]}.
     #[arg(long)]
     pub poses: PathBuf,
+    /// With a BOP scene_gt.json as --poses: the object whose instances in
+    /// the image --frame are the hypotheses.
+    #[arg(long, requires = "frame")]
+    pub obj_id: Option<u32>,
     /// Units of cam_t_m2c in the pose file.
     #[arg(long, default_value = "mm", value_parser = ["mm", "m"])]
     pub pose_units: String,
@@ -96,7 +100,9 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let mesh = a.mesh.load()?;
     let (obs, mask) = a.obs.load()?;
     let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
-    let poses = read_poses(&a.poses, units, a.orthonormalize)?;
+    let select = a.obj_id.map(|o| SceneGtSelection { frame: a.obs.frame.as_deref().unwrap_or_default(), obj_id: Some(o) });
+    let poses = read_poses_selected(&a.poses, units, a.orthonormalize, select)
+        .context("--poses (a BOP scene_gt.json needs --frame and --obj-id)")?;
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
     let rmesh = RenderMesh::new(&mesh)?;
