@@ -117,3 +117,36 @@ fn absurd_flags_are_refused_before_any_work() {
         assert!(err.contains(want), "{args:?}: {err}");
     }
 }
+
+#[test]
+fn stable_poses_checks_every_mesh_before_the_first_drop() {
+    let d = tempfile::tempdir().unwrap();
+    let db = d.path().join("s.sqlite");
+    let cube = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/cube.obj");
+    let (code, err) = run(&["stable-poses", cube, "/nonexistent/duck.obj", "--drops", "100000", "--db", db.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("/nonexistent/duck.obj"), "{err}");
+    // Nothing was simulated for the cube.
+    if db.exists() {
+        let conn = plausible::stable::db::Db::open(&db).unwrap();
+        assert!(conn.runs().unwrap().is_empty());
+    }
+}
+
+#[test]
+fn a_bad_merge_input_leaves_the_output_unchanged() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out.sqlite");
+    drop(plausible::stable::db::Db::open(&out).unwrap());
+    let before = std::fs::read(&out).unwrap();
+    let bad = d.path().join("bad.sqlite");
+    std::fs::write(&bad, "not a database at all, just text that is long enough to have a header").unwrap();
+    let good = d.path().join("good.sqlite");
+    drop(plausible::stable::db::Db::open(&good).unwrap());
+    let (code, err) = run(&["stable-poses", "merge", good.to_str().unwrap(), bad.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("bad.sqlite"), "{err}");
+    assert_eq!(std::fs::read(&out).unwrap(), before);
+    let leftovers: Vec<_> = std::fs::read_dir(d.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().ends_with(".tmp")).collect();
+    assert!(leftovers.is_empty());
+}

@@ -199,10 +199,14 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     let nthreads = threads(args.threads);
     let show_progress = !args.quiet && std::io::stderr().is_terminal();
-    let mut names = Vec::new();
+    // Every mesh is read before the first drop: a missing or broken file
+    // fails at once, not after hours of simulating the meshes before it.
+    let mut loaded = Vec::with_capacity(args.meshes.len());
     for path in &args.meshes {
-        let (mesh, report) = Mesh::load(path, args.mesh_units)
-            .with_context(|| format!("loading {}", path.display()))?;
+        loaded.push(Mesh::load(path, args.mesh_units).with_context(|| format!("loading {}", path.display()))?);
+    }
+    let mut names = Vec::new();
+    for (path, (mesh, report)) in args.meshes.iter().zip(loaded) {
         for w in &report.warnings {
             eprintln!("warning: {}: {w}", path.display());
         }
@@ -416,15 +420,41 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
             bail!("{}: input and output are the same file", i.display());
         }
     }
-    let mut out = Db::open(&args.output)?;
-    let mut total = 0;
+    // Every input is opened (and integrity-checked) before the output is
+    // touched, and the merge is written to a copy renamed into place at the
+    // end: a bad input or a kill never leaves a half-merged output.
     for i in &args.inputs {
-        let added = out.merge_from(i)?;
-        println!("{}: {added} new drops", i.display());
-        total += added;
+        Db::open_existing(i).with_context(|| format!("input {}", i.display()))?;
     }
-    println!("{}: {total} drops merged", args.output.display());
-    Ok(())
+    let tmp = args.output.with_file_name(format!(
+        ".{}.merge-{}.tmp",
+        args.output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+        std::process::id()
+    ));
+    if args.output.exists() {
+        std::fs::copy(&args.output, &tmp).with_context(|| format!("copying {}", args.output.display()))?;
+    }
+    let result = (|| -> anyhow::Result<u64> {
+        let mut out = Db::open(&tmp)?;
+        let mut total = 0;
+        for i in &args.inputs {
+            let added = out.merge_from(i)?;
+            println!("{}: {added} new drops", i.display());
+            total += added;
+        }
+        Ok(total)
+    })();
+    match result {
+        Ok(total) => {
+            std::fs::rename(&tmp, &args.output).with_context(|| format!("writing {}", args.output.display()))?;
+            println!("{}: {total} drops merged", args.output.display());
+            Ok(())
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e.context(format!("{} was left unchanged", args.output.display())))
+        }
+    }
 }
 
 fn export(args: ExportArgs) -> anyhow::Result<()> {
