@@ -150,3 +150,30 @@ fn a_bad_merge_input_leaves_the_output_unchanged() {
     let leftovers: Vec<_> = std::fs::read_dir(d.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().ends_with(".tmp")).collect();
     assert!(leftovers.is_empty());
 }
+
+#[test]
+fn off_image_poses_are_not_dispatched_and_match_the_twin() {
+    use glam::DVec3;
+    use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams};
+    use plausible::kernels::RenderMesh;
+    use plausible::mesh::{Mesh, MeshUnits};
+    use plausible::observation::DEFAULT_ROI_MARGIN;
+    use plausible::pose::{axis_angle, Pose};
+    use plausible::synth::{linemod_camera, observe, SensorNoise};
+    let Some(ctx) = plausible::gpu::test_context() else { return };
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
+    let mesh = RenderMesh::new(&Mesh::load(path, MeshUnits::Metres).unwrap().0.normalized(0.15)).unwrap();
+    let truth = Pose::new(axis_angle(DVec3::new(0.3, 1.0, -0.2), 2.1), DVec3::new(0.02, -0.01, 0.7));
+    let (obs, mask) = observe(&mesh, &truth, &linemod_camera(), SensorNoise::default(), 7);
+    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN).unwrap();
+    let mut poses = vec![truth; 8];
+    poses.extend((0..5000).map(|i| Pose::new(truth.r, DVec3::new(5.0 + i as f64 * 1e-3, 0.0, 0.7))));
+    let params = ScoreParams::default();
+    let (gpu, _) = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap().score(&poses).unwrap();
+    let cpu = score_cpu(&mesh, &target, &poses, &params);
+    assert_eq!(gpu.len(), poses.len());
+    for (g, c) in gpu.iter().zip(&cpu).skip(8) {
+        assert_eq!(g, c);
+    }
+    assert!((gpu[0].score - cpu[0].score).abs() < 1e-3 && gpu[0].score > 0.8, "{:?} vs {:?}", gpu[0], cpu[0]);
+}

@@ -112,6 +112,15 @@ pub fn score_image(target: &ScoreTarget, depth: &[f32], normals: &[Vec3], p: &Sc
     acc.finish()
 }
 
+/// The record of a hypothesis that draws nothing in the region: every
+/// observed pixel is in V and scores 0.
+pub fn unseen_record(n_obs: u32) -> ScoreRecord {
+    let mut acc = Acc::default();
+    acc.rec.valid = n_obs;
+    acc.rec.observed = n_obs;
+    acc.finish()
+}
+
 /// CPU twin of the fused `score` kernel for a batch: renders each pose into
 /// a per-thread z-buffer and scores it, in parallel over hypotheses.
 ///
@@ -360,14 +369,31 @@ impl GpuScorer {
 
     /// Like [`score`](Self::score), calling `done(n)` after each chunk with
     /// the number of hypotheses scored so far.
+    ///
+    /// Hypotheses whose bounding sphere misses the region are not
+    /// dispatched: nothing of them can be drawn, so their record is known
+    /// (every observed pixel in V, scoring 0), exactly as the CPU twin
+    /// computes it. 100,000 poses off the image cost a moment, not a minute
+    /// of GPU time.
     pub fn score_with_progress(&self, poses: &[Pose], mut done: impl FnMut(usize)) -> Result<(Vec<ScoreRecord>, StageTimes)> {
-        let mut out = Vec::with_capacity(poses.len());
+        let k = &self.target_intrinsics;
+        let seen: Vec<usize> =
+            (0..poses.len()).filter(|&i| super::raster::screen_rect(&GpuPose::from(&poses[i]), self.mesh.radius, k).is_some()).collect();
+        let mut out = vec![unseen_record(self.n_obs); poses.len()];
         let mut times = StageTimes::default();
-        for chunk in poses.chunks(self.bufs.chunk) {
-            let (r, _, t) = self.run_chunk(chunk, false)?;
-            out.extend(r);
+        let mut finished = poses.len() - seen.len();
+        for ids in seen.chunks(self.bufs.chunk) {
+            let chunk: Vec<Pose> = ids.iter().map(|&i| poses[i]).collect();
+            let (r, _, t) = self.run_chunk(&chunk, false)?;
+            for (&i, rec) in ids.iter().zip(r) {
+                out[i] = rec;
+            }
             times += t;
-            done(out.len());
+            finished += ids.len();
+            done(finished);
+        }
+        if seen.is_empty() {
+            done(poses.len());
         }
         Ok((out, times))
     }
