@@ -79,9 +79,9 @@ impl Context {
         // The process environment is never changed here (unsound with
         // threads); the binary switches Mesa's device-select layer off at
         // start-up.
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        desc.backends = wgpu::Backends::PRIMARY;
-        let desc = desc.with_env();
+        let desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        let mut desc = desc.with_env();
+        desc.backends = backends_from_env()?.unwrap_or(wgpu::Backends::PRIMARY);
         let backends = desc.backends;
         let instance = wgpu::Instance::new(desc);
         let adapter = match &opts.adapter {
@@ -199,6 +199,30 @@ impl Context {
         staging.unmap();
         Ok(out)
     }
+}
+
+/// The backends `WGPU_BACKEND` names (comma-separated), parsed here so
+/// that `gl` really selects OpenGL and a misspelt value is an error rather
+/// than silently ignored.
+fn backends_from_env() -> Result<Option<wgpu::Backends>> {
+    let Ok(v) = std::env::var("WGPU_BACKEND") else { return Ok(None) };
+    let mut out = wgpu::Backends::empty();
+    for name in v.split(',').map(|s| s.trim().to_ascii_lowercase()) {
+        out |= match name.as_str() {
+            "vulkan" | "vk" => wgpu::Backends::VULKAN,
+            "metal" | "mtl" => wgpu::Backends::METAL,
+            "dx12" | "d3d12" => wgpu::Backends::DX12,
+            "gl" | "gles" | "opengl" => wgpu::Backends::GL,
+            "webgpu" => wgpu::Backends::BROWSER_WEBGPU,
+            "primary" => wgpu::Backends::PRIMARY,
+            _ => {
+                return Err(Error::NoAdapter {
+                    detail: format!(": WGPU_BACKEND='{v}' names no backend (use vulkan, metal, dx12 or gl, comma-separated)"),
+                })
+            }
+        };
+    }
+    Ok(Some(out))
 }
 
 /// Reads `PLAUSIBLE_REQUIRE_GPU`: tests that need an adapter fail instead of

@@ -276,6 +276,16 @@ fn validate_and_clean(
     if report.scale_to_metres != 1.0 {
         mesh.scale(report.scale_to_metres);
     }
+    // Stated units that make an implausible object are said too: a 150 m
+    // or 0.15 mm "object" scores 0 everywhere without anything else noting it.
+    if units != MeshUnits::Auto {
+        let d = diag * report.scale_to_metres;
+        if d > MAX_DIAGONAL_M || d < MIN_DIAGONAL_M {
+            report.warnings.push(format!(
+                "with the stated units the object's bounding-box diagonal is {d:.4} m: is that its real size? (the units may be wrong)"
+            ));
+        }
+    }
     // Drop faces without area: they cannot be hit and have no normal.
     let scale = mesh.diagonal().max(f64::MIN_POSITIVE);
     let before = mesh.triangles.len();
