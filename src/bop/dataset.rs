@@ -97,8 +97,9 @@ pub struct GtInstance {
 pub struct FrameCamera {
     /// Row-major 3×3 intrinsics.
     pub k: [f64; 9],
-    /// Depth PNG value × `depth_scale` = millimetres.
-    pub depth_scale: f64,
+    /// Depth PNG value × `depth_scale` = millimetres (needed only where
+    /// depth is read: RGB-only splits may leave it out).
+    pub depth_scale: Option<f64>,
 }
 
 /// An evaluation target: `inst_count` instances of `obj_id` in an image.
@@ -306,7 +307,10 @@ impl Scene {
         let image::DynamicImage::ImageLuma16(img) = img else {
             return Err(bad(format!("depth must be a 16-bit single-channel PNG (BOP convention), got {:?}", img.color())));
         };
-        let s = cam.depth_scale as f32;
+        let s = cam.depth_scale.ok_or_else(|| Error::BadJson {
+            path: self.dir.join("scene_camera.json"),
+            reason: format!("image {im_id} has no depth_scale (PNG value × depth_scale = mm), needed to read its depth"),
+        })? as f32;
         Ok(DepthMm { width: w, height: h, mm: img.as_raw().iter().map(|&v| v as f32 * s).collect() })
     }
 }
@@ -433,8 +437,8 @@ struct RawCamera {
     depth_scale: Option<f64>,
 }
 
-/// Reads `scene_camera.json`; `depth_scale` is required (BOP depth without
-/// it has no unit).
+/// Reads `scene_camera.json`; a `depth_scale` given must be plausible
+/// (its absence is an error only where depth is read).
 pub fn read_scene_camera(path: &Path) -> Result<BTreeMap<u32, FrameCamera>> {
     let raw: BTreeMap<String, RawCamera> = read_json(path)?;
     let mut out = BTreeMap::new();
@@ -443,11 +447,12 @@ pub fn read_scene_camera(path: &Path) -> Result<BTreeMap<u32, FrameCamera>> {
         let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: {reason}") };
         let k: [f64; 9] = c.k.as_slice().try_into().map_err(|_| bad(format!("cam_K has {} numbers, expected 9", c.k.len())))?;
         Intrinsics::from_k(&k, 1, 1).map_err(|e| bad(e.to_string()))?;
-        let depth_scale = c.depth_scale.ok_or_else(|| bad("no depth_scale (PNG value × depth_scale = mm)".into()))?;
-        if !(depth_scale.is_finite() && depth_scale > 1e-6 && depth_scale < 1e3) {
-            return Err(bad(format!("depth_scale {depth_scale} is not a plausible scale to millimetres")));
+        if let Some(d) = c.depth_scale {
+            if !(d.is_finite() && d > 1e-6 && d < 1e3) {
+                return Err(bad(format!("depth_scale {d} is not a plausible scale to millimetres")));
+            }
         }
-        out.insert(im, FrameCamera { k, depth_scale });
+        out.insert(im, FrameCamera { k, depth_scale: c.depth_scale });
     }
     Ok(out)
 }
