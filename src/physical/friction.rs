@@ -90,12 +90,14 @@ pub fn static_equilibrium(
     b[2] = -g.z;
     let mut cones = vec![SupportedConeT::ZeroConeT(6)];
     cones.extend(std::iter::repeat_n(SupportedConeT::SecondOrderConeT(3), k));
-    let settings = DefaultSettingsBuilder::default()
-        .verbose(false)
-        .max_iter(200)
-        .build()
-        .ok()?;
-    let mut solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings).ok()?;
+    feasible(&p, &q, &a, &b, &cones)
+}
+
+/// Solves the feasibility problem: `Some(true)` feasible, `Some(false)`
+/// infeasible, `None` when the solver cannot decide.
+fn feasible(p: &CscMatrix<f64>, q: &[f64], a: &CscMatrix<f64>, b: &[f64], cones: &[SupportedConeT<f64>]) -> Option<bool> {
+    let settings = DefaultSettingsBuilder::default().verbose(false).max_iter(200).build().ok()?;
+    let mut solver = DefaultSolver::new(p, q, a, b, cones, settings).ok()?;
     solver.solve();
     match solver.solution.status {
         SolverStatus::Solved | SolverStatus::AlmostSolved => Some(true),
@@ -143,14 +145,7 @@ fn frictionless_equilibrium(points: &[DVec3], normals: &[DVec3], com: DVec3, g: 
     b[1] = -g.y;
     b[2] = -g.z;
     let cones = [SupportedConeT::ZeroConeT(6), SupportedConeT::NonnegativeConeT(k)];
-    let settings = DefaultSettingsBuilder::default().verbose(false).max_iter(200).build().ok()?;
-    let mut solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings).ok()?;
-    solver.solve();
-    match solver.solution.status {
-        SolverStatus::Solved | SolverStatus::AlmostSolved => Some(true),
-        SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => Some(false),
-        _ => None,
-    }
+    feasible(&p, &q, &a, &b, &cones)
 }
 
 #[cfg(test)]
