@@ -3,7 +3,6 @@
 //! them.
 
 use crate::error::Result;
-use crate::gpu::Context;
 use crate::kernels::score::{score_cpu, GpuScorer, ScoreParams, ScoreRecord, StageTimes};
 use crate::kernels::RenderMesh;
 use crate::observation::ScoreTarget;
@@ -11,20 +10,49 @@ use crate::physical::batch::PlanePhysics;
 use crate::physical::Evaluation;
 use crate::pose::Pose;
 
-/// Where the kernels run.
-#[derive(Clone, Debug)]
-pub enum Device {
-    /// Boxed: a context is a few hundred bytes, the CPU variant nothing.
-    Gpu(Box<Context>),
-    /// The CPU twins, multi-threaded with rayon.
-    Cpu,
+pub use crate::gpu::Device;
+
+/// A scorer for one mesh and one observation, built once and called many
+/// times: on the GPU the pipeline, the mesh and the observation stay
+/// uploaded between calls; on the CPU it runs the twin. The one scoring API
+/// of the library (the CLI, evaluation and bindings all call it).
+pub struct Scorer {
+    inner: ScorerImpl,
 }
 
-impl Device {
-    pub fn describe(&self) -> String {
-        match self {
-            Device::Gpu(c) => c.describe(),
-            Device::Cpu => format!("CPU twin ({} threads)", rayon::current_num_threads()),
+enum ScorerImpl {
+    Gpu(Box<GpuScorer>),
+    Cpu { mesh: RenderMesh, target: ScoreTarget, params: ScoreParams },
+}
+
+/// Hypotheses the CPU twin scores between progress reports.
+const CPU_PROGRESS_CHUNK: usize = 1024;
+
+impl Scorer {
+    /// Prepares scoring of `mesh` against `target` on `device`; `n_hint`
+    /// sizes the GPU buffers (larger batches are split).
+    pub fn new(device: &Device, mesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, n_hint: usize) -> Result<Scorer> {
+        let inner = match device {
+            Device::Gpu(ctx) => ScorerImpl::Gpu(Box::new(GpuScorer::new(ctx, mesh, target, params, n_hint)?)),
+            Device::Cpu => ScorerImpl::Cpu { mesh: mesh.clone(), target: target.clone(), params },
+        };
+        Ok(Scorer { inner })
+    }
+
+    /// Scores `poses` (records in input order), calling `done(n)` as
+    /// hypotheses finish.
+    pub fn score(&self, poses: &[Pose], done: &mut dyn FnMut(usize)) -> Result<(Vec<ScoreRecord>, StageTimes)> {
+        match &self.inner {
+            ScorerImpl::Gpu(g) => g.score_with_progress(poses, done),
+            ScorerImpl::Cpu { mesh, target, params } => {
+                let t = std::time::Instant::now();
+                let mut out = Vec::with_capacity(poses.len());
+                for chunk in poses.chunks(CPU_PROGRESS_CHUNK) {
+                    out.extend(score_cpu(mesh, target, chunk, params));
+                    done(out.len());
+                }
+                Ok((out, StageTimes { compute: t.elapsed(), ..Default::default() }))
+            }
         }
     }
 }
@@ -37,14 +65,7 @@ pub fn score_poses(
     poses: &[Pose],
     params: ScoreParams,
 ) -> Result<(Vec<ScoreRecord>, StageTimes)> {
-    match device {
-        Device::Gpu(ctx) => GpuScorer::new(ctx, mesh, target, params, poses.len())?.score(poses),
-        Device::Cpu => {
-            let t = std::time::Instant::now();
-            let r = score_cpu(mesh, target, poses, &params);
-            Ok((r, StageTimes { compute: t.elapsed(), ..Default::default() }))
-        }
-    }
+    Scorer::new(device, mesh, target, params, poses.len())?.score(poses, &mut |_| {})
 }
 
 /// Scores `poses` on `device` and computes their physical terms against

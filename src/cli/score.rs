@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context as _, Result};
-use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams, ScoreRecord};
+use plausible::kernels::score::{ScoreParams, ScoreRecord};
 use plausible::kernels::RenderMesh;
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{read_poses_selected, PoseUnits, SceneGtSelection};
@@ -13,7 +13,7 @@ use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::read_camera_plane;
 use plausible::physical::{Evaluation, Verdict};
-use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device};
+use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device, Scorer};
 
 use super::{DeviceArgs, MeshArgs, ObservationArgs, SampleArgs};
 
@@ -158,20 +158,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         }
         return Ok(());
     }
-    let records = match &device {
-        Device::Gpu(ctx) => {
-            let scorer = GpuScorer::new(ctx, &rmesh, &target, params, poses.len())?;
-            scorer.score_with_progress(&poses, |n| pb.set_position(n as u64))?.0
-        }
-        Device::Cpu => {
-            let mut out = Vec::with_capacity(poses.len());
-            for chunk in poses.chunks(1024) {
-                out.extend(score_cpu(&rmesh, &target, chunk, &params));
-                pb.set_position(out.len() as u64);
-            }
-            out
-        }
-    };
+    let records = Scorer::new(&device, &rmesh, &target, params, poses.len())?.score(&poses, &mut |n| pb.set_position(n as u64))?.0;
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
     let rank = ranks(&records);

@@ -50,6 +50,31 @@ impl BatchLimits {
     }
 }
 
+/// Where the kernels run: a GPU context, or the CPU twins. It lives with
+/// the GPU context so that every API (scoring, evaluation, physics) takes
+/// the same choice.
+#[derive(Clone, Debug)]
+pub enum Device {
+    /// Boxed: a context is a few hundred bytes, the CPU variant nothing.
+    Gpu(Box<Context>),
+    /// The CPU twins, multi-threaded with rayon.
+    Cpu,
+}
+
+impl Device {
+    pub fn describe(&self) -> String {
+        match self {
+            Device::Gpu(c) => c.describe(),
+            Device::Cpu => format!("CPU twin ({} threads)", rayon::current_num_threads()),
+        }
+    }
+
+    /// Opens the first adapter matching `opts` as a GPU device.
+    pub fn gpu(opts: &GpuOptions) -> Result<Device> {
+        Ok(Device::Gpu(Box::new(Context::new(opts)?)))
+    }
+}
+
 /// A device and queue on a chosen adapter.
 #[derive(Clone)]
 pub struct Context {
