@@ -33,16 +33,13 @@ fn run(ds: &Dataset, results: &[Estimate], device: &Device, opts: &EvalOptions) 
     evaluate(ds, results, &targets, device, opts, &mut |_| {}).unwrap().0
 }
 
+/// The CPU twin and the GPU (tests using this have `gpu` in their names).
 fn devices() -> Vec<Device> {
-    let mut d = vec![Device::Cpu];
-    if let Some(ctx) = test_context() {
-        d.push(Device::Gpu(Box::new(ctx)));
-    }
-    d
+    vec![Device::Cpu, Device::Gpu(Box::new(test_context()))]
 }
 
 #[test]
-fn ground_truth_as_results_scores_one_on_every_device() {
+fn gpu_ground_truth_as_results_scores_one_on_every_device() {
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
     let gt = gt_as_results(&ds, &targets).unwrap();
@@ -63,7 +60,7 @@ fn reference() -> serde_json::Value {
 }
 
 #[test]
-fn perturbed_results_match_the_bop_toolkit() {
+fn gpu_perturbed_results_match_the_bop_toolkit() {
     let ds = dataset();
     let results = read_results(&assets().join("perturbed.csv")).unwrap();
     let want = reference();
@@ -216,8 +213,8 @@ fn copy_dir(from: &Path, to: &Path) {
 }
 
 #[test]
-fn depth_kernel_matches_its_cpu_twin() {
-    let Some(ctx) = test_context() else { return };
+fn gpu_depth_kernel_matches_its_cpu_twin() {
+    let ctx = test_context();
     let ds = dataset();
     let (mesh, _) = Mesh::load(ds.model_path(10), MeshUnits::Millimetres).unwrap();
     let rm = RenderMesh::new(&mesh).unwrap();

@@ -27,16 +27,13 @@ fn on_table(mesh: &Mesh, rest: usize, yaw: f64, x: f64, y: f64) -> Pose {
 }
 
 #[test]
-fn stable_pose_hypotheses_recover_a_duck_on_a_table() {
+fn gpu_stable_pose_hypotheses_recover_a_duck_on_a_table() {
     let mesh = duck();
     let rmesh = RenderMesh::new(&mesh).unwrap();
     let k = linemod_camera();
     let rests = analytic_resting_poses(&mesh).unwrap();
     assert!(rests.len() >= 2 && (rests.iter().map(|r| r.probability).sum::<f64>() - 1.0).abs() < 1e-6);
-    let device = match plausible::gpu::test_context() {
-        Some(ctx) => Device::Gpu(Box::new(ctx)),
-        None => Device::Cpu,
-    };
+    let device = Device::Gpu(Box::new(plausible::gpu::test_context()));
     // Two scenes: the most probable resting pose and the second one, at yaws
     // between the 15° steps, off the image centre.
     for (scene, (rest, yaw, x, y)) in [(0usize, 35f64, 0.02, -0.01), (1, 100.0, -0.03, 0.02)].into_iter().enumerate() {

@@ -467,9 +467,7 @@ mod gpu {
 
     #[test]
     fn gpu_agrees_with_the_cpu_twin_on_10000_poses_near_contact() {
-        let Some(ctx) = plausible::gpu::test_context() else {
-            return;
-        };
+        let ctx = plausible::gpu::test_context();
         let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
         let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
         let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());
@@ -721,7 +719,7 @@ fn explain_draws_classes_support_polygons_and_centres_of_mass() {
 }
 
 #[test]
-fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
+fn gpu_camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
     use plausible::physical::batch::{rank, PlanePhysics};
     use plausible::physical::scene::Plane;
     use plausible::pose::Pose;
@@ -761,7 +759,8 @@ fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
     let order = rank(&verdicts, &[0.9, 0.8, 0.7, 0.1]);
     assert_eq!(order[0], 3);
     assert_eq!(*order.last().unwrap(), 1);
-    if let Some(ctx) = plausible::gpu::test_context() {
+    {
+        let ctx = plausible::gpu::test_context();
         let gpu = PlanePhysics::new(&cube, &plane, Some(&ctx), 1024, 0, None)
             .unwrap()
             .evaluate(&cam)
@@ -777,7 +776,7 @@ fn camera_frame_hypotheses_on_a_plane_are_ranked_plausible_first() {
 /// rounding of camera-frame coordinates), margins within 1 µm where the
 /// supported sets agree; the visual records equal the plain score kernel's.
 #[test]
-fn fused_score_and_plane_physics_match_the_cpu_twins() {
+fn gpu_fused_score_and_plane_physics_match_the_cpu_twins() {
     use plausible::kernels::score::{GpuScorer, ScoreParams};
     use plausible::kernels::RenderMesh;
     use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -788,7 +787,7 @@ fn fused_score_and_plane_physics_match_the_cpu_twins() {
     use plausible::visual::{score_poses_with_physics, Device};
     use rand::{Rng, SeedableRng};
 
-    let Some(ctx) = plausible::gpu::test_context() else { return };
+    let ctx = plausible::gpu::test_context();
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
     let duck = plausible::mesh::Mesh::load(path, plausible::mesh::MeshUnits::Metres).unwrap().0.normalized(0.15);
     let rmesh = RenderMesh::new(&duck).unwrap();
@@ -941,7 +940,7 @@ fn support_plane_fit_ignores_clutter() {
 /// dispatches per batch; the GPU must still match the CPU twin on every
 /// count, not stop after the first ~8,000 samples.
 #[test]
-fn max_samples_against_many_grids_match_the_cpu_twin() {
+fn gpu_max_samples_against_many_grids_match_the_cpu_twin() {
     use std::sync::Arc;
     use plausible::physical::contacts::{evaluate_batch, Body, Environment, Obstacle};
     use plausible::physical::gpu::{words_per_dispatch, GpuContacts};
@@ -950,7 +949,7 @@ fn max_samples_against_many_grids_match_the_cpu_twin() {
     use plausible::physical::sdf::{SdfGrid, DEFAULT_RESOLUTION};
     use plausible::pose::Pose;
     use rand::{Rng, SeedableRng};
-    let Some(ctx) = plausible::gpu::test_context() else { return };
+    let ctx = plausible::gpu::test_context();
     let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
     let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
     let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());

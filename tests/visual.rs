@@ -62,7 +62,7 @@ fn assert_renders_match(a: &RenderImage, b: &RenderImage) {
 
 #[test]
 fn render_gpu_matches_cpu_twin() {
-    let Some(ctx) = test_context() else { return };
+    let ctx = test_context();
     let mesh = RenderMesh::new(&duck()).unwrap();
     let k = linemod_camera().crop(220.0, 140.0, 200.0, 200.0, 128, 128);
     let poses = around_and_random(&true_pose(), 24, 3);
@@ -81,7 +81,7 @@ fn render_gpu_matches_cpu_twin() {
 
 #[test]
 fn score_gpu_matches_cpu_twin() {
-    let Some(ctx) = test_context() else { return };
+    let ctx = test_context();
     let mesh = RenderMesh::new(&duck()).unwrap();
     let target = demo_target(&mesh, SensorNoise::default());
     let poses = around_and_random(&true_pose(), 256, 11);
@@ -96,8 +96,8 @@ fn score_gpu_matches_cpu_twin() {
 }
 
 #[test]
-fn forced_small_limits_split_batches_with_same_results() {
-    let Some(ctx) = test_context() else { return };
+fn gpu_forced_small_limits_split_batches_with_same_results() {
+    let ctx = test_context();
     // 16 KiB bindings: 341 poses per chunk, 4 visibility slots of a 32x32
     // region, capped at 3 workgroups.
     let small = Context::new(&GpuOptions {
@@ -128,8 +128,8 @@ fn forced_small_limits_split_batches_with_same_results() {
 /// in total. Long batches (many hypotheses per workgroup) and big triangles
 /// (one invocation filling a large area) used to be cut short silently.
 #[test]
-fn long_batches_and_big_triangles_match_the_cpu_twin() {
-    let Some(ctx) = test_context() else { return };
+fn gpu_long_batches_and_big_triangles_match_the_cpu_twin() {
+    let ctx = test_context();
     let mesh = RenderMesh::new(&duck()).unwrap();
     let target = demo_target(&mesh, SensorNoise::default());
     let poses = around_and_random(&true_pose(), 4096, 9);
@@ -165,13 +165,14 @@ fn sphere_depth(k: &Intrinsics, c: DVec3, r: f64, u: f64, v: f64) -> Option<f64>
 }
 
 #[test]
-fn sphere_depth_matches_analytic_surface() {
+fn gpu_sphere_depth_matches_analytic_surface() {
     let r = 0.05;
     let mesh = RenderMesh::new(&shapes::icosphere(r, 5)).unwrap();
     let pose = Pose::new(axis_angle(DVec3::new(1.0, 2.0, 3.0), 0.4), DVec3::new(0.01, -0.02, 0.6));
     let k = Intrinsics { fx: 600.0, fy: 600.0, cx: 63.5, cy: 63.5, width: 128, height: 128 };
     let mut images = vec![render_cpu(&mesh, &pose, &k)];
-    if let Some(ctx) = test_context() {
+    {
+        let ctx = test_context();
         images.extend(render_gpu(&ctx, &mesh, &[pose], &k).unwrap());
     }
     for img in &images {
@@ -199,7 +200,7 @@ fn sphere_depth_matches_analytic_surface() {
 }
 
 #[test]
-fn pose_scored_against_its_own_rendering_scores_at_least_0_99() {
+fn gpu_pose_scored_against_its_own_rendering_scores_at_least_0_99() {
     // Native ROI pixels coincide with the camera's, so the noise-free
     // observation is exactly this pose's rendering. (With --res resampling,
     // the nearest-sample observation is shifted by up to half a source pixel
@@ -212,14 +213,15 @@ fn pose_scored_against_its_own_rendering_scores_at_least_0_99() {
     let rec = score_cpu(&mesh, &target, &[true_pose()], &params)[0];
     assert!(rec.score >= 0.99, "{rec:?}");
     assert!(rec.mean_ad > 0.9999, "{rec:?}");
-    if let Some(ctx) = test_context() {
+    {
+        let ctx = test_context();
         let (g, _) = GpuScorer::new(&ctx, &mesh, &target, params, 1).unwrap().score(&[true_pose()]).unwrap();
         assert!(g[0].score >= 0.99, "{:?}", g[0]);
     }
 }
 
 #[test]
-fn score_decreases_with_rotation_error() {
+fn gpu_score_decreases_with_rotation_error() {
     let mesh = RenderMesh::new(&duck()).unwrap();
     let target = demo_target(&mesh, SensorNoise::default());
     let axis = DVec3::new(0.2, -0.5, 1.0);
@@ -233,7 +235,8 @@ fn score_decreases_with_rotation_error() {
     for w in s.windows(2) {
         assert!(w[1] < w[0], "scores not decreasing: {s:?}");
     }
-    if let Some(ctx) = test_context() {
+    {
+        let ctx = test_context();
         let (g, _) = GpuScorer::new(&ctx, &mesh, &target, ScoreParams::default(), 7).unwrap().score(&poses).unwrap();
         for w in g.windows(2) {
             assert!(w[1].score < w[0].score);
@@ -242,14 +245,11 @@ fn score_decreases_with_rotation_error() {
 }
 
 #[test]
-fn true_pose_ranks_first_among_1024_on_demo_data() {
+fn gpu_true_pose_ranks_first_among_1024_on_demo_data() {
     let mesh = RenderMesh::new(&duck()).unwrap();
     let target = demo_target(&mesh, SensorNoise::default());
     let poses = around_and_random(&true_pose(), 1024, 42);
-    let recs = match test_context() {
-        Some(ctx) => GpuScorer::new(&ctx, &mesh, &target, ScoreParams::default(), 1024).unwrap().score(&poses).unwrap().0,
-        None => score_cpu(&mesh, &target, &poses, &ScoreParams::default()),
-    };
+    let recs = GpuScorer::new(&test_context(), &mesh, &target, ScoreParams::default(), 1024).unwrap().score(&poses).unwrap().0;
     assert_eq!(ranks(&recs)[0], 1, "true pose score {:?}", recs[0]);
 }
 

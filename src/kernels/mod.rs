@@ -207,6 +207,43 @@ pub fn shader_sources() -> Vec<(&'static str, String)> {
     ]
 }
 
+/// Test helper: WGSL struct layouts as naga computes them, compared with
+/// the Rust `#[repr(C)]` structs field by field, and one validation setting
+/// for every shader.
+#[cfg(test)]
+pub(crate) mod wgsl_layout {
+    /// The capabilities every shader is validated with: none beyond core
+    /// WGSL, what every adapter (lavapipe, downlevel GL) offers.
+    pub const CAPABILITIES: naga::valid::Capabilities = naga::valid::Capabilities::empty();
+
+    /// Parses and validates `src` (panicking with naga's message).
+    pub fn module(name: &str, src: &str) -> naga::Module {
+        let module = naga::front::wgsl::parse_str(src).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), CAPABILITIES)
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+        module
+    }
+
+    /// Asserts that WGSL struct `name` in `src` has `size` bytes and its
+    /// members the byte offsets in `fields` (WGSL member name → the Rust
+    /// field's `offset_of!`), every member listed.
+    pub fn assert_layout(src: &str, name: &str, size: usize, fields: &[(&str, usize)]) {
+        let module = naga::front::wgsl::parse_str(src).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let (h, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no struct {name}"));
+        assert_eq!(layouter[h].size as usize, size, "size of {name}");
+        let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("{name} is not a struct") };
+        assert_eq!(members.len(), fields.len(), "{name}: every member must be checked");
+        for m in members {
+            let member = m.name.as_deref().unwrap_or_default();
+            let want = fields.iter().find(|(f, _)| *f == member).unwrap_or_else(|| panic!("{name}.{member} not checked")).1;
+            assert_eq!(m.offset as usize, want, "offset of {name}.{member}");
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -217,10 +254,7 @@ mod tests {
     fn every_wgsl_file_validates() {
         let mut covered = std::collections::HashSet::new();
         for (name, src) in shader_sources() {
-            let module = naga::front::wgsl::parse_str(&src).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&src)));
-            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty())
-                .validate(&module)
-                .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+            wgsl_layout::module(name, &src);
             covered.insert(name);
         }
         // Every shader file is part of some composed module.
@@ -231,33 +265,25 @@ mod tests {
         }
     }
 
+    /// Sizes and field offsets of every struct the visual kernels share
+    /// with the host.
     #[test]
-    fn wgsl_structs_match_rust_sizes() {
-        // Sizes the WGSL declarations imply (naga's layouter) equal the Rust ones.
-        let src = &shader_sources()[1].1;
-        let module = naga::front::wgsl::parse_str(src).unwrap();
-        let mut layouter = naga::proc::Layouter::default();
-        layouter.update(module.to_ctx()).unwrap();
-        let size_of = |name: &str| {
-            let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
-            layouter[h].size as usize
-        };
-        assert_eq!(size_of("Params"), std::mem::size_of::<RasterParams>());
-        assert_eq!(size_of("Tri"), std::mem::size_of::<GpuTriangle>());
-        assert_eq!(size_of("Pose"), std::mem::size_of::<GpuPose>());
-        assert_eq!(size_of("Record"), std::mem::size_of::<score::ScoreRecord>());
-    }
-
-    #[test]
-    fn fused_physics_structs_match_rust_sizes() {
-        let module = naga::front::wgsl::parse_str(score::SCORE_PHYSICS_WGSL).unwrap();
-        let mut layouter = naga::proc::Layouter::default();
-        layouter.update(module.to_ctx()).unwrap();
-        let size_of = |name: &str| {
-            let (h, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
-            layouter[h].size as usize
-        };
-        assert_eq!(size_of("PlaneParams"), std::mem::size_of::<crate::physical::batch::PlaneContactParams>());
-        assert_eq!(size_of("ContactRecord"), std::mem::size_of::<crate::physical::gpu::ContactRecord>());
+    fn visual_structs_match_the_wgsl_field_by_field() {
+        use std::mem::{offset_of, size_of};
+        let src = score::SCORE_PHYSICS_WGSL;
+        macro_rules! same {
+            ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
+        }
+        wgsl_layout::assert_layout(src, "Params", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_tri, id_bits, cull, radius, tau, alpha, near, n_obs, first));
+        wgsl_layout::assert_layout(src, "Tri", size_of::<GpuTriangle>(), same!(GpuTriangle, v0, v1, v2, plane));
+        let rows = offset_of!(GpuPose, rows);
+        wgsl_layout::assert_layout(src, "Pose", size_of::<GpuPose>(), &[("r0", rows), ("r1", rows + 16), ("r2", rows + 32)]);
+        wgsl_layout::assert_layout(src, "Record", size_of::<score::ScoreRecord>(), same!(score::ScoreRecord, score, mean_ad, mean_an, valid, rendered, observed, front, behind));
+        use crate::physical::batch::PlaneContactParams;
+        use crate::physical::gpu::ContactRecord;
+        wgsl_layout::assert_layout(src, "PlaneParams", size_of::<PlaneContactParams>(), same!(PlaneContactParams, plane, n_samples, words, eps, pad));
+        wgsl_layout::assert_layout(src, "ContactRecord", size_of::<ContactRecord>(), same!(ContactRecord, intersecting, contact, supported, min_delta));
+        let depth = depth::depth_wgsl();
+        wgsl_layout::assert_layout(&depth, "Tile", size_of::<depth::Tile>(), same!(depth::Tile, x0, y0, x1, y1, offset, pad0, pad1, pad2));
     }
 }

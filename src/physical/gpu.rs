@@ -546,24 +546,23 @@ pub(crate) fn finish_from_bits(
 mod tests {
     use super::*;
 
-    /// The WGSL structs have the sizes of the Rust ones (naga's layouter).
+    /// The WGSL structs match the Rust ones field by field (naga's layouter).
     #[test]
-    fn wgsl_structs_match_rust_sizes() {
-        let module = naga::front::wgsl::parse_str(CONTACTS_WGSL).unwrap();
-        let mut layouter = naga::proc::Layouter::default();
-        layouter.update(module.to_ctx()).unwrap();
-        let size_of = |name: &str| {
-            let (h, _) = module
-                .types
-                .iter()
-                .find(|(_, t)| t.name.as_deref() == Some(name))
-                .unwrap();
-            layouter[h].size as usize
-        };
-        assert_eq!(size_of("Params"), std::mem::size_of::<ContactParams>());
-        assert_eq!(size_of("Grid"), std::mem::size_of::<GpuGrid>());
-        assert_eq!(size_of("Pose"), std::mem::size_of::<GpuPose>());
-        assert_eq!(size_of("Record"), std::mem::size_of::<ContactRecord>());
+    fn wgsl_structs_match_rust_field_by_field() {
+        use crate::kernels::wgsl_layout::assert_layout;
+        use std::mem::{offset_of, size_of};
+        let src = CONTACTS_WGSL;
+        macro_rules! same {
+            ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
+        }
+        let pad = offset_of!(ContactParams, pad);
+        let mut params: Vec<(&str, usize)> =
+            same!(ContactParams, n_hyp, n_samples, n_planes, n_grids, eps, support_cos, write_deltas, words, word_begin, word_end, gravity, planes, grids).to_vec();
+        params.extend([("pad0", pad), ("pad1", pad + 4)]);
+        assert_layout(src, "Params", size_of::<ContactParams>(), &params);
+        assert_layout(src, "Grid", size_of::<GpuGrid>(), same!(GpuGrid, inv, origin, upper, dims));
+        assert_layout(src, "Pose", size_of::<GpuPose>(), same!(GpuPose, rows));
+        assert_layout(src, "Record", size_of::<ContactRecord>(), same!(ContactRecord, intersecting, contact, supported, min_delta));
         assert!(CONTACTS_WGSL.contains(&format!("const WG: u32 = {WG}u;")));
         assert!(CONTACTS_WGSL.contains(&format!("const PLANE_SLOTS: u32 = {MAX_PLANES}u;")));
         assert!(CONTACTS_WGSL.contains(&format!("const GRID_SLOTS: u32 = {MAX_GRIDS}u;")));
@@ -575,10 +574,7 @@ mod tests {
         for (planes, grids) in [(0, 0), (1, 0), (1, 1), (4, 16)] {
             let src = contacts_source(planes, grids);
             assert!(src.contains(&format!("const GRID_SLOTS: u32 = {}u;", grids.max(1))));
-            let module = naga::front::wgsl::parse_str(&src).unwrap();
-            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-                .validate(&module)
-                .unwrap();
+            crate::kernels::wgsl_layout::module("contacts", &src);
         }
     }
 }
