@@ -84,7 +84,7 @@ pub fn score_poses_with_physics(
 ) -> Result<(Vec<ScoreRecord>, Vec<Evaluation>, StageTimes)> {
     match device {
         Device::Gpu(ctx) => {
-            let scorer = GpuScorer::with_plane_physics(ctx, mesh, target, params, poses.len(), physics)?;
+            let scorer = physics.gpu_scorer(ctx, mesh, target, params, poses.len())?;
             let (records, contacts, times) = scorer.score_with_physics(poses, done)?;
             let evals = physics.finish_fused(poses, &contacts.records, &contacts.bits);
             Ok((records, evals, times))

@@ -234,7 +234,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                     Ok(n as f64 / median(runs).as_secs_f64())
                 };
                 if let Device::Gpu(ctx) = &device {
-                    let scorer = GpuScorer::with_plane_physics(ctx, &rmesh, &target, params, n, physics)?;
+                    let scorer = physics.gpu_scorer(ctx, &rmesh, &target, params, n)?;
                     row.gpu_physics_hyps_per_s = Some(time(&|| {
                         let (_, contacts, _) = scorer.score_with_physics(&poses, |_| {})?;
                         physics.finish_fused(&poses, &contacts.records, &contacts.bits);

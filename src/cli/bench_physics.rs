@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use glam::{DMat3, DQuat, DVec3};
+use glam::{DMat3, DVec3};
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::physical::contacts::{distances_batch, evaluate_batch, Body, Environment, Obstacle};
 use plausible::physical::gpu::GpuContacts;
@@ -72,21 +72,6 @@ fn median(mut v: Vec<Duration>) -> Duration {
     v[v.len() / 2]
 }
 
-fn random_rotation(rng: &mut ChaCha8Rng) -> DMat3 {
-    loop {
-        let q = DQuat::from_xyzw(
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        );
-        let l = q.length();
-        if l > 0.1 && l <= 1.0 {
-            return DMat3::from_quat(q / l);
-        }
-    }
-}
-
 pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
     let device = a.device.open(verbose, true)?;
     let (adapter, backend) = match &device {
@@ -114,7 +99,7 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
     let mut rng = ChaCha8Rng::seed_from_u64(a.seed);
     let poses: Vec<Pose> = (0..a.n)
         .map(|_| {
-            let r = random_rotation(&mut rng);
+            let r = plausible::hypotheses::random_rotation(&mut rng);
             let p = DVec3::new(
                 rng.random_range(lo.x - 0.02..hi.x + 0.02),
                 rng.random_range(lo.y - 0.02..hi.y + 0.02),

@@ -20,7 +20,7 @@ use glam::{DVec2, DVec3};
 use plausible::hypotheses::around_and_random;
 use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, rest_on_plane, OnPlaneParams};
 use plausible::kernels::raster::render_cpu;
-use plausible::kernels::score::{GpuScorer, ScoreParams};
+use plausible::kernels::score::ScoreParams;
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -114,7 +114,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     // Warm up (pipeline compilation, first-submit cost), then time.
     if let Device::Gpu(ctx) = &device {
         let warm = &poses[..64.min(poses.len())];
-        GpuScorer::with_plane_physics(ctx, &rmesh, &target, params, 64, &physics)?.score_with_physics(warm, |_| {})?;
+        physics.gpu_scorer(ctx, &rmesh, &target, params, 64)?.score_with_physics(warm, |_| {})?;
     }
     let t0 = Instant::now();
     let (records, evals, _) = score_poses_with_physics(&device, &rmesh, &target, &poses, params, &physics, |_| {})?;

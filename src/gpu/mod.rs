@@ -200,7 +200,8 @@ impl Context {
             .map_err(|e| Error::Gpu(e.to_string()))
     }
 
-    /// Copies `size` bytes of `src` to the host and returns them.
+    /// Copies `size` bytes of `src` to the host and returns them (through a
+    /// staging buffer made for the call).
     pub fn read_buffer(&self, src: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
@@ -208,10 +209,17 @@ impl Context {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        self.read_through(src, &staging, size)
+    }
+
+    /// Copies `size` bytes of `src` into `staging` (a MAP_READ buffer the
+    /// caller keeps between calls), waits, and returns them: the one
+    /// readback path of every kernel.
+    pub fn read_through(&self, src: &wgpu::Buffer, staging: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
         let mut enc = self.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(src, 0, &staging, 0, size);
+        enc.copy_buffer_to_buffer(src, 0, staging, 0, size);
         self.queue.submit([enc.finish()]);
-        let slice = staging.slice(..);
+        let slice = staging.slice(..size);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);

@@ -39,6 +39,38 @@ pub struct RestingPose {
     pub group_probability: f64,
 }
 
+/// What [`resting_poses_from_export`] reads of the export (the reading
+/// side of `stable::export`; unknown fields are ignored, missing ones are
+/// errors that name them).
+#[derive(serde::Deserialize)]
+struct ExportIn {
+    format: String,
+    meshes: Vec<MeshIn>,
+}
+
+#[derive(serde::Deserialize)]
+struct MeshIn {
+    mesh: String,
+    sha256: String,
+    clusters: Vec<ClusterIn>,
+    #[serde(default)]
+    families: Vec<FamilyIn>,
+}
+
+#[derive(serde::Deserialize)]
+struct ClusterIn {
+    probability: f64,
+    #[serde(rename = "R_model_to_plane")]
+    r_model_to_plane: [f64; 9],
+}
+
+#[derive(serde::Deserialize)]
+struct FamilyIn {
+    kind: String,
+    axis: Option<[f64; 3]>,
+    probability: f64,
+}
+
 /// How [`resting_poses_from_export`] found the mesh's entry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportMatch {
@@ -110,54 +142,48 @@ pub fn analytic_resting_poses(mesh: &Mesh) -> Result<Vec<RestingPose>> {
 /// so the caller can warn). Clusters give one resting pose each, rolling
 /// families [`ROLL_STEPS`] (their probability split evenly).
 pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<(Vec<RestingPose>, ExportMatch)> {
-    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| Error::InvalidInput(format!("stable-pose JSON: {e}")))?;
-    let meshes = v["meshes"].as_array().ok_or_else(|| Error::InvalidInput("stable-pose JSON: no \"meshes\" list".into()))?;
-    let stem = |m: &serde_json::Value| {
-        std::path::Path::new(m["mesh"].as_str().unwrap_or("")).file_stem().map(|s| s.to_string_lossy().into_owned())
-    };
+    let bad = |reason: String| Error::InvalidInput(format!("stable-pose JSON: {reason}"));
+    let v: ExportIn = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
+    if v.format != crate::stable::export::FORMAT {
+        return Err(bad(format!("format '{}' is not '{}' (made by another tool or version?)", v.format, crate::stable::export::FORMAT)));
+    }
+    let meshes = &v.meshes;
+    let stem = |m: &MeshIn| std::path::Path::new(&m.mesh).file_stem().map(|s| s.to_string_lossy().into_owned());
     let (entry, how) = meshes
         .iter()
-        .find(|m| m["sha256"] == sha256)
+        .find(|m| m.sha256 == sha256)
         .map(|m| (m, ExportMatch::Hash))
         .or_else(|| meshes.iter().find(|m| stem(m).as_deref() == Some(name)).map(|m| (m, ExportMatch::Name)))
         .or_else(|| (meshes.len() == 1).then(|| (&meshes[0], ExportMatch::OnlyEntry)))
         .ok_or_else(|| {
             let names: Vec<String> = meshes.iter().filter_map(stem).collect();
-            Error::InvalidInput(format!(
-                "stable-pose JSON: no entry for this mesh (by geometry hash or the name '{name}'); it has {}",
-                names.join(", ")
+            bad(format!(
+                "no entry for this mesh (by geometry hash or the name '{name}'); it has {}",
+                if names.is_empty() { "no meshes".to_string() } else { names.join(", ") }
             ))
         })?;
-    let clusters = entry["clusters"].as_array().ok_or_else(|| Error::InvalidInput("stable-pose JSON: no \"clusters\"".into()))?;
     let mut out = Vec::new();
-    for (i, c) in clusters.iter().enumerate() {
-        let r: Vec<f64> = c["R_model_to_plane"].as_array().map(|a| a.iter().filter_map(|x| x.as_f64()).collect()).unwrap_or_default();
-        let p = c["probability"].as_f64();
-        let (Ok(r), Some(p)) = (<[f64; 9]>::try_from(r), p) else {
-            return Err(Error::InvalidInput(format!("stable-pose JSON: cluster {i} needs R_model_to_plane (9 numbers) and probability")));
-        };
-        let r = rows(&r);
-        if ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| x.abs() > 1e-6) {
-            return Err(Error::InvalidInput(format!("stable-pose JSON: cluster {i}: R_model_to_plane is not a rotation")));
+    for (i, c) in entry.clusters.iter().enumerate() {
+        let r = rows(&c.r_model_to_plane);
+        if !c.probability.is_finite() || ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| !(x.abs() <= 1e-6)) {
+            return Err(bad(format!("cluster {i}: R_model_to_plane is not a rotation, or its probability is not a number")));
         }
-        out.push(RestingPose { r_model_to_plane: r, probability: p, group_probability: p });
+        out.push(RestingPose { r_model_to_plane: r, probability: c.probability, group_probability: c.probability });
     }
     // Rolling families (a cylinder on its side): gravity anywhere on the
     // great circle normal to the axis, sampled at ROLL_STEPS angles that
     // share the family's probability. Scattered (ball-like) families have no
     // resting orientation to offer and are left out.
-    let families = entry["families"].as_array().map(Vec::as_slice).unwrap_or(&[]);
-    for (i, f) in families.iter().enumerate() {
-        if f["kind"] != "circle" {
+    for (i, f) in entry.families.iter().enumerate() {
+        if f.kind != "circle" {
             continue;
         }
-        let axis: Vec<f64> = f["axis"].as_array().map(|a| a.iter().filter_map(|x| x.as_f64()).collect()).unwrap_or_default();
-        let (Ok(axis), Some(p)) = (<[f64; 3]>::try_from(axis), f["probability"].as_f64()) else {
-            return Err(Error::InvalidInput(format!("stable-pose JSON: family {i} needs axis (3 numbers) and probability")));
+        let (Some(axis), p) = (f.axis, f.probability) else {
+            return Err(bad(format!("family {i} (a rolling family) needs an axis")));
         };
         let axis = DVec3::from_array(axis).normalize();
-        if !axis.is_finite() {
-            return Err(Error::InvalidInput(format!("stable-pose JSON: family {i} has a zero axis")));
+        if !axis.is_finite() || !p.is_finite() {
+            return Err(bad(format!("family {i} has a zero axis or no probability")));
         }
         let start = axis.any_orthonormal_vector();
         for k in 0..ROLL_STEPS {

@@ -1,19 +1,25 @@
-//! GPU kernels and their CPU twins.
-//!
-//! Each kernel lives in its own module with the dispatch code and a plain
-//! Rust twin that computes the same thing readably; the WGSL is in
-//! `shaders/<kernel>.wgsl`. Structs shared with WGSL are `#[repr(C)]`
-//! bytemuck types with size asserts.
+//! GPU kernels and their CPU twins, one host module per shader (as in
+//! vello): `raster` (the compute rasterizer all visual kernels share, with
+//! the twin `raster_ids`/`resolve`, buffers and wave dispatch), `render`,
+//! `depth`, `score`, `plane_contacts` (the score kernel's fused plane
+//! stage) and `contacts` (its layouts; the dispatch takes the physical scene
+//! and lives in `physical::gpu`). Each owns its WGSL file's `#[repr(C)]`
+//! structs; the layouts several kernels share ([`GpuPose`], [`ContactRecord`],
+//! [`GpuTriangle`], [`RasterParams`]) live here. `physical` imports
+//! `kernels`, never the reverse.
 //!
 //! The visual kernels rasterize in a compute shader (see `raster`): one
-//! workgroup per hypothesis resolves visibility with `atomicMin` on a packed
-//! `(quantized depth, triangle id)` key, then recomputes exact depth and the
-//! flat face normal from the winning triangle's plane. The score kernel fuses
-//! that with the eq. 3-5 alignment and a workgroup reduction, so only one
-//! record per hypothesis leaves the GPU.
+//! workgroup per hypothesis resolves visibility with `atomicMax` on a packed
+//! `(quantized inverse depth, triangle id)` key, then recomputes exact depth
+//! and the flat face normal from the winning triangle's plane. The score
+//! kernel fuses that with the eq. 3-5 alignment and a workgroup reduction,
+//! so only one record per hypothesis leaves the GPU.
 
+pub mod contacts;
 pub mod depth;
+pub mod plane_contacts;
 pub mod raster;
+pub mod render;
 pub mod score;
 
 use bytemuck::{Pod, Zeroable};
@@ -121,6 +127,18 @@ impl GpuPose {
     }
 }
 
+/// Per-hypothesis physical result (`Record` in `contacts.wgsl`,
+/// `ContactRecord` in `plane_contacts.wgsl`): shared by both kernels.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ContactRecord {
+    pub intersecting: u32,
+    pub contact: u32,
+    pub supported: u32,
+    pub min_delta: f32,
+}
+const _: () = assert!(std::mem::size_of::<ContactRecord>() == 16);
+
 /// Uniform parameters of the visual kernels (must match `Params` in
 /// `shaders/raster.wgsl`).
 #[repr(C)]
@@ -199,11 +217,11 @@ impl RenderMesh {
 /// Every WGSL source as the pipelines compile it: `(name, source)`.
 pub fn shader_sources() -> Vec<(&'static str, String)> {
     vec![
-        ("render", format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"))),
+        ("render", render::render_wgsl()),
         ("score", score::SCORE_WGSL.to_string()),
         ("depth", depth::depth_wgsl()),
-        ("contacts", crate::physical::gpu::CONTACTS_WGSL.to_string()),
-        ("plane_contacts", score::SCORE_PHYSICS_WGSL.to_string()),
+        ("contacts", contacts::CONTACTS_WGSL.to_string()),
+        ("plane_contacts", plane_contacts::SCORE_PHYSICS_WGSL.to_string()),
     ]
 }
 
@@ -270,7 +288,7 @@ mod tests {
     #[test]
     fn visual_structs_match_the_wgsl_field_by_field() {
         use std::mem::{offset_of, size_of};
-        let src = score::SCORE_PHYSICS_WGSL;
+        let src = plane_contacts::SCORE_PHYSICS_WGSL;
         macro_rules! same {
             ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
         }
@@ -279,9 +297,8 @@ mod tests {
         let rows = offset_of!(GpuPose, rows);
         wgsl_layout::assert_layout(src, "Pose", size_of::<GpuPose>(), &[("r0", rows), ("r1", rows + 16), ("r2", rows + 32)]);
         wgsl_layout::assert_layout(src, "Record", size_of::<score::ScoreRecord>(), same!(score::ScoreRecord, score, mean_ad, mean_an, valid, rendered, observed, front, behind));
-        use crate::physical::batch::PlaneContactParams;
-        use crate::physical::gpu::ContactRecord;
-        wgsl_layout::assert_layout(src, "PlaneParams", size_of::<PlaneContactParams>(), same!(PlaneContactParams, plane, n_samples, words, eps, pad));
+        use plane_contacts::PlaneParams;
+        wgsl_layout::assert_layout(src, "PlaneParams", size_of::<PlaneParams>(), same!(PlaneParams, plane, n_samples, words, eps, pad));
         wgsl_layout::assert_layout(src, "ContactRecord", size_of::<ContactRecord>(), same!(ContactRecord, intersecting, contact, supported, min_delta));
         let depth = depth::depth_wgsl();
         wgsl_layout::assert_layout(&depth, "Tile", size_of::<depth::Tile>(), same!(depth::Tile, x0, y0, x1, y1, offset, pad0, pad1, pad2));

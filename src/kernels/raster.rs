@@ -1,26 +1,17 @@
-//! `render` kernel: depth and flat face normal per pixel for each hypothesis.
-//!
-//! The CPU twin [`render_cpu`] is a plain z-buffer rasterizer with the same
+//! The compute rasterizer shared by the visual kernels (`shaders/raster.wgsl`)
+//! and its CPU twin: [`raster_ids`] is a plain z-buffer with the same
 //! coverage rule (pixel centres inside or on the edge), the same
-//! perspective-correct depth for the visibility test and the same exact
-//! plane-based depth and normal per pixel as `shaders/raster.wgsl`.
+//! perspective-correct depth for the visibility test, and [`resolve`] the
+//! same exact plane-based depth and normal per pixel. Also the buffers and
+//! wave dispatch every visual kernel uses.
 
 use glam::Vec3;
 
-use super::{GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M, RASTER_WGSL};
+use super::{GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
-use crate::pose::Pose;
 
-/// Depth (m, 0 = background) and unit camera-frame normal per pixel.
-#[derive(Clone, Debug, PartialEq)]
-pub struct RenderImage {
-    pub width: u32,
-    pub height: u32,
-    pub depth: Vec<f32>,
-    pub normals: Vec<Vec3>,
-}
 
 /// Inclusive pixel rectangle `[x0, x1] x [y0, y1]` that can hold the
 /// hypothesis: the projection of the box around its bounding sphere,
@@ -139,27 +130,6 @@ pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, radius: f32, k: &Intrinsics, x
     let (zlo, zhi) = ((t.z - radius).max(NEAR_M), t.z + radius);
     let z = if den.abs() > 1e-12 { (d / den).clamp(zlo, zhi) } else { zhi };
     (z, if den > 0.0 { -n } else { n })
-}
-
-/// CPU twin of the `render` kernel for one pose.
-pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage {
-    let n = k.pixels();
-    let gp = GpuPose::from(pose);
-    let mut zbuf = vec![f32::INFINITY; n];
-    let mut ids = vec![u32::MAX; n];
-    raster_ids(mesh, &gp, k, &mut zbuf, &mut ids);
-    let mut depth = vec![0.0; n];
-    let mut normals = vec![Vec3::ZERO; n];
-    for i in 0..n {
-        if ids[i] != u32::MAX {
-            let x = (i % k.width as usize) as f32;
-            let y = (i / k.width as usize) as f32;
-            let (z, nn) = resolve(&mesh.triangles[ids[i] as usize], &gp, mesh.radius, k, x, y);
-            depth[i] = z;
-            normals[i] = nn;
-        }
-    }
-    RenderImage { width: k.width, height: k.height, depth, normals }
 }
 
 pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: f32, alpha: f32, n_obs: u32) -> RasterParams {
@@ -318,40 +288,4 @@ impl RasterBuffers {
 /// alignment wgpu allows).
 const PARAMS_STRIDE: u64 = 256;
 
-/// GPU `render` kernel: depth and normals of every pose (for tests and
-/// pictures; scoring uses the fused `score` kernel instead).
-pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Result<Vec<RenderImage>> {
-    super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
-    let pix = k.pixels();
-    let bufs = RasterBuffers::new(ctx, mesh, k, poses.len(), pix as u64 * 16, usize::MAX)?;
-    let src = format!("{RASTER_WGSL}\n{}", include_str!("../../shaders/render.wgsl"));
-    let pipeline = ctx.pipeline("render", &src, "render_main");
-    let images = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("images"),
-        size: (bufs.chunk * pix * 16) as u64,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let mut out = Vec::with_capacity(poses.len());
-    for chunk in poses.chunks(bufs.chunk) {
-        let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
-        ctx.queue.write_buffer(&bufs.poses, 0, bytemuck::cast_slice(&gp));
-        let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0, 0);
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        let extra = [wgpu::BindGroupEntry { binding: 4, resource: images.as_entire_binding() }];
-        bufs.dispatch_waves(ctx, &mut enc, &pipeline, &extra, params, chunk.len(), None);
-        ctx.queue.submit([enc.finish()]);
-        let bytes = ctx.read_buffer(&images, (chunk.len() * pix * 16) as u64)?;
-        let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
-        for h in 0..chunk.len() {
-            let img = &px[h * pix..(h + 1) * pix];
-            out.push(RenderImage {
-                width: k.width,
-                height: k.height,
-                depth: img.iter().map(|p| p[3]).collect(),
-                normals: img.iter().map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
-            });
-        }
-    }
-    Ok(out)
-}
+pub use super::render::{render_cpu, render_gpu, RenderImage};

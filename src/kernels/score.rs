@@ -15,8 +15,8 @@ use super::{GpuPose, RenderMesh};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::observation::ScoreTarget;
-use crate::physical::batch::PlanePhysics;
-use crate::physical::gpu::ContactRecord;
+use super::plane_contacts::{plane_stage, PlaneContactOutput, PlaneParams, PlaneStage};
+use super::ContactRecord;
 use crate::pose::Pose;
 
 /// Alignment tolerances of eq. 4-5.
@@ -164,35 +164,6 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
 /// The WGSL of the score kernel as compiled: the rasterizer, then the score.
 pub const SCORE_WGSL: &str = concat!(include_str!("../../shaders/raster.wgsl"), "\n", include_str!("../../shaders/score.wgsl"));
 
-/// The WGSL of the score kernel with the fused plane stage
-/// (`shaders/plane_contacts.wgsl`).
-pub const SCORE_PHYSICS_WGSL: &str = concat!(
-    include_str!("../../shaders/raster.wgsl"),
-    "\n",
-    include_str!("../../shaders/score.wgsl"),
-    "\n",
-    include_str!("../../shaders/plane_contacts.wgsl")
-);
-
-/// The physical terms the fused kernel returns for a batch: one record and
-/// `words` supported-sample words per hypothesis, input order (finish them
-/// with [`PlanePhysics::finish_fused`]).
-#[derive(Clone, Debug, Default)]
-pub struct PlaneContactOutput {
-    pub records: Vec<ContactRecord>,
-    pub bits: Vec<u32>,
-}
-
-/// Buffers and pipeline of the fused plane stage.
-struct PlaneStage {
-    words: usize,
-    params: wgpu::Buffer,
-    samples: wgpu::Buffer,
-    records: wgpu::Buffer,
-    bits: wgpu::Buffer,
-    pipeline: std::sync::Arc<wgpu::ComputePipeline>,
-}
-
 /// Wall-clock time per stage of a GPU scoring run.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StageTimes {
@@ -265,15 +236,16 @@ impl GpuScorer {
     /// hypothesis against `physics`' support plane in the same dispatch
     /// (`shaders/plane_contacts.wgsl`); run it with
     /// [`score_with_physics`](Self::score_with_physics).
-    pub fn with_plane_physics(
+    pub fn with_plane_stage(
         ctx: &Context,
         mesh: &RenderMesh,
         target: &ScoreTarget,
         params: ScoreParams,
         n_hint: usize,
-        physics: &PlanePhysics,
+        plane: &PlaneParams,
+        samples: &[[f32; 4]],
     ) -> Result<Self> {
-        Self::build(ctx, mesh, target, params, n_hint, DEFAULT_MAX_CHUNK, Some(physics))
+        Self::build(ctx, mesh, target, params, n_hint, DEFAULT_MAX_CHUNK, Some((plane, samples)))
     }
 
     fn build(
@@ -283,12 +255,12 @@ impl GpuScorer {
         params: ScoreParams,
         n_hint: usize,
         max_chunk: usize,
-        physics: Option<&PlanePhysics>,
+        physics: Option<(&PlaneParams, &[[f32; 4]])>,
     ) -> Result<Self> {
         use wgpu::util::DeviceExt;
         let k = target.intrinsics;
         super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
-        let words = physics.map_or(0, |p| p.kernel_params().words as usize);
+        let words = physics.map_or(0, |(p, _)| p.words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
         let obs: Vec<[f32; 4]> = target
@@ -317,7 +289,7 @@ impl GpuScorer {
         });
         let pipeline = ctx.pipeline("score", SCORE_WGSL, "score_main");
         let raster_pipeline = ctx.pipeline("score/raster", SCORE_WGSL, "raster_main");
-        let plane = physics.map(|phys| plane_stage(ctx, phys, bufs.chunk)).transpose()?;
+        let plane = physics.map(|(p, samples)| plane_stage(ctx, p, samples, bufs.chunk)).transpose()?;
         Ok(GpuScorer {
             ctx: ctx.clone(),
             mesh: mesh.clone(),
@@ -400,7 +372,7 @@ impl GpuScorer {
 
     /// Scores `poses` and computes their physical terms against the support
     /// plane in the same dispatch (a scorer made by
-    /// [`with_plane_physics`](Self::with_plane_physics)); `done(n)` is
+    /// [`with_plane_stage`](Self::with_plane_stage)); `done(n)` is
     /// called after each chunk.
     pub fn score_with_physics(
         &self,
@@ -409,7 +381,7 @@ impl GpuScorer {
     ) -> Result<(Vec<ScoreRecord>, PlaneContactOutput, StageTimes)> {
         if self.plane.is_none() {
             return Err(Error::InvalidInput(
-                "this scorer has no support plane: make it with GpuScorer::with_plane_physics".into(),
+                "this scorer has no support plane: make it with GpuScorer::with_plane_stage".into(),
             ));
         }
         let mut out = Vec::with_capacity(poses.len());
@@ -508,22 +480,8 @@ impl GpuScorer {
 
         let t2 = Instant::now();
         let size = (chunk.len() * std::mem::size_of::<ScoreRecord>()) as u64;
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(&self.records, 0, &self.staging, 0, size);
-        ctx.queue.submit([enc.finish()]);
-        let slice = self.staging.slice(..size);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        ctx.wait()?;
-        rx.recv()
-            .map_err(|e| crate::Error::Gpu(e.to_string()))?
-            .map_err(|e| crate::Error::Gpu(format!("readback failed: {e}")))?;
-        let view = slice.get_mapped_range().map_err(|e| crate::Error::Gpu(format!("readback failed: {e}")))?;
-        let recs: Vec<ScoreRecord> = bytemuck::cast_slice(&view).to_vec();
-        drop(view);
-        self.staging.unmap();
+        let bytes = ctx.read_through(&self.records, &self.staging, size)?;
+        let recs: Vec<ScoreRecord> = bytemuck::cast_slice(&bytes).to_vec();
         let plane = match &self.plane {
             Some(st) => {
                 let n = chunk.len();
@@ -541,49 +499,3 @@ impl GpuScorer {
     }
 }
 
-/// Uploads the plane stage's parameters and samples and sizes its outputs
-/// for `chunk` hypotheses per dispatch.
-fn plane_stage(ctx: &Context, physics: &PlanePhysics, chunk: usize) -> Result<PlaneStage> {
-    use wgpu::util::DeviceExt;
-    let params = physics.kernel_params();
-    let samples = physics.kernel_samples();
-    if samples.is_empty() {
-        return Err(Error::InvalidInput("the body has no surface samples".into()));
-    }
-    // raster (tris, poses, vis) + score (observed, records) + this stage
-    // (samples, records, bits).
-    let needed = 8;
-    let have = ctx.device.limits().max_storage_buffers_per_shader_stage;
-    if have < needed {
-        return Err(Error::Gpu(format!(
-            "score --physics needs {needed} storage buffers per shader stage, this adapter offers {have}; use --device cpu"
-        )));
-    }
-    let words = params.words as usize;
-    let bits_bytes = (chunk * words * 4) as u64;
-    if bits_bytes > ctx.limits.max_items(1) || (samples.len() * 16) as u64 > ctx.limits.max_items(1) {
-        return Err(Error::Gpu(format!(
-            "{} surface samples do not fit this adapter's storage bindings; use fewer samples",
-            samples.len()
-        )));
-    }
-    let init = |label: &str, bytes: &[u8], usage: wgpu::BufferUsages| {
-        ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytes, usage })
-    };
-    let output = |label: &str, size: u64| {
-        ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: size.max(16),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        })
-    };
-    Ok(PlaneStage {
-        words,
-        params: init("plane params", bytemuck::bytes_of(&params), wgpu::BufferUsages::UNIFORM),
-        samples: init("plane samples", bytemuck::cast_slice(&samples), wgpu::BufferUsages::STORAGE),
-        records: output("plane records", (chunk * std::mem::size_of::<ContactRecord>()) as u64),
-        bits: output("plane bits", bits_bytes),
-        pipeline: ctx.pipeline("score+plane", SCORE_PHYSICS_WGSL, "score_physics_main"),
-    })
-}

@@ -6,33 +6,18 @@
 //! unstable ones (feasible: touching, not intersecting), then floating, then
 //! intersecting; within a group by the visual score, best first.
 
-use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
 use super::contacts::{evaluate_batch, evaluate_detailed, Body, Detail, Environment, Evaluation, Verdict};
 use super::explain::{draw_views, Drawn};
 use super::gpu::{finish_from_bits, ContactRecord, GpuContacts};
+use crate::kernels::plane_contacts::PlaneParams;
 use super::scene::{camera_to_plane_frame, Plane};
 use crate::error::Result;
 use crate::gpu::Context;
 use crate::mesh::Mesh;
 use crate::pose::Pose;
 
-/// Uniform block of the plane stage of the fused score kernel
-/// (`PlaneParams` in `shaders/plane_contacts.wgsl`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
-pub struct PlaneContactParams {
-    /// Unit normal (towards the camera) and offset `w` of the support plane
-    /// in the camera frame: δ = n·x − w.
-    pub plane: [f32; 4],
-    pub n_samples: u32,
-    /// u32 words of supported bits per hypothesis (`n_samples / 32`, rounded up).
-    pub words: u32,
-    pub eps: f32,
-    pub pad: u32,
-}
-const _: () = assert!(std::mem::size_of::<PlaneContactParams>() == 32);
 
 /// Hypotheses of one object against one support plane (camera frame).
 pub struct PlanePhysics {
@@ -86,13 +71,26 @@ impl PlanePhysics {
 
     /// Parameters of the plane stage fused into the score kernel
     /// ([`crate::kernels::score::GpuScorer::with_plane_physics`]).
-    pub fn kernel_params(&self) -> PlaneContactParams {
+    /// A GPU scorer of `mesh` against `target` whose dispatch also computes
+    /// these physical terms (the score kernel's fused plane stage).
+    pub fn gpu_scorer(
+        &self,
+        ctx: &crate::gpu::Context,
+        mesh: &crate::kernels::RenderMesh,
+        target: &crate::observation::ScoreTarget,
+        params: crate::kernels::score::ScoreParams,
+        n_hint: usize,
+    ) -> Result<crate::kernels::score::GpuScorer> {
+        crate::kernels::score::GpuScorer::with_plane_stage(ctx, mesh, target, params, n_hint, &self.kernel_params(), &self.kernel_samples())
+    }
+
+    pub fn kernel_params(&self) -> PlaneParams {
         // The plane frame's z coordinate of a camera point x is row 2 of
         // the camera-to-plane rotation dotted with x, plus t.z: that row is
         // the plane normal in the camera frame and −t.z its offset.
         let n = self.to_plane.r.row(2);
         let w = -self.to_plane.t.z;
-        PlaneContactParams {
+        PlaneParams {
             plane: [n.x as f32, n.y as f32, n.z as f32, w as f32],
             n_samples: self.body.samples.len() as u32,
             words: self.body.samples.len().div_ceil(32) as u32,
@@ -107,7 +105,7 @@ impl PlanePhysics {
     }
 
     /// Evaluations from the fused kernel's output: one record and
-    /// [`PlaneContactParams::words`] supported-sample words per hypothesis.
+    /// [`PlaneParams::words`] supported-sample words per hypothesis.
     /// The support polygon and the margin are finished here (f64), from the
     /// GPU's classification.
     pub fn finish_fused(&self, cam_poses: &[Pose], records: &[ContactRecord], bits: &[u32]) -> Vec<Evaluation> {

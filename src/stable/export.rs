@@ -13,6 +13,9 @@ use super::cluster::{Cluster, ClusterKind};
 use super::db::Db;
 use crate::error::Result;
 
+/// The format tag of the export (checked by readers).
+pub const FORMAT: &str = "plausible-stable-poses/1";
+
 #[derive(Serialize, Debug, Clone, PartialEq)]
 pub struct Export {
     pub format: &'static str,
@@ -157,7 +160,7 @@ pub fn export(db: &Db, filter: Option<&str>) -> Result<Export> {
         });
     }
     Ok(Export {
-        format: "plausible-stable-poses/1",
+        format: FORMAT,
         meshes: out,
     })
 }
