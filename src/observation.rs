@@ -172,8 +172,9 @@ pub const MAX_ROI_MARGIN: f64 = 10.0;
 /// per-pixel data per visibility slot and image.
 pub const MAX_ROI_SIDE: u32 = 4096;
 /// Largest depth or mask image side read (pixels), checked from the PNG
-/// header before decoding.
-pub const MAX_IMAGE_SIDE: u32 = 8192;
+/// header before decoding: a 4096² frame holds about 1 GB of depth,
+/// normals and masks; an 8000² one took 3.3 GB.
+pub const MAX_IMAGE_SIDE: u32 = 4096;
 
 /// Depth jump (metres) between neighbours above which they are taken to lie
 /// on different surfaces, so no normal is estimated across them.

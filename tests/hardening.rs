@@ -177,3 +177,30 @@ fn gpu_off_image_poses_are_not_dispatched_and_match_the_twin() {
     }
     assert!((gpu[0].score - cpu[0].score).abs() < 1e-3 && gpu[0].score > 0.8, "{:?} vs {:?}", gpu[0], cpu[0]);
 }
+
+#[test]
+fn a_subdivided_duck_has_stable_poses() {
+    use plausible::mesh::{Mesh, MeshUnits};
+    // The duck with every triangle split in four (16,848 triangles, many
+    // coplanar points): its convex hull came back with inward faces and
+    // slivers, and the centre of mass was reported outside it.
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
+    let duck = Mesh::load(path, MeshUnits::Metres).unwrap().0.normalized(0.15);
+    let dense = duck.subdivided(2);
+    assert_eq!(dense.triangles.len(), 16_848);
+    let plain = plausible::hypotheses::on_plane::analytic_resting_poses(&duck).unwrap();
+    let rests = plausible::hypotheses::on_plane::analytic_resting_poses(&dense).unwrap();
+    assert!(rests.len() >= 2, "{}", rests.len());
+    // The most probable resting pose is the same as the plain duck's.
+    let angle = |a: &glam::DMat3, b: &glam::DMat3| ((a.transpose() * *b).to_cols_array()[0..9].iter().step_by(4).sum::<f64>() - 1.0).clamp(-2.0, 2.0);
+    assert!(angle(&plain[0].r_model_to_plane, &rests[0].r_model_to_plane) > 1.9, "most probable poses differ");
+}
+
+#[test]
+fn a_millimetre_scene_on_a_metre_mesh_names_the_object_size() {
+    use glam::DVec3;
+    // A 0.05 mm cube (a 50 mm cube read as metres, then scaled by 1e-3).
+    let tiny = plausible::shapes::cuboid(DVec3::splat(0.000025));
+    let e = plausible::physical::sdf::SdfGrid::bake(&tiny, 64).err().expect("a 0.05 mm object is refused").to_string();
+    assert!(e.contains("0.0500 mm across") && e.contains("units"), "{e}");
+}

@@ -93,7 +93,11 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     assert!(err.contains("no entry for this mesh") && err.contains("duck, box"), "{err}");
     let skewed = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [1, 0, 0, 0, 2, 0, 0, 0, 1]}]});
     assert!(resting_poses_from_export(&export(vec![skewed]), "x", "x").unwrap_err().to_string().contains("not a rotation"));
-    assert!(resting_poses_from_export("{}", "x", "x").unwrap_err().to_string().contains("\"meshes\""));
+    let e = resting_poses_from_export(r#"{"format": "plausible-stable-poses/1"}"#, "x", "x").unwrap_err().to_string();
+    assert!(e.contains("missing field `meshes`"), "{e}");
+    // The format tag is checked: another tool's JSON is not read as ours.
+    let e = resting_poses_from_export(r#"{"format": "other-tool/2", "meshes": []}"#, "x", "x").unwrap_err().to_string();
+    assert!(e.contains("format 'other-tool/2'"), "{e}");
     // A rolling family: 12 roll angles sharing its probability, each with
     // the rolling axis horizontal.
     let can = serde_json::json!({"mesh": "can.obj", "sha256": "c", "clusters": [cluster(0.4)],

@@ -90,6 +90,30 @@ impl MassProperties {
                 props.inertia_unit_density = -props.inertia_unit_density;
             }
             check_volume(&name, &props, mesh.diagonal())?;
+            // A closed surface can still fail to bound one solid (bodies that
+            // intersect each other, components wound against each other):
+            // then its centre of mass can land outside the object. The
+            // convex hull bounds every solid the vertices can make, so a
+            // centre outside it (or more volume than it) means the closed
+            // integration is not a solid's; use the hull instead.
+            if let Ok((hv, ht)) = convex_hull(&mesh.vertices) {
+                let hull = integrate(&hv, &ht);
+                if !inside_hull(&hv, &ht, hull.volume, props.com) || props.volume > hull.volume.abs() * 1.001 {
+                    warnings.push(format!(
+                        "{name}: the closed surface does not bound one solid (its centre of mass or volume exceeds \
+                         the convex hull: intersecting or inconsistently wound bodies); mass properties are computed \
+                         from the convex hull of its vertices"
+                    ));
+                    let mut props = hull;
+                    props.source = MassSource::ConvexHullFallback;
+                    if props.volume < 0.0 {
+                        props.volume = -props.volume;
+                        props.inertia_unit_density = -props.inertia_unit_density;
+                    }
+                    check_volume(&name, &props, mesh.diagonal())?;
+                    return Ok((props, warnings));
+                }
+            }
             return Ok((props, warnings));
         }
         warnings.push(format!(
@@ -109,6 +133,18 @@ impl MassProperties {
         check_volume(&name, &props, mesh.diagonal())?;
         Ok((props, warnings))
     }
+}
+
+/// Whether `p` lies inside (or within a relative 1e-9 of) the convex hull
+/// `(verts, tris)`, whose signed volume `volume` tells its winding.
+fn inside_hull(verts: &[DVec3], tris: &[[u32; 3]], volume: f64, p: DVec3) -> bool {
+    let sign = if volume < 0.0 { -1.0 } else { 1.0 };
+    let scale = verts.iter().fold(0.0f64, |m, v| m.max(v.length())).max(f64::MIN_POSITIVE);
+    tris.iter().all(|t| {
+        let (a, b, c) = (verts[t[0] as usize], verts[t[1] as usize], verts[t[2] as usize]);
+        let n = (b - a).cross(c - a);
+        sign * n.dot(p - a) <= 1e-9 * scale * n.length()
+    })
 }
 
 /// Rejects solids whose volume is negligible against their bounding box
@@ -200,12 +236,85 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
         return Err("all points coincide".into());
     }
     let pts: Vec<Vec3> = points.iter().map(|p| (*p - centre).as_vec3()).collect();
-    let (hv, ht) = rapier3d::parry::transformation::try_convex_hull(&pts)
-        .map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))?;
+    let hull = |pts: &[Vec3]| {
+        rapier3d::parry::transformation::try_convex_hull(pts).map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))
+    };
+    let (mut hv, mut ht) = hull(&pts)?;
     if ht.len() < 4 {
         return Err("the points span no volume (flat or degenerate hull)".into());
     }
+    // Many coplanar points (a subdivided mesh: every edge midpoint lies on
+    // a face plane) can make parry's quickhull return a surface that is not
+    // convex or leaves points out. Check it, and if so build the hull of the
+    // points moved by a deterministic jitter of 1e-4 of the size (which
+    // breaks the coplanarity), then take the jittered points back.
+    let tol = 1e-5 * diag as f32;
+    let volume: f32 = ht.iter().map(|t| hv[t[0] as usize].dot(hv[t[1] as usize].cross(hv[t[2] as usize]))).sum::<f32>().abs() / 6.0;
+    if volume <= 1e-9 * (diag as f32).powi(3) {
+        return Err("the points span no volume (flat or degenerate hull)".into());
+    }
+    orient_outward(&hv, &mut ht);
+    if !hull_holds(&hv, &ht, &pts, tol) {
+        let jittered: Vec<Vec3> = pts.iter().enumerate().map(|(i, p)| *p + jitter(i) * (1e-4 * diag as f32)).collect();
+        let (jv, mut jt) = hull(&jittered)?;
+        orient_outward(&jv, &mut jt);
+        let index: std::collections::HashMap<[u32; 3], usize> =
+            jittered.iter().enumerate().map(|(i, p)| ([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()], i)).collect();
+        let back: Option<Vec<Vec3>> = jv.iter().map(|v| index.get(&[v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).map(|&i| pts[i])).collect();
+        let back = back.ok_or("convex hull: the hull has vertices that are not input points")?;
+        if !hull_holds(&back, &jt, &pts, 20.0 * tol) {
+            return Err("convex hull: the points are too degenerate for a reliable hull".into());
+        }
+        (hv, ht) = (back, jt);
+    }
     Ok((hv.iter().map(|v| v.as_dvec3() + centre).collect(), ht))
+}
+
+/// Winds every face of a convex hull outward (away from the mean of its
+/// vertices, which lies inside): parry's quickhull leaves some faces of
+/// point sets with many coplanar points wound inward.
+fn orient_outward(hv: &[Vec3], ht: &mut [[u32; 3]]) {
+    let inside = hv.iter().copied().sum::<Vec3>() / hv.len().max(1) as f32;
+    for t in ht.iter_mut() {
+        let (a, b, c) = (hv[t[0] as usize], hv[t[1] as usize], hv[t[2] as usize]);
+        if (b - a).cross(c - a).dot(inside - a) > 0.0 {
+            t.swap(1, 2);
+        }
+    }
+}
+
+/// Faces whose doubled area is below this fraction of the squared size are
+/// slivers: their normal is rounding noise, so they take no part in
+/// containment tests (they add nothing to the volume either).
+pub const SLIVER: f32 = 1e-9;
+
+/// A deterministic pseudo-random vector in [-1, 1]³ for point `i`.
+fn jitter(i: usize) -> Vec3 {
+    let mut x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
+    let mut next = || {
+        x ^= x >> 33;
+        x = x.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
+        x ^= x >> 33;
+        (x >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
+    };
+    Vec3::new(next(), next(), next())
+}
+
+/// Whether `(hv, ht)` is a closed, outward, convex surface holding every
+/// point of `pts` (within `tol`).
+fn hull_holds(hv: &[Vec3], ht: &[[u32; 3]], pts: &[Vec3], tol: f32) -> bool {
+    let scale = tol / 1e-5; // the size the tolerance was made from
+    let planes: Vec<(Vec3, f32)> = ht
+        .iter()
+        .map(|t| {
+            let (a, b, c) = (hv[t[0] as usize], hv[t[1] as usize], hv[t[2] as usize]);
+            let n = (b - a).cross(c - a);
+            let n = if n.length() > SLIVER * scale * scale { n.normalize() } else { Vec3::ZERO };
+            (n, n.dot(a))
+        })
+        .collect();
+    let vol: f32 = ht.iter().map(|t| hv[t[0] as usize].dot(hv[t[1] as usize].cross(hv[t[2] as usize]))).sum();
+    vol > 0.0 && planes.iter().all(|(n, d)| *n == Vec3::ZERO || pts.iter().all(|p| n.dot(*p) - d <= tol))
 }
 
 #[cfg(test)]

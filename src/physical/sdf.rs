@@ -87,6 +87,13 @@ impl SdfGrid {
                 "cannot bake a signed-distance grid of a degenerate mesh".into(),
             ));
         }
+        if longest < crate::mesh::MIN_DIAGONAL_M {
+            return Err(Error::InvalidInput(format!(
+                "the object is only {:.4} mm across: are its units right? (a scene in millimetres on a mesh in metres \
+                 makes objects 1000 times too small)",
+                longest * 1e3
+            )));
+        }
         let h = longest / resolution as f64;
         let margin = (MIN_MARGIN_CELLS * h).max(MIN_MARGIN_M);
         let pad = (margin / h).ceil();
@@ -97,7 +104,8 @@ impl SdfGrid {
         let total = dims[0] * dims[1] * dims[2];
         if total > 64_000_000 {
             return Err(Error::InvalidInput(format!(
-                "SDF grid of {dims:?} nodes is too large; lower the resolution"
+                "a signed-distance grid of {dims:?} nodes for an object {:.1} mm across is too large; lower the resolution",
+                longest * 1e3
             )));
         }
         let trimesh = to_trimesh(mesh)?;

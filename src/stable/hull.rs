@@ -20,6 +20,10 @@ pub struct Hull {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// Doubled area below this fraction of the squared longest edge makes a
+/// hull face a sliver (corners collinear to about 1e-6 rad).
+const SLIVER_REL: f64 = 1e-6;
+
 impl Hull {
     /// The convex hull of `points`; `name` is used in error messages.
     pub fn of_points(name: &str, points: &[DVec3]) -> Result<Hull> {
@@ -48,7 +52,14 @@ impl Hull {
             self.vertices[t[1] as usize],
             self.vertices[t[2] as usize],
         );
-        let n = (b - a).cross(c - a).normalize_or_zero();
+        // Slivers (near-zero area) have no reliable plane: their normal is
+        // rounding noise, so they are left out (zero normal) of the
+        // containment tests, like faces of zero area.
+        // (Measured against the longest edge: a sliver's corners are nearly
+        // collinear whatever its size.)
+        let n = (b - a).cross(c - a);
+        let edge2 = (b - a).length_squared().max((c - b).length_squared()).max((a - c).length_squared());
+        let n = if n.length() > SLIVER_REL * edge2 { n.normalize() } else { DVec3::ZERO };
         (n, n.dot(a))
     }
 
