@@ -204,3 +204,18 @@ fn a_millimetre_scene_on_a_metre_mesh_names_the_object_size() {
     let e = plausible::physical::sdf::SdfGrid::bake(&tiny, 64).err().expect("a 0.05 mm object is refused").to_string();
     assert!(e.contains("0.0500 mm across") && e.contains("units"), "{e}");
 }
+
+#[test]
+fn a_corrupt_database_column_is_an_error_not_a_default() {
+    let d = tempfile::tempdir().unwrap();
+    let db = d.path().join("s.sqlite");
+    let cube = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/cube.obj");
+    let (code, err) = run(&["stable-poses", cube, "--drops", "16", "--db", db.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let conn = rusqlite::Connection::open(&db).unwrap();
+    conn.execute("UPDATE clusters SET r_model_to_plane = 'not json'", []).unwrap();
+    drop(conn);
+    let (code, err) = run(&["stable-poses", "export", "--db", db.to_str().unwrap(), "--json", "-"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("corrupt column"), "{err}");
+}

@@ -226,10 +226,9 @@ impl Db {
                     closed: r.get(6)?,
                     volume: r.get(7)?,
                     com: [r.get(8)?, r.get(9)?, r.get(10)?],
-                    inertia: serde_json::from_str(&r.get::<_, String>(11)?)
-                        .unwrap_or([f64::NAN; 9]),
+                    inertia: json_col(r, 11)?,
                     mass_source: r.get(12)?,
-                    warnings: serde_json::from_str(&r.get::<_, String>(13)?).unwrap_or_default(),
+                    warnings: json_col(r, 13)?,
                 })
             })
             .map_err(|e| self.e(e))?;
@@ -302,10 +301,8 @@ impl Db {
                     drops: r.get::<_, i64>(5)? as u64,
                     collider: r.get(6)?,
                     crate_version: r.get(7)?,
-                    cluster_params: serde_json::from_str(&r.get::<_, String>(8)?)
-                        .unwrap_or_default(),
-                    analytic_notes: serde_json::from_str(&r.get::<_, String>(9)?)
-                        .unwrap_or_default(),
+                    cluster_params: json_col(r, 8)?,
+                    analytic_notes: json_col(r, 9)?,
                 })
             })
             .map_err(|e| self.e(e))?;
@@ -515,12 +512,11 @@ impl Db {
                 let axis: Option<String> = r.get(1)?;
                 let kind = match kind.as_str() {
                     "circle" => ClusterKind::Circle {
-                        axis: axis
-                            .and_then(|a| serde_json::from_str(&a).ok())
-                            .unwrap_or([f64::NAN; 3]),
+                        axis: serde_json::from_str(&axis.unwrap_or_default()).map_err(|e| corrupt(1, e))?,
                     },
                     "scattered" => ClusterKind::Scattered,
-                    _ => ClusterKind::Pose,
+                    "pose" => ClusterKind::Pose,
+                    other => return Err(corrupt(0, format!("unknown cluster kind '{other}'"))),
                 };
                 Ok(Cluster {
                     kind,
@@ -528,11 +524,9 @@ impl Db {
                     probability: r.get(3)?,
                     ci95: [r.get(4)?, r.get(5)?],
                     gravity_in_model: [r.get(6)?, r.get(7)?, r.get(8)?],
-                    r_model_to_plane: serde_json::from_str(&r.get::<_, String>(9)?)
-                        .unwrap_or([f64::NAN; 9]),
+                    r_model_to_plane: json_col(r, 9)?,
                     height: r.get(10)?,
-                    representatives: serde_json::from_str(&r.get::<_, String>(11)?)
-                        .unwrap_or_default(),
+                    representatives: json_col(r, 11)?,
                 })
             })
             .map_err(|e| self.e(e))?;
@@ -666,4 +660,16 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
+}
+
+/// A column that does not hold what this version wrote there: an error
+/// (the database is corrupt or from another tool), never a silent default.
+fn corrupt(col: usize, e: impl std::fmt::Display) -> rusqlite::Error {
+    rusqlite::Error::FromSqlConversionFailure(col, rusqlite::types::Type::Text, format!("corrupt column {col}: {e}").into())
+}
+
+/// Parses the JSON stored in column `col`.
+fn json_col<T: serde::de::DeserializeOwned>(r: &rusqlite::Row, col: usize) -> rusqlite::Result<T> {
+    let text: String = r.get(col)?;
+    serde_json::from_str(&text).map_err(|e| corrupt(col, e))
 }

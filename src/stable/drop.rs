@@ -267,19 +267,13 @@ pub fn supported(body: &DropBody, q: DQuat, t: DVec3) -> bool {
     point_in_hull_2d(&pts, com.truncate(), 1e-3 * body.diagonal)
 }
 
-/// Point-in-convex-hull test in 2D with an inward margin (the hull is the
-/// support module's). Fewer than three hull corners (an edge or a vertex)
-/// never contain a point strictly.
+/// Whether `p` lies inside the 2D convex hull of `pts` by more than
+/// `margin`: the support module's hull and signed margin (the one
+/// point-in-polygon test of the crate). Fewer than three hull corners (an
+/// edge or a vertex) never contain a point.
 fn point_in_hull_2d(pts: &[DVec2], p: DVec2, margin: f64) -> bool {
     let hull = crate::physical::support::convex_hull(pts);
-    if hull.len() < 3 {
-        return false;
-    }
-    (0..hull.len()).all(|i| {
-        let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
-        let len = (b - a).length();
-        len > 0.0 && (b - a).perp_dot(p - a) / len > margin
-    })
+    crate::physical::support::signed_margin(&hull, p).is_some_and(|m| hull.len() >= 3 && m > margin)
 }
 
 #[cfg(test)]
