@@ -20,7 +20,7 @@ use glam::{DVec2, DVec3};
 use plausible::hypotheses::around_and_random;
 use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, rest_on_plane, OnPlaneParams};
 use plausible::kernels::raster::render_cpu;
-use plausible::kernels::score::ScoreParams;
+use plausible::kernels::score::{ScoreParams, ScoreRecord};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -65,16 +65,39 @@ fn resting_on_table(mesh: &Mesh) -> Result<(Pose, f64)> {
     Ok((rest_on_plane(mesh, r, DVec2::ZERO), top.probability))
 }
 
+/// The demo's scene: the duck on a table, observed with noise, and the
+/// support plane fitted to the observation.
+struct DemoScene {
+    mesh: Mesh,
+    rmesh: RenderMesh,
+    truth: Pose,
+    obs: plausible::observation::DepthImage,
+    mask: Vec<bool>,
+    fit: plausible::support_plane::PlaneFit,
+}
+
 pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
+    // The output folder first: a wrong --out fails before any work.
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let scene = build_scene(a.seed)?;
+    let target = ScoreTarget::new(&scene.obs, Some(&scene.mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN)?;
+    let poses = around_and_random(&scene.truth, a.n, a.seed);
+    let device = a.device.open(verbose, true)?;
+    let params = ScoreParams::default();
+    let physics = PlanePhysics::new(&scene.mesh, &scene.fit.plane, None, DEFAULT_SAMPLES, DEFAULT_SEED, None)?;
+    let scored = score_and_report(&device, &scene, &target, &poses, params, &physics)?;
+    let est_poses = estimate(&device, &scene, &target, params, &physics)?;
+    write_outputs(&a.out, &scene, &target, &poses, &est_poses, &scored, params, &physics)
+}
+
+/// Loads the duck, puts it on a table in its most probable resting pose,
+/// observes it and fits the support plane, printing each step.
+fn build_scene(seed: u64) -> Result<DemoScene> {
     let mesh_path = super::asset("assets/pybullet/duck.obj");
     let (mesh, _) = Mesh::load(&mesh_path, MeshUnits::Metres)?;
     let mesh = mesh.normalized(0.15);
     let rmesh = RenderMesh::new(&mesh)?;
-    println!(
-        "mesh: {} ({} triangles, scaled to a 0.15 m diagonal)",
-        mesh_path.display(),
-        mesh.triangles.len()
-    );
+    println!("mesh: {} ({} triangles, scaled to a 0.15 m diagonal)", mesh_path.display(), mesh.triangles.len());
     let k = linemod_camera();
     let (on_table, probability) = resting_on_table(&mesh)?;
     // The camera 0.7 m from the duck's centre, 45° above the table.
@@ -84,7 +107,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     let cam_from_world = look_at(eye, centre, DVec3::Z)?;
     let truth = cam_from_world.compose(&on_table);
     let noise = SensorNoise::default();
-    let (obs, mask, true_plane) = observe_on_table(&mesh, &on_table, &cam_from_world, &k, 1.0, noise, a.seed)?;
+    let (obs, mask, true_plane) = observe_on_table(&mesh, &on_table, &cam_from_world, &k, 1.0, noise, seed)?;
     println!(
         "scene: the duck in its most probable resting pose (probability {:.0} % by the quasi-static analysis) on a table, seen from 0.7 m at 45°",
         probability * 100.0
@@ -96,7 +119,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         noise.sigma * 1e3,
         noise.dropout * 100.0
     );
-    let fit = fit_support_plane(&obs, Some(&mask), &PlaneFitParams { seed: a.seed, ..Default::default() })?;
+    let fit = fit_support_plane(&obs, Some(&mask), &PlaneFitParams { seed, ..Default::default() })?;
     println!(
         "support plane fitted to {} of {} depth points outside the mask (RMS {:.2} mm): {:.3}° and {:.2} mm from the true table",
         fit.inliers,
@@ -105,23 +128,31 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         fit.plane.normal.angle_between(true_plane.normal).to_degrees(),
         true_plane.distance(fit.plane.point).abs() * 1e3
     );
-    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN)?;
-    let poses = around_and_random(&truth, a.n, a.seed);
-    let device = a.device.open(verbose, true)?;
-    let params = ScoreParams::default();
-    let physics = PlanePhysics::new(&mesh, &fit.plane, None, DEFAULT_SAMPLES, DEFAULT_SEED, None)?;
+    Ok(DemoScene { mesh, rmesh, truth, obs, mask, fit })
+}
 
+/// The scored hypotheses and their rankings.
+struct Scored {
+    records: Vec<ScoreRecord>,
+    evals: Vec<plausible::physical::Evaluation>,
+    rank: Vec<usize>,
+    visual_rank: Vec<usize>,
+    best: usize,
+}
+
+/// Scores the hypotheses visually and physically in one pass and prints the
+/// ranking and where the true pose landed.
+fn score_and_report(device: &Device, scene: &DemoScene, target: &ScoreTarget, poses: &[Pose], params: ScoreParams, physics: &PlanePhysics) -> Result<Scored> {
     // Warm up (pipeline compilation, first-submit cost), then time.
-    if let Device::Gpu(ctx) = &device {
+    if let Device::Gpu(ctx) = device {
         let warm = &poses[..64.min(poses.len())];
-        physics.gpu_scorer(ctx, &rmesh, &target, params, 64)?.score_with_physics(warm, |_| {})?;
+        physics.gpu_scorer(ctx, &scene.rmesh, target, params, 64)?.score_with_physics(warm, |_| {})?;
     }
     let t0 = Instant::now();
-    let (records, evals, _) = score_poses_with_physics(&device, &rmesh, &target, &poses, params, &physics, |_| {})?;
+    let (records, evals, _) = score_poses_with_physics(device, &scene.rmesh, target, poses, params, physics, |_| {})?;
     let secs = t0.elapsed().as_secs_f64();
     let rank = ranks_with_physics(&records, &evals);
     let visual_rank = ranks(&records);
-
     println!(
         "scored {} hypotheses visually and physically in one pass on {} in {:.3} s: {:.0} hypotheses/s (region 128x128, {} surface samples)",
         poses.len(),
@@ -135,6 +166,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     super::score::print_table(&records, Some(&evals), &rank, 5);
     let best = rank.iter().position(|&r| r == 1).unwrap_or(0);
     let visual_best = visual_rank.iter().position(|&r| r == 1).unwrap_or(0);
+    let truth = &scene.truth;
     println!(
         "\ntrue pose: rank {} of {} ({}, score {:.4}, margin {:.1} mm); best hypothesis {} is {:.1}° and {:.1} mm from the truth",
         rank[0],
@@ -143,7 +175,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         records[0].score,
         evals[0].stability_margin.unwrap_or(f64::NAN) * 1e3,
         best,
-        poses[best].rotation_angle_to(&truth).to_degrees(),
+        poses[best].rotation_angle_to(truth).to_degrees(),
         (poses[best].t - truth.t).length() * 1e3
     );
     println!(
@@ -152,15 +184,18 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         visual_best,
         evals[visual_best].verdict.as_str()
     );
+    Ok(Scored { records, evals, rank, visual_rank, best })
+}
 
-    // Pose estimation without a learned model (paper section 3.1): the
-    // duck's resting poses x 24 yaws, each put on the fitted plane and
-    // centred on the observed points, scored the same way.
-    let rests = analytic_resting_poses(&mesh)?;
+/// Pose estimation without a learned model (paper section 3.1): the duck's
+/// resting poses x 24 yaws, each put on the fitted plane and centred on the
+/// observed points, scored the same way. Returns the hypotheses.
+fn estimate(device: &Device, scene: &DemoScene, target: &ScoreTarget, params: ScoreParams, physics: &PlanePhysics) -> Result<Vec<Pose>> {
+    let rests = analytic_resting_poses(&scene.mesh)?;
     let t1 = Instant::now();
-    let estimates = on_plane_hypotheses(&mesh, &rests, &fit.plane, &obs, &mask, &OnPlaneParams::default())?;
+    let estimates = on_plane_hypotheses(&scene.mesh, &rests, &scene.fit.plane, &scene.obs, &scene.mask, &OnPlaneParams::default())?;
     let est_poses: Vec<Pose> = estimates.iter().map(|h| h.pose).collect();
-    let (est_records, est_evals, _) = score_poses_with_physics(&device, &rmesh, &target, &est_poses, params, &physics, |_| {})?;
+    let (est_records, est_evals, _) = score_poses_with_physics(device, &scene.rmesh, target, &est_poses, params, physics, |_| {})?;
     let est_rank = ranks_with_physics(&est_records, &est_evals);
     let est_best = est_rank.iter().position(|&r| r == 1).unwrap_or(0);
     println!(
@@ -176,66 +211,51 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
         estimates[est_best].yaw.to_degrees(),
         est_records[est_best].score,
         est_evals[est_best].verdict.as_str(),
-        est_poses[est_best].rotation_angle_to(&truth).to_degrees(),
-        (est_poses[est_best].t - truth.t).length() * 1e3
+        est_poses[est_best].rotation_angle_to(&scene.truth).to_degrees(),
+        (est_poses[est_best].t - scene.truth.t).length() * 1e3
     );
+    Ok(est_poses)
+}
 
-    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
-    // BOP-style inputs, so `plausible score` can be run on them.
-    let depth_scale = 0.1; // value x 0.1 = mm
-    let depth16: Vec<u16> = obs.depth.iter().map(|&d| ((d as f64 * 1e3 / depth_scale).round()).clamp(0.0, 65535.0) as u16).collect();
-    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16)
-        .unwrap()
-        .save(a.out.join("depth.png"))?;
-    let mask8: Vec<u8> = mask.iter().map(|&m| if m { 255 } else { 0 }).collect();
-    image::GrayImage::from_raw(k.width, k.height, mask8).unwrap().save(a.out.join("mask.png"))?;
-    std::fs::write(
-        a.out.join("camera.json"),
-        serde_json::to_string_pretty(&serde_json::json!({
-            "cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-            "depth_scale": depth_scale,
-        }))?,
-    )?;
-    std::fs::write(a.out.join("poses.json"), serde_json::to_string(&poses_to_json(&poses))?)?;
-    std::fs::write(a.out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(&est_poses))?)?;
-    let plane_json = CameraPlaneJson::from_plane(&fit.plane);
-    std::fs::write(a.out.join("plane.json"), serde_json::to_string_pretty(&plane_json)? + "\n")?;
-    // The mesh in metres as the demo used it.
-    let mut obj = String::new();
-    for v in &mesh.vertices {
-        obj += &format!("v {} {} {}\n", v.x, v.y, v.z);
-    }
-    for t in &mesh.triangles {
-        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(a.out.join("duck_0.15m.obj"), obj)?;
-    super::score::write_records(&a.out.join("scores.json"), &records, Some(&evals), &rank)?;
-    let render = render_cpu(&rmesh, &poses[best], &target.intrinsics);
-    let pic = plausible::explain::alignment_panels(&target, &render, &params, 3);
-    let pic_path = a.out.join("alignment.png");
+/// Writes the BOP-style inputs, the records and the pictures to `out`.
+#[allow(clippy::too_many_arguments)] // the demo's state, written once
+fn write_outputs(
+    out: &std::path::Path,
+    scene: &DemoScene,
+    target: &ScoreTarget,
+    poses: &[Pose],
+    est_poses: &[Pose],
+    s: &Scored,
+    params: ScoreParams,
+    physics: &PlanePhysics,
+) -> Result<()> {
+    write_inputs(out, scene, poses, est_poses)?;
+    super::score::write_records(&out.join("scores.json"), &s.records, Some(&s.evals), &s.rank)?;
+    let render = render_cpu(&scene.rmesh, &poses[s.best], &target.intrinsics);
+    let pic = plausible::explain::alignment_panels(target, &render, &params, 3);
+    let pic_path = out.join("alignment.png");
     pic.save(&pic_path)?;
     println!(
         "\nwrote {}: observed depth | best hypothesis' depth | per-pixel alignment (yellow = aligned, red = rendered only, blue = observed only)",
         pic_path.display()
     );
     // Why physics matters: the visually best hypothesis that is not plausible.
-    let implausible = (0..poses.len())
-        .filter(|&i| evals[i].verdict != Verdict::Plausible)
-        .min_by_key(|&i| visual_rank[i]);
-    let mut ids = vec![best];
+    let implausible = (0..poses.len()).filter(|&i| s.evals[i].verdict != Verdict::Plausible).min_by_key(|&i| s.visual_rank[i]);
+    let mut ids = vec![s.best];
     ids.extend(implausible);
-    super::score::write_explanations(&a.out.join("explain"), &ids, &poses, &rmesh, &target, &params, Some(&physics))?;
+    super::score::write_explanations(&out.join("explain"), &ids, poses, &scene.rmesh, target, &params, Some(physics))?;
     if let Some(i) = implausible {
-        let e = &evals[i];
+        let e = &s.evals[i];
         let why = match e.verdict {
             Verdict::Intersecting => "red samples below the table",
             Verdict::Floating => "no sample touches the table",
             _ => "the centre of mass (red cross) lies outside the support polygon",
         };
         println!(
-            "  hypothesis_{best}.png: the top-ranked one; hypothesis_{i}.png: the visually best implausible one \
+            "  hypothesis_{}.png: the top-ranked one; hypothesis_{i}.png: the visually best implausible one \
              (visual rank {}, {}: |I| = {}, min δ = {:.1} mm; {why})",
-            visual_rank[i],
+            s.best,
+            s.visual_rank[i],
             e.verdict.as_str(),
             e.intersecting,
             e.min_distance * 1e3
@@ -243,7 +263,38 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     }
     println!(
         "wrote the inputs to {0}/ (depth.png, mask.png, camera.json, poses.json, hypotheses.json, plane.json, duck_0.15m.obj) and all records to {0}/scores.json",
-        a.out.display()
+        out.display()
     );
+    Ok(())
+}
+
+/// BOP-style inputs, so `plausible score` can be run on them.
+fn write_inputs(out: &std::path::Path, scene: &DemoScene, poses: &[Pose], est_poses: &[Pose]) -> Result<()> {
+    let k = scene.obs.intrinsics;
+    let depth_scale = 0.1; // value x 0.1 = mm
+    let depth16: Vec<u16> = scene.obs.depth.iter().map(|&d| ((d as f64 * 1e3 / depth_scale).round()).clamp(0.0, 65535.0) as u16).collect();
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16).context("depth image size")?.save(out.join("depth.png"))?;
+    let mask8: Vec<u8> = scene.mask.iter().map(|&m| if m { 255 } else { 0 }).collect();
+    image::GrayImage::from_raw(k.width, k.height, mask8).context("mask image size")?.save(out.join("mask.png"))?;
+    std::fs::write(
+        out.join("camera.json"),
+        serde_json::to_string_pretty(&serde_json::json!({
+            "cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+            "depth_scale": depth_scale,
+        }))?,
+    )?;
+    std::fs::write(out.join("poses.json"), serde_json::to_string(&poses_to_json(poses))?)?;
+    std::fs::write(out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(est_poses))?)?;
+    let plane_json = CameraPlaneJson::from_plane(&scene.fit.plane);
+    std::fs::write(out.join("plane.json"), serde_json::to_string_pretty(&plane_json)? + "\n")?;
+    // The mesh in metres as the demo used it.
+    let mut obj = String::new();
+    for v in &scene.mesh.vertices {
+        obj += &format!("v {} {} {}\n", v.x, v.y, v.z);
+    }
+    for t in &scene.mesh.triangles {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(out.join("duck_0.15m.obj"), obj)?;
     Ok(())
 }
