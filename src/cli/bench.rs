@@ -184,96 +184,18 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 timing: "wall clock",
             };
             if let Device::Gpu(ctx) = &device {
-                let mut scorer = GpuScorer::new(ctx, &rmesh, &target, params, n)?;
-                scorer.score(&poses)?; // warm-up
-                let mut runs = Vec::new();
-                for _ in 0..repeat {
-                    let t = Instant::now();
-                    let (_, st) = scorer.score(&poses)?;
-                    runs.push((t.elapsed(), st));
-                }
-                runs.sort_by_key(|r| r.0);
-                let (total, st) = runs[runs.len() / 2];
-                let render = median((0..repeat).map(|_| scorer.raster_only(&poses)).collect::<Result<Vec<_>, _>>()?);
-                row.gpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
-                row.upload_ms = Some(ms(st.upload));
-                row.render_ms = Some(ms(render.min(st.compute)));
-                row.reduce_ms = Some(ms(st.compute.saturating_sub(render)));
-                row.readback_ms = Some(ms(st.readback));
-                // Timestamps in a separate run, so their readback does not
-                // disturb the wall-clock figures.
-                if scorer.set_timestamps(true) {
-                    row.gpu_timestamp_compute_ms = scorer.score(&poses)?.1.gpu_compute.map(ms);
-                    scorer.set_timestamps(false);
-                }
+                measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row)?;
             }
             if !a.no_cpu {
-                score_cpu(&rmesh, &target, &poses[..n.min(16)], &params); // warm-up
-                let total = median(
-                    (0..repeat)
-                        .map(|_| {
-                            let t = Instant::now();
-                            score_cpu(&rmesh, &target, &poses, &params);
-                            t.elapsed()
-                        })
-                        .collect(),
-                );
-                row.cpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
+                row.cpu_hyps_per_s = Some(measure_cpu(&rmesh, &target, params, &poses, repeat));
             }
             if let Some(physics) = &physics {
-                // Like the visual rows: the scorer is made once, then each
-                // run scores, computes the physical terms and finishes them.
-                let time = |run: &dyn Fn() -> Result<()>| -> Result<f64> {
-                    run()?; // warm-up
-                    let mut runs = Vec::new();
-                    for _ in 0..repeat {
-                        let t = Instant::now();
-                        run()?;
-                        runs.push(t.elapsed());
-                    }
-                    Ok(n as f64 / median(runs).as_secs_f64())
-                };
-                if let Device::Gpu(ctx) = &device {
-                    let scorer = physics.gpu_scorer(ctx, &rmesh, &target, params, n)?;
-                    row.gpu_physics_hyps_per_s = Some(time(&|| {
-                        let (_, contacts, _) = scorer.score_with_physics(&poses, |_| {})?;
-                        physics.finish_fused(&poses, &contacts.records, &contacts.bits);
-                        Ok(())
-                    })?);
-                }
-                if !a.no_cpu {
-                    row.cpu_physics_hyps_per_s = Some(time(&|| {
-                        score_poses_with_physics(&Device::Cpu, &rmesh, &target, &poses, params, physics, |_| {})?;
-                        Ok(())
-                    })?);
-                }
+                measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
             }
             if a.json {
                 println!("{}", serde_json::to_string(&row)?);
             } else {
-                let f = |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
-                let ratio = match (row.gpu_hyps_per_s, row.cpu_hyps_per_s) {
-                    (Some(g), Some(c)) => format!("{:.2}x", g / c),
-                    _ => "-".into(),
-                };
-                print!(
-                    "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
-                    name,
-                    row.triangles,
-                    n,
-                    format!("{}x{}", ti.width, ti.height),
-                    f(row.gpu_hyps_per_s, 0),
-                    f(row.cpu_hyps_per_s, 0),
-                    ratio,
-                    f(row.upload_ms, 2),
-                    f(row.render_ms, 2),
-                    f(row.reduce_ms, 2),
-                    f(row.readback_ms, 2)
-                );
-                if a.physics {
-                    print!(" {:>13} {:>13}", f(row.gpu_physics_hyps_per_s, 0), f(row.cpu_physics_hyps_per_s, 0));
-                }
-                println!();
+                print_row(&row, a.physics);
             }
             rows.push(row);
         }
@@ -286,4 +208,126 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         println!(" --json adds gpu_timestamp_compute_ms from GPU timestamp queries where the adapter has them: on lavapipe they are unreliable)");
     }
     Ok(())
+}
+
+/// The GPU rows of a configuration: end to end (median of `repeat`), the
+/// rasterization alone, and timestamps in a separate run.
+fn measure_gpu(
+    ctx: &plausible::gpu::Context,
+    rmesh: &RenderMesh,
+    target: &ScoreTarget,
+    params: ScoreParams,
+    poses: &[plausible::pose::Pose],
+    repeat: usize,
+    row: &mut ScoreBenchRow,
+) -> Result<()> {
+    let n = poses.len();
+    let mut scorer = GpuScorer::new(ctx, rmesh, target, params, n)?;
+    scorer.score(poses)?; // warm-up
+    let mut runs = Vec::new();
+    for _ in 0..repeat {
+        let t = Instant::now();
+        let (_, st) = scorer.score(poses)?;
+        runs.push((t.elapsed(), st));
+    }
+    runs.sort_by_key(|r| r.0);
+    let (total, st) = runs[runs.len() / 2];
+    let render = median((0..repeat).map(|_| scorer.raster_only(poses)).collect::<Result<Vec<_>, _>>()?);
+    row.gpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
+    row.upload_ms = Some(ms(st.upload));
+    row.render_ms = Some(ms(render.min(st.compute)));
+    row.reduce_ms = Some(ms(st.compute.saturating_sub(render)));
+    row.readback_ms = Some(ms(st.readback));
+    // Timestamps in a separate run, so their readback does not
+    // disturb the wall-clock figures.
+    if scorer.set_timestamps(true) {
+        row.gpu_timestamp_compute_ms = scorer.score(poses)?.1.gpu_compute.map(ms);
+        scorer.set_timestamps(false);
+    }
+    Ok(())
+}
+
+/// The CPU twin's hypotheses per second (median of `repeat`).
+fn measure_cpu(rmesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, poses: &[plausible::pose::Pose], repeat: usize) -> f64 {
+    score_cpu(rmesh, target, &poses[..poses.len().min(16)], &params); // warm-up
+    let total = median(
+        (0..repeat)
+            .map(|_| {
+                let t = Instant::now();
+                score_cpu(rmesh, target, poses, &params);
+                t.elapsed()
+            })
+            .collect(),
+    );
+    poses.len() as f64 / total.as_secs_f64()
+}
+
+/// Visual score and physical terms end to end, GPU and CPU twin. Like the
+/// visual rows: the scorer is made once, then each run scores, computes the
+/// physical terms and finishes them.
+#[allow(clippy::too_many_arguments)]
+fn measure_physics(
+    device: &Device,
+    cpu: bool,
+    physics: &PlanePhysics,
+    rmesh: &RenderMesh,
+    target: &ScoreTarget,
+    params: ScoreParams,
+    poses: &[plausible::pose::Pose],
+    repeat: usize,
+    row: &mut ScoreBenchRow,
+) -> Result<()> {
+    let n = poses.len();
+    let time = |run: &dyn Fn() -> Result<()>| -> Result<f64> {
+        run()?; // warm-up
+        let mut runs = Vec::new();
+        for _ in 0..repeat {
+            let t = Instant::now();
+            run()?;
+            runs.push(t.elapsed());
+        }
+        Ok(n as f64 / median(runs).as_secs_f64())
+    };
+    if let Device::Gpu(ctx) = device {
+        let scorer = physics.gpu_scorer(ctx, rmesh, target, params, n)?;
+        row.gpu_physics_hyps_per_s = Some(time(&|| {
+            let (_, contacts, _) = scorer.score_with_physics(poses, |_| {})?;
+            physics.finish_fused(poses, &contacts.records, &contacts.bits);
+            Ok(())
+        })?);
+    }
+    if cpu {
+        row.cpu_physics_hyps_per_s = Some(time(&|| {
+            score_poses_with_physics(&Device::Cpu, rmesh, target, poses, params, physics, |_| {})?;
+            Ok(())
+        })?);
+    }
+    Ok(())
+}
+
+/// One table row.
+fn print_row(row: &ScoreBenchRow, physics: bool) {
+    let f = |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
+    let ratio = match (row.gpu_hyps_per_s, row.cpu_hyps_per_s) {
+        (Some(g), Some(c)) => format!("{:.2}x", g / c),
+        _ => "-".into(),
+    };
+    print!(
+        "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        row.mesh,
+        row.triangles,
+        row.n,
+        format!("{}x{}", row.width, row.height),
+        f(row.gpu_hyps_per_s, 0),
+        f(row.cpu_hyps_per_s, 0),
+        ratio,
+        f(row.upload_ms, 2),
+        f(row.render_ms, 2),
+        f(row.reduce_ms, 2),
+        f(row.readback_ms, 2)
+    );
+    if physics {
+        print!(" {:>13} {:>13}", f(row.gpu_physics_hyps_per_s, 0), f(row.cpu_physics_hyps_per_s, 0));
+    }
+    println!();
 }

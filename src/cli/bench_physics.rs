@@ -79,115 +79,27 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
         Device::Cpu => ("none".to_string(), "none".to_string()),
     };
     let repeat = a.repeat.max(1);
-    // The body: a 5 cm cube. The obstacle: the duck scaled to a 0.15 m
-    // diagonal, resting on the plane.
-    let cube = plausible::shapes::cuboid(DVec3::splat(0.025));
-    let body = Body::new(&cube, a.samples, a.seed, None)?;
-    let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj"), MeshUnits::Metres)?
-        .0
-        .normalized(0.15);
-    let grid = Arc::new(SdfGrid::bake(&duck, DEFAULT_RESOLUTION)?);
-    let (lo, hi) = duck.bounds();
-    let duck_pose = Pose::new(DMat3::IDENTITY, DVec3::new(0.0, 0.0, -lo.z));
-    let plane = Plane {
-        point: DVec3::ZERO,
-        normal: DVec3::Z,
-    };
-    let g = DVec3::new(0.0, 0.0, -9.81);
-    // Hypotheses: random rotations, positions over and around the duck
-    // (its bounding box grown by 2 cm), so most samples query the grid.
-    let mut rng = ChaCha8Rng::seed_from_u64(a.seed);
-    let poses: Vec<Pose> = (0..a.n)
-        .map(|_| {
-            let r = plausible::hypotheses::random_rotation(&mut rng);
-            let p = DVec3::new(
-                rng.random_range(lo.x - 0.02..hi.x + 0.02),
-                rng.random_range(lo.y - 0.02..hi.y + 0.02),
-                rng.random_range(0.0..(hi.z - lo.z) + 0.02),
-            );
-            Pose::new(r, p)
-        })
-        .collect();
-    // Near contact (the ranking use case): the cube resting on the plane in
-    // and around the duck's footprint, tilted up to 25°, lowest corner
-    // within ±4 mm of the plane.
-    let near: Vec<Pose> = (0..a.n)
-        .map(|_| {
-            let axis = DVec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0);
-            let r = plausible::pose::axis_angle(DVec3::Z, rng.random_range(0.0..std::f64::consts::TAU))
-                * plausible::pose::axis_angle(axis, rng.random_range(0.0..25f64.to_radians()));
-            let low = cube.vertices.iter().map(|v| (r * *v).z).fold(f64::INFINITY, f64::min);
-            let p = DVec3::new(
-                rng.random_range(lo.x - 0.04..hi.x + 0.04),
-                rng.random_range(lo.y - 0.04..hi.y + 0.04),
-                -low + rng.random_range(-0.004..0.004),
-            );
-            Pose::new(r, p)
-        })
-        .collect();
-    let configs = [
-        (
-            "plane",
-            &poses,
-            Environment {
-                planes: vec![plane],
-                obstacles: vec![],
-                gravity: g,
-            },
-        ),
-        (
-            "plane+mesh",
-            &poses,
-            Environment {
-                planes: vec![plane],
-                obstacles: vec![Obstacle {
-                    sdf: grid.clone(),
-                    pose: duck_pose,
-                }],
-                gravity: g,
-            },
-        ),
-        (
-            "plane+mesh/near",
-            &near,
-            Environment {
-                planes: vec![plane],
-                obstacles: vec![Obstacle {
-                    sdf: grid.clone(),
-                    pose: duck_pose,
-                }],
-                gravity: g,
-            },
-        ),
-    ];
-    let queries = (a.n * body.samples.len()) as f64;
-    let mut rows = Vec::new();
+    let w = Workload::new(a.n, a.samples, a.seed)?;
+    let queries = (a.n * w.body.samples.len()) as f64;
     if !a.json {
         println!(
             "adapter: {adapter} ({backend}); CPU twin on {} threads; N = {} x {} samples; wall clock, median of {repeat}",
             rayon::current_num_threads(),
             a.n,
-            body.samples.len()
+            w.body.samples.len()
         );
         println!(
             "{:>15} {:>14} {:>14} {:>8} {:>11} {:>11} {:>9}",
-            "scene",
-            "gpu queries/s",
-            "cpu queries/s",
-            "gpu/cpu",
-            "gpu hyp/s",
-            "cpu hyp/s",
-            "refined"
+            "scene", "gpu queries/s", "cpu queries/s", "gpu/cpu", "gpu hyp/s", "cpu hyp/s", "refined"
         );
     }
-    for (name, poses, env) in &configs {
-        let poses: &[Pose] = poses;
+    for (name, poses, env) in w.scenes() {
         let mut row = PhysicsBenchRow {
             adapter: adapter.clone(),
             backend: backend.clone(),
             scene: name.to_string(),
             n: a.n,
-            samples: body.samples.len(),
+            samples: w.body.samples.len(),
             grid_nodes: env.obstacles.iter().map(|o| o.sdf.nodes.len()).sum(),
             gpu_queries_per_s: None,
             cpu_queries_per_s: 0.0,
@@ -198,55 +110,144 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
             timing: "wall clock, median of repeats after a warm-up",
         };
         if let Device::Gpu(ctx) = &device {
-            let gpu = GpuContacts::new(ctx, &body, env, a.n, false)?;
-            let warm = gpu.run(poses)?; // first submit compiles and is slower
-            row.refined_fraction = Some(gpu.refined_count(&warm) as f64 / queries);
-            let mut kernel = Vec::new();
-            let mut full = Vec::new();
-            for _ in 0..repeat {
-                let t = Instant::now();
-                let out = gpu.run(poses)?;
-                let ev = gpu.finish(poses, &out);
-                full.push(t.elapsed());
-                kernel.push(out.compute);
-                std::hint::black_box(ev);
-            }
-            row.gpu_queries_per_s = Some(queries / median(kernel).as_secs_f64());
-            row.gpu_hyps_per_s = Some(a.n as f64 / median(full).as_secs_f64());
+            measure_gpu(ctx, &w.body, poses, &env, repeat, queries, &mut row)?;
         }
-        let mut cq = Vec::new();
-        let mut ch = Vec::new();
-        for _ in 0..repeat {
-            let t = Instant::now();
-            std::hint::black_box(distances_batch(&body, poses, env));
-            cq.push(t.elapsed());
-            let t = Instant::now();
-            std::hint::black_box(evaluate_batch(&body, poses, env));
-            ch.push(t.elapsed());
-        }
-        row.cpu_queries_per_s = queries / median(cq).as_secs_f64();
-        row.cpu_hyps_per_s = a.n as f64 / median(ch).as_secs_f64();
+        measure_cpu(&w.body, poses, &env, repeat, queries, &mut row);
         if a.json {
             println!("{}", serde_json::to_string(&row)?);
         } else {
-            let opt = |v: Option<f64>, unit: f64| {
-                v.map(|x| format!("{:.1}", x / unit))
-                    .unwrap_or_else(|| "-".into())
-            };
-            println!(
-                "{:>15} {:>13}M {:>13}M {:>8} {:>11} {:>11.0} {:>8}%",
-                name,
-                opt(row.gpu_queries_per_s, 1e6),
-                format!("{:.1}", row.cpu_queries_per_s / 1e6),
-                row.gpu_queries_per_s
-                    .map(|g| format!("{:.1}x", g / row.cpu_queries_per_s))
-                    .unwrap_or_else(|| "-".into()),
-                opt(row.gpu_hyps_per_s, 1.0),
-                row.cpu_hyps_per_s,
-                opt(row.refined_fraction.map(|f| f * 100.0), 1.0),
-            );
+            print_row(&row);
         }
-        rows.push(row);
     }
     Ok(())
+}
+
+/// The benchmark's body (a 5 cm cube), obstacle (the duck scaled to a
+/// 0.15 m diagonal, resting on the plane) and two sets of hypotheses.
+struct Workload {
+    body: Body,
+    grid: Arc<SdfGrid>,
+    duck_pose: Pose,
+    /// Random rotations, positions over and around the duck (its bounding
+    /// box grown by 2 cm), so most samples query the grid.
+    anywhere: Vec<Pose>,
+    /// Near contact (the ranking use case): the cube resting on the plane
+    /// in and around the duck's footprint, tilted up to 25°, lowest corner
+    /// within ±4 mm of the plane.
+    near: Vec<Pose>,
+}
+
+impl Workload {
+    fn new(n: usize, samples: usize, seed: u64) -> Result<Workload> {
+        let cube = plausible::shapes::cuboid(DVec3::splat(0.025));
+        let body = Body::new(&cube, samples, seed, None)?;
+        let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj"), MeshUnits::Metres)?.0.normalized(0.15);
+        let grid = Arc::new(SdfGrid::bake(&duck, DEFAULT_RESOLUTION)?);
+        let (lo, hi) = duck.bounds();
+        let duck_pose = Pose::new(DMat3::IDENTITY, DVec3::new(0.0, 0.0, -lo.z));
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let anywhere: Vec<Pose> = (0..n)
+            .map(|_| {
+                let r = plausible::hypotheses::random_rotation(&mut rng);
+                let p = DVec3::new(
+                    rng.random_range(lo.x - 0.02..hi.x + 0.02),
+                    rng.random_range(lo.y - 0.02..hi.y + 0.02),
+                    rng.random_range(0.0..(hi.z - lo.z) + 0.02),
+                );
+                Pose::new(r, p)
+            })
+            .collect();
+        let near: Vec<Pose> = (0..n)
+            .map(|_| {
+                let axis = DVec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0);
+                let r = plausible::pose::axis_angle(DVec3::Z, rng.random_range(0.0..std::f64::consts::TAU))
+                    * plausible::pose::axis_angle(axis, rng.random_range(0.0..25f64.to_radians()));
+                let low = cube.vertices.iter().map(|v| (r * *v).z).fold(f64::INFINITY, f64::min);
+                let p = DVec3::new(
+                    rng.random_range(lo.x - 0.04..hi.x + 0.04),
+                    rng.random_range(lo.y - 0.04..hi.y + 0.04),
+                    -low + rng.random_range(-0.004..0.004),
+                );
+                Pose::new(r, p)
+            })
+            .collect();
+        Ok(Workload { body, grid, duck_pose, anywhere, near })
+    }
+
+    /// The three scenes: the plane alone, plane and duck, and plane and
+    /// duck with the near-contact hypotheses.
+    fn scenes(&self) -> [(&'static str, &[Pose], Environment); 3] {
+        let plane = Plane { point: DVec3::ZERO, normal: DVec3::Z };
+        let g = DVec3::new(0.0, 0.0, -9.81);
+        let with_duck = || Environment {
+            planes: vec![plane],
+            obstacles: vec![Obstacle { sdf: self.grid.clone(), pose: self.duck_pose }],
+            gravity: g,
+        };
+        [
+            ("plane", &self.anywhere, Environment { planes: vec![plane], obstacles: vec![], gravity: g }),
+            ("plane+mesh", &self.anywhere, with_duck()),
+            ("plane+mesh/near", &self.near, with_duck()),
+        ]
+    }
+}
+
+/// The GPU kernel's queries per second (kernel time) and hypotheses per
+/// second (with the CPU finish), medians of `repeat` after a warm-up.
+fn measure_gpu(
+    ctx: &plausible::gpu::Context,
+    body: &Body,
+    poses: &[Pose],
+    env: &Environment,
+    repeat: usize,
+    queries: f64,
+    row: &mut PhysicsBenchRow,
+) -> Result<()> {
+    let gpu = GpuContacts::new(ctx, body, env, poses.len(), false)?;
+    let warm = gpu.run(poses)?; // first submit compiles and is slower
+    row.refined_fraction = Some(gpu.refined_count(&warm) as f64 / queries);
+    let mut kernel = Vec::new();
+    let mut full = Vec::new();
+    for _ in 0..repeat {
+        let t = Instant::now();
+        let out = gpu.run(poses)?;
+        let ev = gpu.finish(poses, &out);
+        full.push(t.elapsed());
+        kernel.push(out.compute);
+        std::hint::black_box(ev);
+    }
+    row.gpu_queries_per_s = Some(queries / median(kernel).as_secs_f64());
+    row.gpu_hyps_per_s = Some(poses.len() as f64 / median(full).as_secs_f64());
+    Ok(())
+}
+
+/// The CPU twin's queries and complete evaluations per second.
+fn measure_cpu(body: &Body, poses: &[Pose], env: &Environment, repeat: usize, queries: f64, row: &mut PhysicsBenchRow) {
+    let mut cq = Vec::new();
+    let mut ch = Vec::new();
+    for _ in 0..repeat {
+        let t = Instant::now();
+        std::hint::black_box(distances_batch(body, poses, env));
+        cq.push(t.elapsed());
+        let t = Instant::now();
+        std::hint::black_box(evaluate_batch(body, poses, env));
+        ch.push(t.elapsed());
+    }
+    row.cpu_queries_per_s = queries / median(cq).as_secs_f64();
+    row.cpu_hyps_per_s = poses.len() as f64 / median(ch).as_secs_f64();
+}
+
+/// One table row.
+fn print_row(row: &PhysicsBenchRow) {
+    let opt = |v: Option<f64>, unit: f64| v.map(|x| format!("{:.1}", x / unit)).unwrap_or_else(|| "-".into());
+    println!(
+        "{:>15} {:>13}M {:>13}M {:>8} {:>11} {:>11.0} {:>8}%",
+        row.scene,
+        opt(row.gpu_queries_per_s, 1e6),
+        format!("{:.1}", row.cpu_queries_per_s / 1e6),
+        row.gpu_queries_per_s.map(|g| format!("{:.1}x", g / row.cpu_queries_per_s)).unwrap_or_else(|| "-".into()),
+        opt(row.gpu_hyps_per_s, 1.0),
+        row.cpu_hyps_per_s,
+        opt(row.refined_fraction.map(|f| f * 100.0), 1.0),
+    );
 }
