@@ -193,6 +193,78 @@ struct RawScene {
     objects: Vec<RawObject>,
 }
 
+/// The frame a scene file is written in, its planes and gravity, and (for
+/// a camera-frame scene) the move from the camera into the plane frame.
+struct SceneFrame {
+    camera: bool,
+    planes: Vec<Plane>,
+    gravity: DVec3,
+    to_world: Pose,
+}
+
+impl SceneFrame {
+    fn of(raw: &RawScene) -> std::result::Result<SceneFrame, String> {
+        let camera = match raw.frame.as_deref() {
+            None | Some("world") => false,
+            Some("camera") => true,
+            Some(f) => return Err(format!("unknown frame '{f}' (expected \"world\" or \"camera\")")),
+        };
+        let mut planes = Vec::new();
+        for (i, p) in raw.planes.iter().enumerate() {
+            let point = vec3(&format!("plane {i}: point"), &p.point)?;
+            let normal = vec3(&format!("plane {i}: normal"), &p.normal)?;
+            let len = normal.length();
+            if len.is_nan() || len <= 1e-12 {
+                return Err(format!("plane {i}: normal has zero length"));
+            }
+            planes.push(Plane { point, normal: normal / len });
+        }
+        let mut gravity = DVec3::new(0.0, 0.0, -9.81);
+        // Camera frame: world = plane frame.
+        let mut to_world = Pose::IDENTITY;
+        if camera {
+            if raw.gravity.is_some() {
+                return Err("a camera-frame scene takes gravity from its support plane; remove \"gravity\"".into());
+            }
+            if planes.len() != 1 {
+                return Err(format!("a camera-frame scene needs exactly one support plane, found {}", planes.len()));
+            }
+            let p = planes[0];
+            to_world = camera_to_plane_frame(&Plane { point: p.point * 1e-3, normal: p.normal });
+            planes = vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }];
+        } else if let Some(g) = &raw.gravity {
+            gravity = vec3("gravity", g)?;
+            if gravity.length() <= 1e-9 {
+                return Err("gravity has zero length".into());
+            }
+        }
+        Ok(SceneFrame { camera, planes, gravity, to_world })
+    }
+
+    /// An object's pose in the world (plane) frame: `R`, `t` in a world
+    /// scene, `cam_R_m2c`, `cam_t_m2c` (mm) in a camera-frame one.
+    fn object_pose(&self, o: &RawObject, label: &str) -> std::result::Result<Pose, String> {
+        if self.camera {
+            if o.r.is_some() || o.t.is_some() {
+                return Err(format!("{label}: a camera-frame scene gives poses as cam_R_m2c / cam_t_m2c"));
+            }
+            let (Some(r), Some(t)) = (&o.cam_r, &o.cam_t) else {
+                return Err(format!("{label}: missing cam_R_m2c or cam_t_m2c"));
+            };
+            let r = rotation(&format!("{label}: cam_R_m2c"), r)?;
+            let t = vec3(&format!("{label}: cam_t_m2c"), t)? * 1e-3;
+            return Ok(self.to_world.compose(&Pose::new(r, t)));
+        }
+        if o.cam_r.is_some() || o.cam_t.is_some() {
+            return Err(format!("{label}: cam_R_m2c / cam_t_m2c need \"frame\": \"camera\""));
+        }
+        let (Some(r), Some(t)) = (&o.r, &o.t) else {
+            return Err(format!("{label}: missing R or t"));
+        };
+        Ok(Pose::new(rotation(&format!("{label}: R"), r)?, vec3(&format!("{label}: t"), t)?))
+    }
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawPlane {
@@ -275,150 +347,43 @@ impl Scene {
     /// Parses and validates scene JSON; `base` resolves mesh paths and
     /// `name` labels errors.
     pub fn from_json(text: &str, base: &Path, name: &Path) -> Result<Scene> {
-        let bad = |reason: String| Error::BadJson {
-            path: name.to_path_buf(),
-            reason,
-        };
+        let bad = |reason: String| Error::BadJson { path: name.to_path_buf(), reason };
         let raw: RawScene = parse(text).map_err(bad)?;
-        let camera = match raw.frame.as_deref() {
-            None | Some("world") => false,
-            Some("camera") => true,
-            Some(f) => {
-                return Err(bad(format!(
-                    "unknown frame '{f}' (expected \"world\" or \"camera\")"
-                )))
-            }
-        };
         if raw.objects.is_empty() {
             return Err(bad("the scene has no objects".into()));
         }
-        let mut planes = Vec::new();
-        for (i, p) in raw.planes.iter().enumerate() {
-            let point = vec3(&format!("plane {i}: point"), &p.point).map_err(bad)?;
-            let normal = vec3(&format!("plane {i}: normal"), &p.normal).map_err(bad)?;
-            let len = normal.length();
-            if len.is_nan() || len <= 1e-12 {
-                return Err(bad(format!("plane {i}: normal has zero length")));
-            }
-            planes.push(Plane {
-                point,
-                normal: normal / len,
-            });
-        }
-        let mut gravity = DVec3::new(0.0, 0.0, -9.81);
-        // Camera frame: world = plane frame.
-        let mut to_world = Pose::IDENTITY;
-        if camera {
-            if raw.gravity.is_some() {
-                return Err(bad(
-                    "a camera-frame scene takes gravity from its support plane; remove \"gravity\""
-                        .into(),
-                ));
-            }
-            if planes.len() != 1 {
-                return Err(bad(format!(
-                    "a camera-frame scene needs exactly one support plane, found {}",
-                    planes.len()
-                )));
-            }
-            let p = planes[0];
-            to_world = camera_to_plane_frame(&Plane {
-                point: p.point * 1e-3,
-                normal: p.normal,
-            });
-            planes = vec![Plane {
-                point: DVec3::ZERO,
-                normal: DVec3::Z,
-            }];
-        } else if let Some(g) = &raw.gravity {
-            gravity = vec3("gravity", g).map_err(bad)?;
-            if gravity.length() <= 1e-9 {
-                return Err(bad("gravity has zero length".into()));
-            }
-        }
+        let frame = SceneFrame::of(&raw).map_err(bad)?;
         let mut cache: Vec<(PathBuf, MeshUnits, Arc<Mesh>)> = Vec::new();
         let mut objects = Vec::new();
         for (i, o) in raw.objects.iter().enumerate() {
             let oname = o.name.clone().unwrap_or_else(|| {
-                Path::new(&o.mesh)
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| format!("object{i}"))
+                Path::new(&o.mesh).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("object{i}"))
             });
             let label = format!("object {i} ('{oname}')");
             let units: MeshUnits = match &o.units {
-                Some(u) => u
-                    .parse()
-                    .map_err(|e: String| bad(format!("{label}: {e}")))?,
+                Some(u) => u.parse().map_err(|e: String| bad(format!("{label}: {e}")))?,
                 None => MeshUnits::Auto,
             };
-            let pose = if camera {
-                if o.r.is_some() || o.t.is_some() {
-                    return Err(bad(format!(
-                        "{label}: a camera-frame scene gives poses as cam_R_m2c / cam_t_m2c"
-                    )));
-                }
-                let (Some(r), Some(t)) = (&o.cam_r, &o.cam_t) else {
-                    return Err(bad(format!("{label}: missing cam_R_m2c or cam_t_m2c")));
-                };
-                let r = rotation(&format!("{label}: cam_R_m2c"), r).map_err(bad)?;
-                let t = vec3(&format!("{label}: cam_t_m2c"), t).map_err(bad)? * 1e-3;
-                to_world.compose(&Pose::new(r, t))
-            } else {
-                if o.cam_r.is_some() || o.cam_t.is_some() {
-                    return Err(bad(format!(
-                        "{label}: cam_R_m2c / cam_t_m2c need \"frame\": \"camera\""
-                    )));
-                }
-                let (Some(r), Some(t)) = (&o.r, &o.t) else {
-                    return Err(bad(format!("{label}: missing R or t")));
-                };
-                Pose::new(
-                    rotation(&format!("{label}: R"), r).map_err(bad)?,
-                    vec3(&format!("{label}: t"), t).map_err(bad)?,
-                )
-            };
+            let pose = frame.object_pose(o, &label).map_err(bad)?;
             let density = o.density.unwrap_or(DEFAULT_DENSITY);
             if !(density.is_finite() && density > 0.0) {
-                return Err(bad(format!(
-                    "{label}: density must be a positive number, got {density}"
-                )));
+                return Err(bad(format!("{label}: density must be a positive number, got {density}")));
             }
             let mesh_path = base.join(&o.mesh);
-            let mesh = match cache
-                .iter()
-                .find(|(p, u, _)| *p == mesh_path && *u == units)
-            {
+            let mesh = match cache.iter().find(|(p, u, _)| *p == mesh_path && *u == units) {
                 Some((_, _, m)) => m.clone(),
                 None => {
                     if !mesh_path.is_file() {
-                        return Err(bad(format!(
-                            "{label}: mesh '{}' not found (looked for {})",
-                            o.mesh,
-                            mesh_path.display()
-                        )));
+                        return Err(bad(format!("{label}: mesh '{}' not found (looked for {})", o.mesh, mesh_path.display())));
                     }
-                    let (m, _) =
-                        Mesh::load(&mesh_path, units).map_err(|e| bad(format!("{label}: {e}")))?;
+                    let (m, _) = Mesh::load(&mesh_path, units).map_err(|e| bad(format!("{label}: {e}")))?;
                     let m = Arc::new(m);
                     cache.push((mesh_path.clone(), units, m.clone()));
                     m
                 }
             };
-            objects.push(SceneObject {
-                name: oname,
-                mesh,
-                mesh_path,
-                units,
-                pose,
-                is_static: o.is_static.unwrap_or(false),
-                density,
-            });
+            objects.push(SceneObject { name: oname, mesh, mesh_path, units, pose, is_static: o.is_static.unwrap_or(false), density });
         }
-        Ok(Scene {
-            gravity,
-            planes,
-            objects,
-        })
+        Ok(Scene { gravity: frame.gravity, planes: frame.planes, objects })
     }
 }

@@ -92,6 +92,36 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
             outside.abs()
         )));
     }
+    let (facets, facet_of) = merge_facets(hull, params, diag);
+    let (next, margins) = topple_targets(&facets, com, diag);
+    let mut notes = Vec::new();
+    let sink_of = sinks(&facets, next, com, &mut notes);
+    let (mass, total) = solid_angles(hull, com, &sink_of, &facet_of, facets.len());
+    let four_pi = 4.0 * std::f64::consts::PI;
+    if (total / four_pi - 1.0).abs() > 1e-3 {
+        notes.push(format!(
+            "solid angles sum to {:.4}·4π; probabilities renormalised",
+            total / four_pi
+        ));
+    }
+    let mut poses: Vec<AnalyticPose> = (0..facets.len())
+        .filter(|&f| sink_of[f] == f && mass[f] > 0.0)
+        .map(|f| AnalyticPose {
+            probability: mass[f] / total,
+            gravity_in_model: facets[f].normal.to_array(),
+            height: facets[f].offset,
+            margin: margins[f].max(0.0),
+            area: facets[f].area,
+        })
+        .collect();
+    poses.sort_by(|a, b| b.probability.total_cmp(&a.probability));
+    Ok(Analytic { poses, notes })
+}
+
+/// Merges the hull's triangles into facets by region growing from the
+/// largest triangles (normals within `merge_deg`, vertices within the plane
+/// tolerance); returns the facets and each triangle's facet.
+fn merge_facets(hull: &Hull, params: AnalyticParams, diag: f64) -> (Vec<Facet>, Vec<usize>) {
     let ntri = hull.triangles.len();
     let planes: Vec<(DVec3, f64)> = (0..ntri).map(|i| hull.plane(i)).collect();
     let areas: Vec<f64> = hull
@@ -194,11 +224,17 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
         });
     }
 
+    (facets, facet_of)
+}
+
+/// For each facet, where it topples to (`None`: it is stable; `usize::MAX`:
+/// across an open hull edge) and its stability margin.
+fn topple_targets(facets: &[Facet], com: DVec3, diag: f64) -> (Vec<Option<usize>>, Vec<f64>) {
     // Where each facet sends its probability: itself when stable.
     let margin_tol = 1e-6 * diag;
     let mut next: Vec<Option<usize>> = Vec::with_capacity(facets.len());
     let mut margins = Vec::with_capacity(facets.len());
-    for f in &facets {
+    for f in facets {
         let n = f.normal;
         let p = com - n * (n.dot(com) - f.offset);
         let mut inside = true;
@@ -237,7 +273,12 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
         }
     }
 
-    let mut notes = Vec::new();
+    (next, margins)
+}
+
+/// The resting facet each facet ends on, following the topple targets
+/// (cycles from rounding end at their lowest facet; noted).
+fn sinks(facets: &[Facet], mut next: Vec<Option<usize>>, com: DVec3, notes: &mut Vec<String>) -> Vec<usize> {
     let mut sink_of = vec![usize::MAX; facets.len()];
     for start in 0..facets.len() {
         let mut path = vec![start];
@@ -286,9 +327,13 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
         }
     }
 
-    // Solid angle of every hull triangle seen from the centre of mass
-    // (van Oosterom & Strackee), summed per sink.
-    let mut mass = vec![0.0; facets.len()];
+    sink_of
+}
+
+/// Solid angle of every hull triangle seen from the centre of mass (van
+/// Oosterom & Strackee), summed per sink; also the total.
+fn solid_angles(hull: &Hull, com: DVec3, sink_of: &[usize], facet_of: &[usize], n_facets: usize) -> (Vec<f64>, f64) {
+    let mut mass = vec![0.0; n_facets];
     let mut total = 0.0;
     for (i, t) in hull.triangles.iter().enumerate() {
         let a = hull.vertices[t[0] as usize] - com;
@@ -303,25 +348,7 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
             total += omega;
         }
     }
-    let four_pi = 4.0 * std::f64::consts::PI;
-    if (total / four_pi - 1.0).abs() > 1e-3 {
-        notes.push(format!(
-            "solid angles sum to {:.4}·4π; probabilities renormalised",
-            total / four_pi
-        ));
-    }
-    let mut poses: Vec<AnalyticPose> = (0..facets.len())
-        .filter(|&f| sink_of[f] == f && mass[f] > 0.0)
-        .map(|f| AnalyticPose {
-            probability: mass[f] / total,
-            gravity_in_model: facets[f].normal.to_array(),
-            height: facets[f].offset,
-            margin: margins[f].max(0.0),
-            area: facets[f].area,
-        })
-        .collect();
-    poses.sort_by(|a, b| b.probability.total_cmp(&a.probability));
-    Ok(Analytic { poses, notes })
+    (mass, total)
 }
 
 #[cfg(test)]
