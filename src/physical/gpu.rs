@@ -79,101 +79,14 @@ impl GpuContacts {
     /// Uploads the body's samples and the environment. At most `max_chunk`
     /// poses go in one dispatch (fewer where the adapter's limits say so);
     /// `with_deltas` also returns δ of every sample (for tests: N·M floats).
-    pub fn new(
-        ctx: &Context,
-        body: &Body,
-        env: &Environment,
-        max_chunk: usize,
-        with_deltas: bool,
-    ) -> Result<Self> {
-        if env.planes.len() > MAX_PLANES {
-            return Err(Error::InvalidInput(format!(
-                "the GPU contacts kernel takes at most {MAX_PLANES} planes, the scene has {}",
-                env.planes.len()
-            )));
-        }
-        if env.obstacles.len() > MAX_GRIDS {
-            return Err(Error::InvalidInput(format!(
-                "the GPU contacts kernel takes at most {MAX_GRIDS} other objects, the scene has {}",
-                env.obstacles.len()
-            )));
-        }
-        env.check_epsilon(body.epsilon)?;
+    pub fn new(ctx: &Context, body: &Body, env: &Environment, max_chunk: usize, with_deltas: bool) -> Result<Self> {
+        check_scene(body, env)?;
         let m = body.samples.len();
-        if m == 0 {
-            return Err(Error::InvalidInput(
-                "the body has no surface samples".into(),
-            ));
-        }
         let words = m.div_ceil(32);
         let g = env.gravity.normalize();
-        let mut planes = [[0.0f32; 4]; MAX_PLANES];
-        for (i, p) in env.planes.iter().enumerate() {
-            planes[i] = [
-                p.normal.x as f32,
-                p.normal.y as f32,
-                p.normal.z as f32,
-                p.normal.dot(p.point) as f32,
-            ];
-        }
-        // Grids: each distinct grid's nodes once, one descriptor per placement.
-        let mut node_data: Vec<f32> = Vec::new();
-        let mut offsets: Vec<(*const super::sdf::SdfGrid, u32)> = Vec::new();
-        let mut descs = Vec::new();
-        for o in &env.obstacles {
-            let key = Arc::as_ptr(&o.sdf);
-            let offset = match offsets.iter().find(|(k, _)| *k == key) {
-                Some((_, off)) => *off,
-                None => {
-                    let off = node_data.len() as u32;
-                    node_data.extend(o.sdf.nodes.iter().map(|n| n[3]));
-                    offsets.push((key, off));
-                    off
-                }
-            };
-            let inv = o.pose.inverse();
-            let gp = GpuPose::from(&inv);
-            let s = &o.sdf;
-            let up = s.upper();
-            descs.push(GpuGrid {
-                inv: gp.rows,
-                origin: [
-                    s.origin.x as f32,
-                    s.origin.y as f32,
-                    s.origin.z as f32,
-                    (1.0 / s.h) as f32,
-                ],
-                upper: [up.x as f32, up.y as f32, up.z as f32, s.margin as f32],
-                dims: [s.dims[0] as u32, s.dims[1] as u32, s.dims[2] as u32, offset],
-            });
-        }
-        // Node indices are computed in f32 on the GPU: exact below 2^24.
-        if node_data.len() >= 1 << 24 {
-            return Err(Error::InvalidInput(format!(
-                "the signed-distance grids have {} nodes; the GPU kernel takes fewer than 2^24 (lower the SDF resolution)",
-                node_data.len()
-            )));
-        }
-        if (node_data.len() as u64) * 4 > ctx.limits.max_items(1) {
-            return Err(Error::Gpu(format!(
-                "the signed-distance grids need {} MiB, more than one storage binding holds on this adapter; lower the SDF resolution",
-                (node_data.len() * 4) >> 20
-            )));
-        }
-        // Chunk: poses per dispatch within the binding limits.
-        let per_pose = if with_deltas {
-            (m * 4) as u64
-        } else {
-            (words * 8) as u64
-        };
-        let chunk = (ctx.limits.max_items(per_pose).min(ctx.limits.max_items(48)) as usize)
-            .min(max_chunk.max(1))
-            .min(ctx.limits.max_workgroups as usize * WG as usize);
-        if chunk == 0 {
-            return Err(Error::Gpu(
-                "one pose's output does not fit a storage binding".into(),
-            ));
-        }
+        let planes = plane_rows(env);
+        let (node_data, descs) = grid_block(ctx, env)?;
+        let chunk = chunk_size_for(ctx, m, words, with_deltas, max_chunk)?;
         let mut grid_block = [GpuGrid::zeroed(); MAX_GRIDS];
         grid_block[..descs.len()].copy_from_slice(&descs);
         let params = ContactParams {
@@ -192,102 +105,21 @@ impl GpuContacts {
             gravity: [g.x as f32, g.y as f32, g.z as f32, env.error_bound() as f32],
             planes,
         };
-        let samples: Vec<[f32; 4]> = body
-            .samples
-            .iter()
-            .map(|s| [s.x as f32, s.y as f32, s.z as f32, 0.0])
-            .collect();
-        let init = |label: &str, bytes: &[u8]| {
-            ctx.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents: bytes,
-                    usage: wgpu::BufferUsages::STORAGE,
-                })
-        };
-        let dummy_node = [0.0f32; 4];
-        let samples_buf = init("contacts samples", bytemuck::cast_slice(&samples));
-        let nodes = init(
-            "contacts nodes",
-            bytemuck::cast_slice(if node_data.is_empty() {
-                &dummy_node[..]
-            } else {
-                &node_data[..]
-            }),
-        );
-        let params_buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("contacts params"),
-            size: std::mem::size_of::<ContactParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let poses = storage(
-            ctx,
-            "contacts poses",
-            (chunk * 48) as u64,
-            wgpu::BufferUsages::COPY_DST,
-        );
-        let records = storage(
-            ctx,
-            "contacts records",
-            (chunk * 16) as u64,
-            wgpu::BufferUsages::COPY_SRC,
-        );
-        let bits = storage(
-            ctx,
-            "contacts bits",
-            (chunk * words * 8) as u64,
-            wgpu::BufferUsages::COPY_SRC,
-        );
-        let deltas = storage(
-            ctx,
-            "contacts deltas",
-            if with_deltas {
-                (chunk * m * 4) as u64
-            } else {
-                16
-            },
-            wgpu::BufferUsages::COPY_SRC,
-        );
-        // Own pipeline (not the context's cache): the scene's shape is baked
-        // in through override constants and the private array sizes.
-        let module = ctx
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("contacts"),
-                source: wgpu::ShaderSource::Wgsl(contacts_source(env.planes.len(), descs.len()).into()),
-            });
-        let constants = [
-            ("N_PLANES", env.planes.len() as f64),
-            ("N_GRIDS", descs.len() as f64),
-            ("WRITE_DELTAS", if with_deltas { 1.0 } else { 0.0 }),
-        ];
-        let pipeline = Arc::new(ctx.device.create_compute_pipeline(
-            &wgpu::ComputePipelineDescriptor {
-                label: Some("contacts"),
-                layout: None,
-                module: &module,
-                entry_point: Some("contacts_main"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &constants,
-                    zero_initialize_workgroup_memory: false,
-                },
-                cache: None,
-            },
-        ));
+        let b = ContactBuffers::new(ctx, body, &node_data, chunk, words, with_deltas);
+        let pipeline = contacts_pipeline(ctx, env.planes.len(), descs.len(), with_deltas);
         Ok(GpuContacts {
             ctx: ctx.clone(),
             body: body.clone(),
             env: env.clone(),
             params,
             pipeline,
-            samples: samples_buf,
-            nodes,
-            params_buf,
-            poses,
-            records,
-            bits,
-            deltas,
+            samples: b.samples,
+            nodes: b.nodes,
+            params_buf: b.params,
+            poses: b.poses,
+            records: b.records,
+            bits: b.bits,
+            deltas: b.deltas,
             chunk,
             with_deltas,
         })
@@ -461,6 +293,217 @@ pub(crate) fn finish_from_bits(
             finish(tally.intersecting, tally.contact, min, &tally.supported, pose.transform_point(body.com), env.gravity).0
         })
         .collect()
+}
+
+/// Refuses scenes the kernel cannot take: too many planes or objects, an
+/// ε the grids cannot resolve, a body without samples.
+fn check_scene(body: &Body, env: &Environment) -> Result<()> {
+    if env.planes.len() > MAX_PLANES {
+        return Err(Error::InvalidInput(format!(
+            "the GPU contacts kernel takes at most {MAX_PLANES} planes, the scene has {}",
+            env.planes.len()
+        )));
+    }
+    if env.obstacles.len() > MAX_GRIDS {
+        return Err(Error::InvalidInput(format!(
+            "the GPU contacts kernel takes at most {MAX_GRIDS} other objects, the scene has {}",
+            env.obstacles.len()
+        )));
+    }
+    env.check_epsilon(body.epsilon)?;
+    if body.samples.is_empty() {
+        return Err(Error::InvalidInput(
+            "the body has no surface samples".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The planes as the uniform block holds them: unit normal and offset.
+fn plane_rows(env: &Environment) -> [[f32; 4]; MAX_PLANES] {
+    let mut planes = [[0.0f32; 4]; MAX_PLANES];
+    for (i, p) in env.planes.iter().enumerate() {
+        planes[i] = [
+            p.normal.x as f32,
+            p.normal.y as f32,
+            p.normal.z as f32,
+            p.normal.dot(p.point) as f32,
+        ];
+    }
+    planes
+}
+
+/// Each distinct grid's nodes once, and one descriptor per placed
+/// obstacle; checked against the kernel's and the adapter's limits.
+fn grid_block(ctx: &Context, env: &Environment) -> Result<(Vec<f32>, Vec<GpuGrid>)> {
+    // Grids: each distinct grid's nodes once, one descriptor per placement.
+    let mut node_data: Vec<f32> = Vec::new();
+    let mut offsets: Vec<(*const super::sdf::SdfGrid, u32)> = Vec::new();
+    let mut descs = Vec::new();
+    for o in &env.obstacles {
+        let key = Arc::as_ptr(&o.sdf);
+        let offset = match offsets.iter().find(|(k, _)| *k == key) {
+            Some((_, off)) => *off,
+            None => {
+                let off = node_data.len() as u32;
+                node_data.extend(o.sdf.nodes.iter().map(|n| n[3]));
+                offsets.push((key, off));
+                off
+            }
+        };
+        let inv = o.pose.inverse();
+        let gp = GpuPose::from(&inv);
+        let s = &o.sdf;
+        let up = s.upper();
+        descs.push(GpuGrid {
+            inv: gp.rows,
+            origin: [
+                s.origin.x as f32,
+                s.origin.y as f32,
+                s.origin.z as f32,
+                (1.0 / s.h) as f32,
+            ],
+            upper: [up.x as f32, up.y as f32, up.z as f32, s.margin as f32],
+            dims: [s.dims[0] as u32, s.dims[1] as u32, s.dims[2] as u32, offset],
+        });
+    }
+    // Node indices are computed in f32 on the GPU: exact below 2^24.
+    if node_data.len() >= 1 << 24 {
+        return Err(Error::InvalidInput(format!(
+            "the signed-distance grids have {} nodes; the GPU kernel takes fewer than 2^24 (lower the SDF resolution)",
+            node_data.len()
+        )));
+    }
+    if (node_data.len() as u64) * 4 > ctx.limits.max_items(1) {
+        return Err(Error::Gpu(format!(
+            "the signed-distance grids need {} MiB, more than one storage binding holds on this adapter; lower the SDF resolution",
+            (node_data.len() * 4) >> 20
+        )));
+    }
+    Ok((node_data, descs))
+}
+
+/// Poses per dispatch within the adapter's binding and workgroup limits.
+fn chunk_size_for(ctx: &Context, m: usize, words: usize, with_deltas: bool, max_chunk: usize) -> Result<usize> {
+    // Chunk: poses per dispatch within the binding limits.
+    let per_pose = if with_deltas {
+        (m * 4) as u64
+    } else {
+        (words * 8) as u64
+    };
+    let chunk = (ctx.limits.max_items(per_pose).min(ctx.limits.max_items(48)) as usize)
+        .min(max_chunk.max(1))
+        .min(ctx.limits.max_workgroups as usize * WG as usize);
+    if chunk == 0 {
+        return Err(Error::Gpu(
+            "one pose's output does not fit a storage binding".into(),
+        ));
+    }
+    Ok(chunk)
+}
+
+/// The kernel's buffers for one body and scene.
+struct ContactBuffers {
+    samples: wgpu::Buffer,
+    nodes: wgpu::Buffer,
+    params: wgpu::Buffer,
+    poses: wgpu::Buffer,
+    records: wgpu::Buffer,
+    bits: wgpu::Buffer,
+    deltas: wgpu::Buffer,
+}
+
+impl ContactBuffers {
+    fn new(ctx: &Context, body: &Body, node_data: &[f32], chunk: usize, words: usize, with_deltas: bool) -> ContactBuffers {
+        let m = body.samples.len();
+        let samples: Vec<[f32; 4]> = body
+            .samples
+            .iter()
+            .map(|s| [s.x as f32, s.y as f32, s.z as f32, 0.0])
+            .collect();
+        let init = |label: &str, bytes: &[u8]| {
+            ctx.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents: bytes,
+                    usage: wgpu::BufferUsages::STORAGE,
+                })
+        };
+        let dummy_node = [0.0f32; 4];
+        let samples_buf = init("contacts samples", bytemuck::cast_slice(&samples));
+        let nodes = init(
+            "contacts nodes",
+            bytemuck::cast_slice(if node_data.is_empty() {
+                &dummy_node[..]
+            } else {
+                node_data
+            }),
+        );
+        let params_buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("contacts params"),
+            size: std::mem::size_of::<ContactParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let poses = storage(
+            ctx,
+            "contacts poses",
+            (chunk * 48) as u64,
+            wgpu::BufferUsages::COPY_DST,
+        );
+        let records = storage(
+            ctx,
+            "contacts records",
+            (chunk * 16) as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let bits = storage(
+            ctx,
+            "contacts bits",
+            (chunk * words * 8) as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let deltas = storage(
+            ctx,
+            "contacts deltas",
+            if with_deltas {
+                (chunk * m * 4) as u64
+            } else {
+                16
+            },
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        ContactBuffers { samples: samples_buf, nodes, params: params_buf, poses, records, bits, deltas }
+    }
+}
+
+/// The kernel's own pipeline (not the context's cache): the scene's shape
+/// is baked in through override constants and the private array sizes.
+fn contacts_pipeline(ctx: &Context, n_planes: usize, n_grids: usize, with_deltas: bool) -> Arc<wgpu::ComputePipeline> {
+    let module = ctx
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("contacts"),
+            source: wgpu::ShaderSource::Wgsl(contacts_source(n_planes, n_grids).into()),
+        });
+    let constants = [
+        ("N_PLANES", n_planes as f64),
+        ("N_GRIDS", n_grids as f64),
+        ("WRITE_DELTAS", if with_deltas { 1.0 } else { 0.0 }),
+    ];
+    Arc::new(ctx.device.create_compute_pipeline(
+        &wgpu::ComputePipelineDescriptor {
+            label: Some("contacts"),
+            layout: None,
+            module: &module,
+            entry_point: Some("contacts_main"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &constants,
+                zero_initialize_workgroup_memory: false,
+            },
+            cache: None,
+        },
+    ))
 }
 
 #[cfg(test)]

@@ -123,6 +123,30 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
         .collect();
     let cos_t = params.cluster_deg.to_radians().cos();
 
+    let groups = leader_groups(&dirs, cos_t);
+    let mut out = Vec::new();
+    let groups = take_rolling_families(groups, &dirs, &settled, n, params, &mut out);
+    let groups = take_scattered(groups, &dirs, &settled, n, &mut out);
+    for g in &groups {
+        out.push(make_cluster(
+            ClusterKind::Pose,
+            &g.members,
+            &dirs,
+            &settled,
+            n,
+        ));
+    }
+    out.sort_by(|a, b| {
+        b.count
+            .cmp(&a.count)
+            .then(a.representatives.first().cmp(&b.representatives.first()))
+    });
+    out
+}
+
+/// Leader clustering of the gravity directions in index order, then one
+/// reassignment of every direction to the nearest final centre.
+fn leader_groups(dirs: &[DVec3], cos_t: f64) -> Vec<Group> {
     // Leader pass in index order.
     let mut groups: Vec<Group> = Vec::new();
     for (i, d) in dirs.iter().enumerate() {
@@ -158,14 +182,22 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
         assigned[best.0].sum += *d;
         assigned[best.0].members.push(i);
     }
-    let mut groups: Vec<Group> = assigned
-        .into_iter()
-        .filter(|g| !g.members.is_empty())
-        .collect();
+    assigned.into_iter().filter(|g| !g.members.is_empty()).collect()
 
-    let mut out = Vec::new();
+}
+
+/// Moves the groups that lie on great circles (rolling families) into
+/// `out` as circle clusters; returns the rest.
+fn take_rolling_families(
+    mut groups: Vec<Group>,
+    dirs: &[DVec3],
+    settled: &[&DropResult],
+    n: u64,
+    params: ClusterParams,
+    out: &mut Vec<Cluster>,
+) -> Vec<Group> {
     // Rolling families on great circles.
-    while let Some((axis, member_groups)) = find_circle(&groups, &dirs, params) {
+    while let Some((axis, member_groups)) = find_circle(&groups, dirs, params) {
         let mut members: Vec<usize> = member_groups
             .iter()
             .flat_map(|&g| groups[g].members.iter().copied())
@@ -176,8 +208,8 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
                 axis: canonical_sign(axis).to_array(),
             },
             &members,
-            &dirs,
-            &settled,
+            dirs,
+            settled,
             n,
         ));
         let mut keep = Vec::new();
@@ -188,8 +220,13 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
         }
         groups = keep;
     }
-    // Ball-like objects: most settled drops in many small clusters (each
-    // under 5 % of the drops, at least 20 of them).
+    groups
+}
+
+/// Ball-like objects: most settled drops in many small clusters (each
+/// under 5 % of the drops, at least 20 of them) become one scattered
+/// cluster in `out`; returns the rest.
+fn take_scattered(mut groups: Vec<Group>, dirs: &[DVec3], settled: &[&DropResult], n: u64, out: &mut Vec<Cluster>) -> Vec<Group> {
     let small = |g: &Group| (g.members.len() as f64) < (0.05 * n as f64).max(2.0);
     let small_groups: Vec<usize> = (0..groups.len()).filter(|&g| small(&groups[g])).collect();
     let small_drops: usize = small_groups.iter().map(|&g| groups[g].members.len()).sum();
@@ -202,8 +239,8 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
         out.push(make_cluster(
             ClusterKind::Scattered,
             &members,
-            &dirs,
-            &settled,
+            dirs,
+            settled,
             n,
         ));
         groups = groups
@@ -213,21 +250,7 @@ pub fn cluster(drops: &[DropResult], params: ClusterParams) -> Vec<Cluster> {
             .map(|(_, g)| g)
             .collect();
     }
-    for g in &groups {
-        out.push(make_cluster(
-            ClusterKind::Pose,
-            &g.members,
-            &dirs,
-            &settled,
-            n,
-        ));
-    }
-    out.sort_by(|a, b| {
-        b.count
-            .cmp(&a.count)
-            .then(a.representatives.first().cmp(&b.representatives.first()))
-    });
-    out
+    groups
 }
 
 fn nearest(groups: &[Group], d: DVec3, cos_t: f64) -> Option<usize> {

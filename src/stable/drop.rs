@@ -159,6 +159,29 @@ pub fn simulate(
     let v0 = (2.0 * g * (h0 - gap)).sqrt();
     let z0 = gap - lowest;
 
+    let (mut world, handle) = drop_world(body, params, q0, z0, v0);
+    let (settled, steps) = run_until_settled(&mut world, handle, body, params);
+    let (rotation, height) = match world.bodies.get(handle) {
+        Some(b) => {
+            let (q, t) = body_pose(b);
+            (q, t.z)
+        }
+        None => (q0, f64::NAN),
+    };
+    let gravity_in_model = (rotation.inverse() * DVec3::NEG_Z).normalize();
+    DropResult {
+        index,
+        settled,
+        steps,
+        rotation,
+        height,
+        gravity_in_model,
+    }
+}
+
+/// The world of one drop: the ground half-space and the body released at
+/// height `z0` with orientation `q0`, falling at `v0`.
+fn drop_world(body: &DropBody, params: &SimParams, q0: DQuat, z0: f64, v0: f64) -> (PhysicsWorld, RigidBodyHandle) {
     let mut world = PhysicsWorld::new();
     world.gravity = Vec3::new(0.0, 0.0, -9.81);
     let ip = &mut world.integration_parameters;
@@ -193,6 +216,12 @@ pub fn simulate(
             .insert_with_parent(collider, handle, &mut world.bodies);
     }
 
+    (world, handle)
+}
+
+/// Steps until the body has been still for `calm_time` in a statically
+/// stable pose, or the (size-scaled) time cap; returns (settled, steps).
+fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &DropBody, params: &SimParams) -> (bool, u32) {
     let time_scale = (body.diagonal / REFERENCE_DIAG).sqrt().max(1.0);
     let max_steps = (params.max_time * time_scale / params.dt).ceil().max(1.0) as u32;
     let calm_needed = (params.calm_time / params.dt).ceil().max(1.0) as u32;
@@ -213,15 +242,7 @@ pub fn simulate(
                 // Still for long enough: accept only a statically stable
                 // pose (centre of mass above the support polygon), not a
                 // body balanced on an edge that has not started to tip yet.
-                let p = b.position();
-                let r = p.rotation;
-                let q =
-                    DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
-                let t = DVec3::new(
-                    p.translation.x as f64,
-                    p.translation.y as f64,
-                    p.translation.z as f64,
-                );
+                let (q, t) = body_pose(b);
                 if supported(body, q, t) {
                     settled = true;
                     break;
@@ -232,26 +253,15 @@ pub fn simulate(
             calm = 0;
         }
     }
-    let (rotation, height) = match world.bodies.get(handle) {
-        Some(b) => {
-            let p = b.position();
-            let r = p.rotation;
-            (
-                DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize(),
-                p.translation.z as f64,
-            )
-        }
-        None => (q0, f64::NAN),
-    };
-    let gravity_in_model = (rotation.inverse() * DVec3::NEG_Z).normalize();
-    DropResult {
-        index,
-        settled,
-        steps,
-        rotation,
-        height,
-        gravity_in_model,
-    }
+    (settled, steps)
+}
+
+/// A rigid body's pose in f64.
+fn body_pose(b: &rapier3d::dynamics::RigidBody) -> (DQuat, DVec3) {
+    let p = b.position();
+    let r = p.rotation;
+    let q = DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
+    (q, DVec3::new(p.translation.x as f64, p.translation.y as f64, p.translation.z as f64))
 }
 
 /// Whether the body at rotation `q`, translation `t` is statically stable
