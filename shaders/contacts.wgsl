@@ -36,7 +36,7 @@ const GRID_SLOTS: u32 = 16u;
 // straight up) is refined exactly.
 const REFINE_COS: f32 = -0.99;
 
-struct Grid {
+struct GpuGrid {
     // World -> grid-model rows [Rᵀ | −Rᵀt] (row i of Rᵀ is column i of R).
     inv: array<vec4<f32>, 3>,
     // Node (0,0,0) (xyz) and the inverse node spacing 1/h (w).
@@ -47,7 +47,7 @@ struct Grid {
     dims: vec4<u32>,
 }
 
-struct Params {
+struct ContactParams {
     n_hyp: u32, n_samples: u32, n_planes: u32, n_grids: u32,
     eps: f32, support_cos: f32, write_deltas: u32, words: u32,
     // This dispatch classifies sample words [word_begin, word_end) and
@@ -61,22 +61,22 @@ struct Params {
     planes: array<vec4<f32>, 4>,
     // Up to 16 placed grids (in the uniform block: read for every sample,
     // and uniform loads are the cheapest kind on every adapter).
-    grids: array<Grid, 16>,
+    grids: array<GpuGrid, 16>,
 }
 
 // Model -> world rows [R | t].
-struct Pose { rows: array<vec4<f32>, 3> }
+struct GpuPose { rows: array<vec4<f32>, 3> }
 
 
-struct Record { intersecting: u32, contact: u32, supported: u32, min_delta: f32 }
+struct ContactRecord { intersecting: u32, contact: u32, supported: u32, min_delta: f32 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<uniform> params: ContactParams;
 @group(0) @binding(1) var<storage, read> samples: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> poses: array<Pose>;
+@group(0) @binding(2) var<storage, read> poses: array<GpuPose>;
 // Per node: signed distance (the normals stay on the CPU; the GPU takes
 // them from the interpolant's gradient).
 @group(0) @binding(4) var<storage, read> dist: array<f32>;
-@group(0) @binding(5) var<storage, read_write> records: array<Record>;
+@group(0) @binding(5) var<storage, read_write> records: array<ContactRecord>;
 @group(0) @binding(6) var<storage, read_write> support_bits: array<u32>;
 @group(0) @binding(7) var<storage, read_write> deltas: array<f32>;
 
@@ -235,6 +235,6 @@ fn contacts_main(
             support_bits[2u * h * params.words + w] = bits;
             support_bits[(2u * h + 1u) * params.words + w] = rbits;
         }
-        records[h] = Record(cnt.x, cnt.y, cnt.z, mn);
+        records[h] = ContactRecord(cnt.x, cnt.y, cnt.z, mn);
     }
 }

@@ -20,21 +20,21 @@
 //
 // CPU twin: src/kernels/raster.rs (raster_ids, resolve).
 
-struct Params {
+struct RasterParams {
     fx: f32, fy: f32, cx: f32, cy: f32,
     width: u32, height: u32, n_hyp: u32, n_tri: u32,
     id_bits: u32, cull: u32, radius: f32, tau: f32,
     alpha: f32, near: f32, n_obs: u32, first: u32,
 }
 
-struct Tri { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
+struct GpuTriangle { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
 
 // Rows of [R | t], model -> camera, metres.
-struct Pose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
+struct GpuPose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
 
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> tris: array<Tri>;
-@group(0) @binding(2) var<storage, read> poses: array<Pose>;
+@group(0) @binding(0) var<uniform> params: RasterParams;
+@group(0) @binding(1) var<storage, read> tris: array<GpuTriangle>;
+@group(0) @binding(2) var<storage, read> poses: array<GpuPose>;
 @group(0) @binding(3) var<storage, read_write> vis: array<atomic<u32>>;
 
 // Invocations per workgroup: 64 measured fastest on lavapipe (fewer
@@ -46,11 +46,11 @@ const BIG: i32 = 0x7fffffff;
 // Tight rectangle of what was drawn: (min x, min y, max x, max y).
 var<workgroup> drawn: array<atomic<i32>, 4>;
 
-fn rotate(p: Pose, v: vec3<f32>) -> vec3<f32> {
+fn rotate(p: GpuPose, v: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(p.r0.xyz, v), dot(p.r1.xyz, v), dot(p.r2.xyz, v));
 }
 
-fn transform(p: Pose, v: vec3<f32>) -> vec3<f32> {
+fn transform(p: GpuPose, v: vec3<f32>) -> vec3<f32> {
     return rotate(p, v) + vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
 }
 
@@ -63,14 +63,14 @@ fn project(v: vec3<f32>) -> vec2<f32> {
 }
 
 // Depth range of the hypothesis: its bounding sphere, clipped at near.
-fn depth_range(p: Pose) -> vec2<f32> {
+fn depth_range(p: GpuPose) -> vec2<f32> {
     return vec2<f32>(max(p.r2.w - params.radius, params.near), p.r2.w + params.radius);
 }
 
 // Pixel rectangle (x0, y0, x1, y1), inclusive, that can hold the
 // hypothesis: the projection of the box around its bounding sphere, clipped
 // to the image. x0 > x1 when it misses the image.
-fn screen_rect(p: Pose) -> vec4<i32> {
+fn screen_rect(p: GpuPose) -> vec4<i32> {
     let c = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
     let r = params.radius;
     let full = vec4<i32>(0, 0, i32(params.width) - 1, i32(params.height) - 1);
@@ -119,7 +119,7 @@ struct Setup {
     iz: vec3<f32>,
 }
 
-fn setup_triangle(p: Pose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
+fn setup_triangle(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
     var s: Setup;
     s.ok = false;
     let plane = tris[t].plane;
@@ -180,7 +180,7 @@ var<workgroup> big_list: array<u32, WG * PER_ROUND>;
 // so every invocation sees it) the tight rectangle of the drawn triangles.
 // Triangles are taken in rounds of WG * PER_ROUND: small ones are drawn by the
 // invocation that set them up, big ones queued and drawn cooperatively.
-fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
+fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
     if (lid == 0u) {
         atomicStore(&drawn[0], BIG);
         atomicStore(&drawn[1], BIG);
@@ -265,7 +265,7 @@ fn raster_slot(p: Pose, base: u32, lid: u32) -> vec4<i32> {
 // triangle's plane; vec4(0) where nothing was drawn. The pixel centre lies
 // inside the triangle, so the plane gives its depth; edge-on faces are
 // clamped to the hypothesis' depth range.
-fn resolve(p: Pose, key: u32, x: f32, y: f32) -> vec4<f32> {
+fn resolve(p: GpuPose, key: u32, x: f32, y: f32) -> vec4<f32> {
     if (key == EMPTY) {
         return vec4<f32>(0.0);
     }

@@ -11,14 +11,14 @@
 // Partial sums are reduced in workgroup memory; one 32-byte record per
 // hypothesis is written. CPU twin: src/kernels/score.rs (score_cpu).
 
-struct Record {
+struct ScoreRecord {
     score: f32, mean_ad: f32, mean_an: f32, valid: u32,
     rendered: u32, observed: u32, front: u32, behind: u32,
 }
 
 // Observed normal (xyz, zero if unknown) and depth (w, zero if invalid).
 @group(0) @binding(4) var<storage, read> observed: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read_write> records: array<Record>;
+@group(0) @binding(5) var<storage, read_write> records: array<ScoreRecord>;
 
 var<workgroup> s_sum: array<vec2<f32>, WG>;
 var<workgroup> s_cnt: array<vec4<u32>, WG>;
@@ -88,7 +88,7 @@ fn score_hypothesis(h: u32, slot: u32, lid: u32) {
         }
         if (lid == 0u) {
             let c = s_cnt[0];
-            var rec: Record;
+            var rec: ScoreRecord;
             rec.valid = params.n_obs + c.x;
             rec.rendered = c.y;
             rec.observed = params.n_obs;

@@ -28,7 +28,7 @@ pub const MAX_GRIDS: usize = 16;
 /// Invocations per workgroup (`WG` in the shader; checked by a test).
 pub const WG: u32 = 64;
 
-/// Uniform parameters (`Params` in the shader).
+/// Uniform parameters (`ContactParams` in the shader).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct ContactParams {
@@ -67,7 +67,7 @@ pub fn words_per_dispatch(planes: usize, grids: usize) -> usize {
     ((LOOP_BUDGET - setup) / per_word).max(1)
 }
 
-/// One placed grid (`Grid` in the shader).
+/// One placed grid (`GpuGrid` in the shader).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct GpuGrid {
@@ -97,10 +97,10 @@ mod tests {
         let mut params: Vec<(&str, usize)> =
             same!(ContactParams, n_hyp, n_samples, n_planes, n_grids, eps, support_cos, write_deltas, words, word_begin, word_end, gravity, planes, grids).to_vec();
         params.extend([("pad0", pad), ("pad1", pad + 4)]);
-        assert_layout(src, "Params", size_of::<ContactParams>(), &params);
-        assert_layout(src, "Grid", size_of::<GpuGrid>(), same!(GpuGrid, inv, origin, upper, dims));
-        assert_layout(src, "Pose", size_of::<GpuPose>(), same!(GpuPose, rows));
-        assert_layout(src, "Record", size_of::<ContactRecord>(), same!(ContactRecord, intersecting, contact, supported, min_delta));
+        assert_layout(src, "ContactParams", size_of::<ContactParams>(), &params);
+        assert_layout(src, "GpuGrid", size_of::<GpuGrid>(), same!(GpuGrid, inv, origin, upper, dims));
+        assert_layout(src, "GpuPose", size_of::<GpuPose>(), same!(GpuPose, rows));
+        assert_layout(src, "ContactRecord", size_of::<ContactRecord>(), same!(ContactRecord, intersecting, contact, supported, min_delta));
         assert!(CONTACTS_WGSL.contains(&format!("const WG: u32 = {WG}u;")));
         assert!(CONTACTS_WGSL.contains(&format!("const PLANE_SLOTS: u32 = {MAX_PLANES}u;")));
         assert!(CONTACTS_WGSL.contains(&format!("const GRID_SLOTS: u32 = {MAX_GRIDS}u;")));

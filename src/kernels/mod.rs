@@ -4,8 +4,9 @@
 //! `depth`, `score`, `plane_contacts` (the score kernel's fused plane
 //! stage) and `contacts` (its layouts; the dispatch takes the physical scene
 //! and lives in `physical::gpu`). Each owns its WGSL file's `#[repr(C)]`
-//! structs; the layouts several kernels share ([`GpuPose`], [`ContactRecord`],
-//! [`GpuTriangle`], [`RasterParams`]) live here. `physical` imports
+//! structs, named as in the WGSL (checked field by field); the layouts several
+//! kernels share ([`GpuPose`], [`ContactRecord`], [`GpuTriangle`],
+//! [`RasterParams`]) live here. `physical` imports
 //! `kernels`, never the reverse.
 //!
 //! The visual kernels rasterize in a compute shader (see `raster`): one
@@ -127,8 +128,8 @@ impl GpuPose {
     }
 }
 
-/// Per-hypothesis physical result (`Record` in `contacts.wgsl`,
-/// `ContactRecord` in `plane_contacts.wgsl`): shared by both kernels.
+/// Per-hypothesis physical result (`ContactRecord` in `contacts.wgsl` and
+/// `plane_contacts.wgsl`): shared by both kernels.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct ContactRecord {
@@ -139,7 +140,7 @@ pub struct ContactRecord {
 }
 const _: () = assert!(std::mem::size_of::<ContactRecord>() == 16);
 
-/// Uniform parameters of the visual kernels (must match `Params` in
+/// Uniform parameters of the visual kernels (`RasterParams` in
 /// `shaders/raster.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -292,11 +293,11 @@ mod tests {
         macro_rules! same {
             ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
         }
-        wgsl_layout::assert_layout(src, "Params", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_tri, id_bits, cull, radius, tau, alpha, near, n_obs, first));
-        wgsl_layout::assert_layout(src, "Tri", size_of::<GpuTriangle>(), same!(GpuTriangle, v0, v1, v2, plane));
+        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_tri, id_bits, cull, radius, tau, alpha, near, n_obs, first));
+        wgsl_layout::assert_layout(src, "GpuTriangle", size_of::<GpuTriangle>(), same!(GpuTriangle, v0, v1, v2, plane));
         let rows = offset_of!(GpuPose, rows);
-        wgsl_layout::assert_layout(src, "Pose", size_of::<GpuPose>(), &[("r0", rows), ("r1", rows + 16), ("r2", rows + 32)]);
-        wgsl_layout::assert_layout(src, "Record", size_of::<score::ScoreRecord>(), same!(score::ScoreRecord, score, mean_ad, mean_an, valid, rendered, observed, front, behind));
+        wgsl_layout::assert_layout(src, "GpuPose", size_of::<GpuPose>(), &[("r0", rows), ("r1", rows + 16), ("r2", rows + 32)]);
+        wgsl_layout::assert_layout(src, "ScoreRecord", size_of::<score::ScoreRecord>(), same!(score::ScoreRecord, score, mean_ad, mean_an, valid, rendered, observed, front, behind));
         use plane_contacts::PlaneParams;
         wgsl_layout::assert_layout(src, "PlaneParams", size_of::<PlaneParams>(), same!(PlaneParams, plane, n_samples, words, eps, pad));
         wgsl_layout::assert_layout(src, "ContactRecord", size_of::<ContactRecord>(), same!(ContactRecord, intersecting, contact, supported, min_delta));
