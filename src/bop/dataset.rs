@@ -15,6 +15,7 @@ use serde::de::DeserializeOwned;
 use serde::Deserialize;
 
 use crate::camera::Intrinsics;
+use crate::observation::{png_size, MAX_IMAGE_SIDE};
 use crate::error::{Error, Result};
 use crate::pose::Pose;
 
@@ -131,10 +132,6 @@ pub struct Dataset {
     /// Image size from the dataset's `camera.json`, when it has one.
     pub image_size: Option<(u32, u32)>,
 }
-
-/// Largest image side we read (BOP's largest images are 2400 px a side;
-/// the CPU renderer holds a z-buffer of the whole image per thread).
-pub const MAX_IMAGE_SIDE: u32 = 4096;
 
 impl Dataset {
     /// Opens `root` (the folder holding `models*/` and `<split>/`).
@@ -280,10 +277,7 @@ impl Scene {
         if let Some(s) = self.image_size {
             return Ok(s);
         }
-        let path = self.depth_path(im_id);
-        let reader = image::ImageReader::open(&path).map_err(|e| Error::io(&path, e))?;
-        let reader = reader.with_guessed_format().map_err(|e| Error::io(&path, e))?;
-        reader.into_dimensions().map_err(|e| Error::BadImage { path: path.clone(), reason: e.to_string() })
+        png_size(&self.depth_path(im_id))
     }
 
     /// Reads an image's depth as the BOP toolkit does (value × depth_scale,
@@ -293,15 +287,11 @@ impl Scene {
         let path = self.depth_path(im_id);
         let cam = self.frame_camera(im_id)?;
         let bad = |reason: String| Error::BadImage { path: path.clone(), reason };
-        let reader = image::ImageReader::open(&path).map_err(|e| Error::io(&path, e))?;
-        let reader = reader.with_guessed_format().map_err(|e| Error::io(&path, e))?;
-        let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;
+        let (w, h) = png_size(&path)?;
         if let Some((cw, ch)) = self.image_size {
             if (w, h) != (cw, ch) {
                 return Err(bad(format!("depth is {w}x{h} but the dataset's camera.json says {cw}x{ch}")));
             }
-        } else if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
-            return Err(bad(format!("depth is {w}x{h}; at most {MAX_IMAGE_SIDE} pixels a side are read")));
         }
         let img = image::open(&path).map_err(|e| bad(e.to_string()))?;
         let image::DynamicImage::ImageLuma16(img) = img else {
