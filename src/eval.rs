@@ -340,6 +340,15 @@ struct Frame {
     /// Image width (MSPD is scaled to 640 px).
     width: u32,
     depth: Option<DepthMm>,
+    /// The intrinsics checked against the depth image (when it is read).
+    intrinsics: Option<Intrinsics>,
+}
+
+impl Frame {
+    fn depth_and_intrinsics(&self) -> (&DepthMm, &Intrinsics) {
+        let d = self.depth.as_ref().expect("depth is read when rendering");
+        (d, self.intrinsics.as_ref().expect("intrinsics come with the depth"))
+    }
 }
 
 /// Evaluates `results` on `targets` of `ds`. `progress(images_done)` is
@@ -463,7 +472,7 @@ impl BatchCtx<'_> {
         let visib = self.visible_fractions(&frames, report)?;
         let mut targets = Vec::new();
         let mut pairs = Vec::new();
-        for (f, (im_id, tlist)) in frames.iter().zip(batch) {
+        for (fi, (im_id, tlist)) in batch.iter().enumerate() {
             let gt = &self.scene.gt[im_id];
             let objs: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
             for t in tlist.iter() {
@@ -471,7 +480,7 @@ impl BatchCtx<'_> {
                 let ti = targets.len();
                 for (rank, est) in ests.iter().enumerate() {
                     for (gt_id, g) in gt.iter().enumerate().filter(|(_, g)| g.obj_id == t.obj_id) {
-                        pairs.push((f.im_id, Pair { target: ti, est_rank: rank, est, gt_id, gt: *g }));
+                        pairs.push((fi, Pair { target: ti, est_rank: rank, est, gt_id, gt: *g }));
                     }
                 }
                 targets.push(TargetErrors {
@@ -482,14 +491,14 @@ impl BatchCtx<'_> {
             }
         }
         let t0 = Instant::now();
-        let mut errors: Vec<Vec<f64>> = pairs.par_iter().map(|(im, p)| self.point_errors(&frames, *im, p)).collect();
+        let mut errors: Vec<Vec<f64>> = pairs.par_iter().map(|(fi, p)| self.point_errors(&frames[*fi], p)).collect();
         report.time_s.point_errors_s += t0.elapsed().as_secs_f64();
         if self.opts.has(ErrorType::Vsd) {
             self.vsd_errors(&frames, &pairs, &mut errors, report)?;
         }
         let mut records = Vec::with_capacity(pairs.len());
-        for ((im_id, p), errs) in pairs.iter().zip(errors) {
-            records.push(self.record(*im_id, p, &errs));
+        for ((fi, p), errs) in pairs.iter().zip(errors) {
+            records.push(self.record(frames[*fi].im_id, p, &errs));
             targets[p.target].estimates[p.est_rank].errors.push((p.gt_id, errs));
         }
         Ok((targets, records))
@@ -507,18 +516,13 @@ impl BatchCtx<'_> {
                 }
                 let k = self.scene.frame_camera(im_id)?.k;
                 let depth = if self.need_depth { Some(self.scene.read_depth(im_id)?) } else { None };
-                let width = match &depth {
-                    Some(d) => d.width,
-                    None => self.scene.image_size(im_id)?.0,
+                let (width, intrinsics) = match &depth {
+                    Some(d) => (d.width, Some(self.scene.intrinsics(im_id, d.width, d.height)?)),
+                    None => (self.scene.image_size(im_id)?.0, None),
                 };
-                Ok(Frame { im_id, k, width, depth })
+                Ok(Frame { im_id, k, width, depth, intrinsics })
             })
             .collect()
-    }
-
-    fn intrinsics(&self, f: &Frame) -> Result<Intrinsics> {
-        let d = f.depth.as_ref().expect("depth is read when rendering");
-        self.scene.intrinsics(f.im_id, d.width, d.height)
     }
 
     /// Visible fraction of every instance of the batch's images, from
@@ -538,16 +542,9 @@ impl BatchCtx<'_> {
         let t0 = Instant::now();
         let mut out = HashMap::new();
         for f in frames {
-            let k = self.intrinsics(f)?;
-            let gt = &self.scene.gt[&f.im_id];
-            let mut fr = vec![0.0; gt.len()];
-            for (i, g) in gt.iter().enumerate() {
-                if let Some(m) = self.models.get(&g.obj_id) {
-                    let depth = f.depth.as_ref().expect("depth is read without scene_gt_info.json");
-                    let mesh = m.render.as_ref().expect("render mesh");
-                    fr[i] = visible_fraction(self.device, mesh, &g.pose, &k, depth, &f.k, self.opts.vsd_delta_mm)?;
-                }
-            }
+            let (depth, k) = f.depth_and_intrinsics();
+            let mesh_of = |obj: u32| self.models.get(&obj).and_then(|m| m.render.as_ref());
+            let fr = frame_visibility(self.device, &self.scene.gt[&f.im_id], mesh_of, depth, k, &f.k, self.opts.vsd_delta_mm)?;
             out.insert(f.im_id, fr);
         }
         report.time_s.render_s += t0.elapsed().as_secs_f64();
@@ -556,7 +553,7 @@ impl BatchCtx<'_> {
 
     /// MSSD, MSPD and the ADD family of one pair (normalized columns; VSD
     /// columns are filled later).
-    fn point_errors(&self, frames: &[Frame], im_id: u32, p: &Pair) -> Vec<f64> {
+    fn point_errors(&self, f: &Frame, p: &Pair) -> Vec<f64> {
         let m = &self.models[&p.est.obj_id];
         let d = m.info.diameter;
         let (e, g) = (&p.est.pose, &p.gt.pose);
@@ -567,7 +564,6 @@ impl BatchCtx<'_> {
             out[MSSD] = far(&|| pose_error::mssd(e, g, &m.pts, &m.syms)) / d;
         }
         if self.opts.has(ErrorType::Mspd) {
-            let f = frames.iter().find(|f| f.im_id == im_id).expect("frame of the pair");
             out[MSPD] = pose_error::mspd(e, g, &f.k, &m.pts, &m.syms) * (640.0 / f.width as f64);
         }
         let add = || far(&|| pose_error::add(e, g, &m.pts)) / d;
@@ -600,7 +596,7 @@ impl BatchCtx<'_> {
 
     /// Renders the batch's estimates and instances per object (one batched
     /// kernel call per object and camera) and fills the VSD columns.
-    fn vsd_errors(&self, frames: &[Frame], pairs: &[(u32, Pair)], errors: &mut [Vec<f64>], report: &mut EvalReport) -> Result<()> {
+    fn vsd_errors(&self, frames: &[Frame], pairs: &[(usize, Pair)], errors: &mut [Vec<f64>], report: &mut EvalReport) -> Result<()> {
         // Which pairs need renders (the toolkit's sphere shortcut gives 1).
         let need: Vec<bool> = pairs
             .iter()
@@ -609,19 +605,18 @@ impl BatchCtx<'_> {
         // Unique poses to render, grouped by object and camera (images with
         // the same intrinsics share one batched kernel call).
         let mut groups: BTreeMap<GroupKey, (Intrinsics, Vec<PoseMm>)> = BTreeMap::new();
-        let mut slot: HashMap<(u32, RenderKey), usize> = HashMap::new();
+        let mut slot: HashMap<(usize, RenderKey), usize> = HashMap::new();
         let mut idx = Vec::with_capacity(pairs.len());
-        for ((im, p), &n) in pairs.iter().zip(&need) {
+        for ((fi, p), &n) in pairs.iter().zip(&need) {
             if !n {
                 idx.push(None);
                 continue;
             }
-            let f = frames.iter().find(|f| f.im_id == *im).expect("frame");
-            let k = self.intrinsics(f)?;
-            let key = (p.est.obj_id, camera_key(&k));
-            let group = &mut groups.entry(key).or_insert_with(|| (k, Vec::new())).1;
+            let (_, k) = frames[*fi].depth_and_intrinsics();
+            let key = (p.est.obj_id, camera_key(k));
+            let group = &mut groups.entry(key).or_insert_with(|| (*k, Vec::new())).1;
             let mut add = |rk: RenderKey, pose: PoseMm| {
-                *slot.entry((*im, rk)).or_insert_with(|| {
+                *slot.entry((*fi, rk)).or_insert_with(|| {
                     group.push(pose);
                     group.len() - 1
                 })
@@ -639,16 +634,15 @@ impl BatchCtx<'_> {
         }
         report.time_s.render_s += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let images: HashMap<u32, VsdImage> =
-            frames.iter().map(|f| (f.im_id, VsdImage::new(f.depth.as_ref().expect("depth"), &f.k))).collect();
+        let images: Vec<VsdImage> = frames.iter().map(|f| VsdImage::new(f.depth_and_intrinsics().0, &f.k)).collect();
         let taus = &self.opts.vsd_taus;
-        errors.par_iter_mut().zip(pairs.par_iter().zip(idx.par_iter())).for_each(|(out, ((im, p), ix))| {
+        errors.par_iter_mut().zip(pairs.par_iter().zip(idx.par_iter())).for_each(|(out, ((fi, p), ix))| {
             let v = match ix {
                 None => vec![1.0; taus.len()],
                 Some((key, e, g)) => {
                     let r = &renders[key];
                     let d = self.models[&p.est.obj_id].info.diameter;
-                    vsd::vsd(&images[im], r[*e].as_ref(), r[*g].as_ref(), self.opts.vsd_delta_mm, taus, d)
+                    vsd::vsd(&images[*fi], r[*e].as_ref(), r[*g].as_ref(), self.opts.vsd_delta_mm, taus, d)
                 }
             };
             out[VSD0..].copy_from_slice(&v);
@@ -756,7 +750,6 @@ pub fn visible_fractions(ds: &Dataset, scene: &Scene, device: &Device, max_image
         let depth = scene.read_depth(im)?;
         let k = scene.intrinsics(im, depth.width, depth.height)?;
         let kk = scene.frame_camera(im)?.k;
-        let mut fr = Vec::with_capacity(gt.len());
         for g in gt {
             if !meshes.contains_key(&g.obj_id) {
                 let path = ds.model_path(g.obj_id);
@@ -764,14 +757,30 @@ pub fn visible_fractions(ds: &Dataset, scene: &Scene, device: &Device, max_image
                     if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
                 meshes.insert(g.obj_id, mesh);
             }
-            fr.push(match &meshes[&g.obj_id] {
-                Some(m) => visible_fraction(device, m, &g.pose, &k, &depth, &kk, vsd::DELTA_MM)?,
-                None => 0.0,
-            });
         }
-        out.insert(im, fr);
+        let mesh_of = |obj: u32| meshes.get(&obj).and_then(Option::as_ref);
+        out.insert(im, frame_visibility(device, gt, mesh_of, &depth, &k, &kk, vsd::DELTA_MM)?);
     }
     Ok(out)
+}
+
+/// Visible fractions of an image's instances (0 for objects without a
+/// render mesh), the BOP way ([`visible_fraction`]).
+fn frame_visibility<'m>(
+    device: &Device,
+    gt: &[GtInstance],
+    mesh_of: impl Fn(u32) -> Option<&'m RenderMesh>,
+    depth: &DepthMm,
+    k: &Intrinsics,
+    kk: &[f64; 9],
+    delta: f32,
+) -> Result<Vec<f64>> {
+    gt.iter()
+        .map(|g| match mesh_of(g.obj_id) {
+            Some(m) => visible_fraction(device, m, &g.pose, k, depth, kk, delta),
+            None => Ok(0.0),
+        })
+        .collect()
 }
 
 /// Matching and recalls over every target; fills the report's AR fields.
