@@ -254,7 +254,8 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
         return Err("the points span no volume (flat or degenerate hull)".into());
     }
     orient_outward(&hv, &mut ht);
-    if !hull_holds(&hv, &ht, &pts, tol) {
+    let size = diag as f32;
+    if !hull_holds(&hv, &ht, &pts, tol, size) {
         let jittered: Vec<Vec3> = pts.iter().enumerate().map(|(i, p)| *p + jitter(i) * (1e-4 * diag as f32)).collect();
         let (jv, mut jt) = hull(&jittered)?;
         orient_outward(&jv, &mut jt);
@@ -262,7 +263,7 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
             jittered.iter().enumerate().map(|(i, p)| ([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()], i)).collect();
         let back: Option<Vec<Vec3>> = jv.iter().map(|v| index.get(&[v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).map(|&i| pts[i])).collect();
         let back = back.ok_or("convex hull: the hull has vertices that are not input points")?;
-        if !hull_holds(&back, &jt, &pts, 20.0 * tol) {
+        if !hull_holds(&back, &jt, &pts, 20.0 * tol, size) {
             return Err("convex hull: the points are too degenerate for a reliable hull".into());
         }
         (hv, ht) = (back, jt);
@@ -301,15 +302,15 @@ fn jitter(i: usize) -> Vec3 {
 }
 
 /// Whether `(hv, ht)` is a closed, outward, convex surface holding every
-/// point of `pts` (within `tol`).
-fn hull_holds(hv: &[Vec3], ht: &[[u32; 3]], pts: &[Vec3], tol: f32) -> bool {
-    let scale = tol / 1e-5; // the size the tolerance was made from
+/// point of `pts` (within `tol`); `size` (the points' extent) decides which
+/// faces are slivers.
+fn hull_holds(hv: &[Vec3], ht: &[[u32; 3]], pts: &[Vec3], tol: f32, size: f32) -> bool {
     let planes: Vec<(Vec3, f32)> = ht
         .iter()
         .map(|t| {
             let (a, b, c) = (hv[t[0] as usize], hv[t[1] as usize], hv[t[2] as usize]);
             let n = (b - a).cross(c - a);
-            let n = if n.length() > SLIVER * scale * scale { n.normalize() } else { Vec3::ZERO };
+            let n = if n.length() > SLIVER * size * size { n.normalize() } else { Vec3::ZERO };
             (n, n.dot(a))
         })
         .collect();
