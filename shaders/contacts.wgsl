@@ -1,8 +1,9 @@
 // contacts: signed distance of every surface sample of every hypothesis to
 // the scene (analytic planes and signed-distance grids sampled
 // trilinearly), classified per eq. 6, 7 and 13 and reduced per hypothesis.
-// CPU twin: src/physical/contacts.rs (Environment::grid_distance is this
-// arithmetic in f64; the twin also refines near ±ε exactly).
+// CPU twin: contacts_cpu in src/kernels/contacts.rs (this arithmetic in
+// f32); the exact f64 evaluation the verdicts are checked against is
+// src/physical/contacts.rs, which also refines the flagged samples.
 //
 // One invocation per hypothesis (grid-stride): the invocations of a
 // workgroup walk the same samples in lockstep, so sample loads and loop

@@ -528,6 +528,48 @@ mod gpu {
         eprintln!("worst per-sample |δ_gpu - δ_exact| = {worst:.2e} m (bound {bound:.2e})");
         assert!(worst <= bound, "{worst} > {bound}");
     }
+
+    /// The kernel and its f32 CPU twin (`kernels::contacts::contacts_cpu`)
+    /// on the same plain inputs: every per-sample δ within 1e-5 m (the GPU
+    /// may fuse multiply-adds), and the counts, bits and minima of at least
+    /// 99.5 % of the poses identical (a sample exactly on a class boundary
+    /// may fall either way in the last bit).
+    #[test]
+    fn gpu_contacts_kernel_matches_its_f32_twin() {
+        use plausible::kernels::contacts::{contacts_cpu, ContactsKernel};
+        use plausible::kernels::GpuPose;
+        use plausible::physical::gpu::contact_scene;
+        let ctx = plausible::gpu::test_context();
+        let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
+        let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
+        let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());
+        let (lo, _) = cyl.bounds();
+        let env = Environment {
+            planes: vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }],
+            obstacles: vec![Obstacle { sdf: grid, pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.0, 0.0, -lo.z)) }],
+            gravity: DVec3::new(0.0, 0.0, -9.81),
+        };
+        let body = Body::new(&cube, 512, 5, None).unwrap();
+        let poses: Vec<GpuPose> = near_contact_poses(2000, &cube).iter().map(GpuPose::from).collect();
+        let scene = contact_scene(&body, &env);
+        let gpu = ContactsKernel::new(&ctx, &scene, 4096, true).unwrap().run(&poses).unwrap();
+        let cpu = contacts_cpu(&scene, &poses, true);
+        assert_eq!(gpu.deltas.len(), cpu.deltas.len());
+        let worst = gpu.deltas.iter().zip(&cpu.deltas).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst <= 1e-5, "per-sample δ differs by {worst:e} m");
+        let words = scene.words();
+        let same = (0..poses.len())
+            .filter(|&i| {
+                let (g, c) = (gpu.records[i], cpu.records[i]);
+                (g.intersecting, g.contact, g.supported) == (c.intersecting, c.contact, c.supported)
+                    && (g.min_delta - c.min_delta).abs() <= 1e-5
+                    && gpu.bits[i * 2 * words..(i + 1) * 2 * words] == cpu.bits[i * 2 * words..(i + 1) * 2 * words]
+            })
+            .count();
+        eprintln!("kernel vs f32 twin: {same}/{} poses identical, worst δ {worst:e} m", poses.len());
+        assert!(same * 1000 >= poses.len() * 995, "{same} of {} poses identical", poses.len());
+        assert!(cpu.records.iter().any(|r| r.supported > 0) && cpu.refined_count(words) > 0, "the poses exercise support and refinement");
+    }
 }
 
 #[test]

@@ -2,8 +2,9 @@
 //! vello): `raster` (the compute rasterizer all visual kernels share, with
 //! the twin `raster_ids`/`resolve`, buffers and wave dispatch), `render`,
 //! `depth`, `score`, `plane_contacts` (the score kernel's fused plane
-//! stage) and `contacts` (its layouts; the dispatch takes the physical scene
-//! and lives in `physical::gpu`). Each owns its WGSL file's `#[repr(C)]`
+//! stage) and `contacts` (contact classification over plain scene data;
+//! `physical::gpu` builds that data from a physical scene and finishes the
+//! verdicts). Each has its CPU twin beside it and owns its WGSL file's `#[repr(C)]`
 //! structs, named as in the WGSL (checked field by field); the layouts several
 //! kernels share ([`GpuPose`], [`ContactRecord`], [`GpuTriangle`],
 //! [`RasterParams`]) live here. `physical` imports
