@@ -98,7 +98,8 @@ impl MassProperties {
             // integration is not a solid's; use the hull instead.
             if let Ok((hv, ht)) = convex_hull(&mesh.vertices) {
                 let hull = integrate(&hv, &ht);
-                if !inside_hull(&hv, &ht, hull.volume, props.com) || props.volume > hull.volume.abs() * 1.001 {
+                let outside = outside_planes(&hull_planes(&hv, &ht), props.com);
+                if outside > 1e-9 * mesh.diagonal() || props.volume > hull.volume.abs() * 1.001 {
                     warnings.push(format!(
                         "{name}: the closed surface does not bound one solid (its centre of mass or volume exceeds \
                          the convex hull: intersecting or inconsistently wound bodies); mass properties are computed \
@@ -135,16 +136,40 @@ impl MassProperties {
     }
 }
 
-/// Whether `p` lies inside (or within a relative 1e-9 of) the convex hull
-/// `(verts, tris)`, whose signed volume `volume` tells its winding.
-fn inside_hull(verts: &[DVec3], tris: &[[u32; 3]], volume: f64, p: DVec3) -> bool {
-    let sign = if volume < 0.0 { -1.0 } else { 1.0 };
-    let scale = verts.iter().fold(0.0f64, |m, v| m.max(v.length())).max(f64::MIN_POSITIVE);
-    tris.iter().all(|t| {
-        let (a, b, c) = (verts[t[0] as usize], verts[t[1] as usize], verts[t[2] as usize]);
-        let n = (b - a).cross(c - a);
-        sign * n.dot(p - a) <= 1e-9 * scale * n.length()
-    })
+/// A hull face is a sliver, left out of containment tests, when its normal
+/// is rounding noise: its corners are collinear to about 1e-6 rad (doubled
+/// area below `SLIVER_REL` × its squared longest edge), or its doubled area
+/// is below `SLIVER_ABS` × the squared size of the hull, where the f32
+/// rounding of its corners tilts its plane enough to misplace points across
+/// the object. The one rule for every hull test (mass properties, the hull's
+/// own check, the stable-pose analysis).
+pub const SLIVER_REL: f64 = 1e-6;
+/// See [`SLIVER_REL`].
+pub const SLIVER_ABS: f64 = 1e-9;
+
+/// Unit normal and offset (`n·x = d`) of the triangle `(a, b, c)` of a hull
+/// of extent `size` (normal by the right-hand rule), or a zero normal for a
+/// sliver ([`SLIVER_REL`]).
+pub fn face_plane(a: DVec3, b: DVec3, c: DVec3, size: f64) -> (DVec3, f64) {
+    let n = (b - a).cross(c - a);
+    let edge2 = (b - a).length_squared().max((c - b).length_squared()).max((a - c).length_squared());
+    let area2 = n.length();
+    let n = if area2 > SLIVER_REL * edge2 && area2 > SLIVER_ABS * size * size { n.normalize() } else { DVec3::ZERO };
+    (n, n.dot(a))
+}
+
+/// The face planes of a hull (zero normals for slivers), its extent taken
+/// from its vertices' bounding box.
+pub fn hull_planes(verts: &[DVec3], tris: &[[u32; 3]]) -> Vec<(DVec3, f64)> {
+    let (lo, hi) = verts.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), v| (l.min(*v), h.max(*v)));
+    let size = (hi - lo).length();
+    tris.iter().map(|t| face_plane(verts[t[0] as usize], verts[t[1] as usize], verts[t[2] as usize], size)).collect()
+}
+
+/// Largest distance of `p` outside the non-sliver planes of an outward hull
+/// (negative inside; −∞ when every face is a sliver).
+pub fn outside_planes(planes: &[(DVec3, f64)], p: DVec3) -> f64 {
+    planes.iter().filter(|(n, _)| *n != DVec3::ZERO).map(|(n, d)| n.dot(p) - d).fold(f64::NEG_INFINITY, f64::max)
 }
 
 /// Rejects solids whose volume is negligible against their bounding box
@@ -236,10 +261,8 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
         return Err("all points coincide".into());
     }
     let pts: Vec<Vec3> = points.iter().map(|p| (*p - centre).as_vec3()).collect();
-    let hull = |pts: &[Vec3]| {
-        rapier3d::parry::transformation::try_convex_hull(pts).map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))
-    };
-    let (mut hv, mut ht) = hull(&pts)?;
+    let (mut hv, mut ht) = rapier3d::parry::transformation::try_convex_hull(&pts)
+        .map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))?;
     if ht.len() < 4 {
         return Err("the points span no volume (flat or degenerate hull)".into());
     }
@@ -254,21 +277,29 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
         return Err("the points span no volume (flat or degenerate hull)".into());
     }
     orient_outward(&hv, &mut ht);
-    let size = diag as f32;
-    if !hull_holds(&hv, &ht, &pts, tol, size) {
-        let jittered: Vec<Vec3> = pts.iter().enumerate().map(|(i, p)| *p + jitter(i) * (1e-4 * diag as f32)).collect();
-        let (jv, mut jt) = hull(&jittered)?;
-        orient_outward(&jv, &mut jt);
-        let index: std::collections::HashMap<[u32; 3], usize> =
-            jittered.iter().enumerate().map(|(i, p)| ([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()], i)).collect();
-        let back: Option<Vec<Vec3>> = jv.iter().map(|v| index.get(&[v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).map(|&i| pts[i])).collect();
-        let back = back.ok_or("convex hull: the hull has vertices that are not input points")?;
-        if !hull_holds(&back, &jt, &pts, 20.0 * tol, size) {
-            return Err("convex hull: the points are too degenerate for a reliable hull".into());
-        }
-        (hv, ht) = (back, jt);
+    if !hull_holds(&hv, &ht, &pts, tol) {
+        (hv, ht) = jittered_hull(&pts, diag as f32, tol)?;
     }
     Ok((hv.iter().map(|v| v.as_dvec3() + centre).collect(), ht))
+}
+
+/// The hull of `pts` (centred, extent `diag`) built from the points moved
+/// by a deterministic jitter of 1e-4 of the size, which breaks the
+/// coplanarity that trips quickhull, with the jittered points taken back;
+/// checked to hold every point within `20 · tol`.
+fn jittered_hull(pts: &[Vec3], diag: f32, tol: f32) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), String> {
+    let jittered: Vec<Vec3> = pts.iter().enumerate().map(|(i, p)| *p + jitter(i) * (1e-4 * diag)).collect();
+    let (jv, mut jt) = rapier3d::parry::transformation::try_convex_hull(&jittered)
+        .map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))?;
+    orient_outward(&jv, &mut jt);
+    let index: std::collections::HashMap<[u32; 3], usize> =
+        jittered.iter().enumerate().map(|(i, p)| ([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()], i)).collect();
+    let back: Option<Vec<Vec3>> = jv.iter().map(|v| index.get(&[v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).map(|&i| pts[i])).collect();
+    let back = back.ok_or("convex hull: the hull has vertices that are not input points")?;
+    if !hull_holds(&back, &jt, pts, 20.0 * tol) {
+        return Err("convex hull: the points are too degenerate for a reliable hull".into());
+    }
+    Ok((back, jt))
 }
 
 /// Winds every face of a convex hull outward (away from the mean of its
@@ -284,11 +315,6 @@ fn orient_outward(hv: &[Vec3], ht: &mut [[u32; 3]]) {
     }
 }
 
-/// Faces whose doubled area is below this fraction of the squared size are
-/// slivers: their normal is rounding noise, so they take no part in
-/// containment tests (they add nothing to the volume either).
-pub const SLIVER: f32 = 1e-9;
-
 /// A deterministic pseudo-random vector in [-1, 1]³ for point `i`.
 fn jitter(i: usize) -> Vec3 {
     let mut x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
@@ -302,20 +328,12 @@ fn jitter(i: usize) -> Vec3 {
 }
 
 /// Whether `(hv, ht)` is a closed, outward, convex surface holding every
-/// point of `pts` (within `tol`); `size` (the points' extent) decides which
-/// faces are slivers.
-fn hull_holds(hv: &[Vec3], ht: &[[u32; 3]], pts: &[Vec3], tol: f32, size: f32) -> bool {
-    let planes: Vec<(Vec3, f32)> = ht
-        .iter()
-        .map(|t| {
-            let (a, b, c) = (hv[t[0] as usize], hv[t[1] as usize], hv[t[2] as usize]);
-            let n = (b - a).cross(c - a);
-            let n = if n.length() > SLIVER * size * size { n.normalize() } else { Vec3::ZERO };
-            (n, n.dot(a))
-        })
-        .collect();
-    let vol: f32 = ht.iter().map(|t| hv[t[0] as usize].dot(hv[t[1] as usize].cross(hv[t[2] as usize]))).sum();
-    vol > 0.0 && planes.iter().all(|(n, d)| *n == Vec3::ZERO || pts.iter().all(|p| n.dot(*p) - d <= tol))
+/// point of `pts` within `tol` (tested in f64 with the one sliver rule).
+fn hull_holds(hv: &[Vec3], ht: &[[u32; 3]], pts: &[Vec3], tol: f32) -> bool {
+    let hv: Vec<DVec3> = hv.iter().map(|v| v.as_dvec3()).collect();
+    let vol: f64 = ht.iter().map(|t| hv[t[0] as usize].dot(hv[t[1] as usize].cross(hv[t[2] as usize]))).sum();
+    let planes = hull_planes(&hv, ht);
+    vol > 0.0 && pts.iter().all(|p| outside_planes(&planes, p.as_dvec3()) <= tol as f64)
 }
 
 #[cfg(test)]
@@ -393,5 +411,46 @@ mod tests {
             err.contains("zero volume") || err.contains("no volume"),
             "{err}"
         );
+    }
+
+    /// The jittered retry: on the points of a subdivided duck (many
+    /// coplanar points, where quickhull alone can leave points out) the
+    /// retried hull holds every point, its vertices are input points, and it
+    /// agrees with the plain hull's volume where that one holds.
+    #[test]
+    fn jittered_retry_holds_every_point_of_a_subdivided_mesh() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck_vhacd.obj");
+        let (duck, _) = crate::mesh::Mesh::load(path, crate::mesh::MeshUnits::Metres).unwrap();
+        let dense = duck.subdivided(2);
+        let (lo, hi) = dense.bounds();
+        let (centre, diag) = (0.5 * (lo + hi), (hi - lo).length());
+        let pts: Vec<Vec3> = dense.vertices.iter().map(|p| (*p - centre).as_vec3()).collect();
+        let tol = 1e-5 * diag as f32;
+        let (hv, ht) = jittered_hull(&pts, diag as f32, tol).unwrap();
+        assert!(hull_holds(&hv, &ht, &pts, 20.0 * tol));
+        assert!(hv.iter().all(|v| pts.contains(v)), "hull vertices are input points");
+        let (fv, ft) = convex_hull(&dense.vertices).unwrap();
+        let vol = |v: &[DVec3], t: &[[u32; 3]]| integrate(v, t).volume;
+        let jv: Vec<DVec3> = hv.iter().map(|v| v.as_dvec3() + centre).collect();
+        let (a, b) = (vol(&jv, &ht), vol(&fv, &ft));
+        assert!((a - b).abs() <= 1e-3 * b, "volumes {a} vs {b}");
+    }
+
+    /// One sliver rule: a needle face has no plane, nor a face at the
+    /// rounding level of the hull's size; a small well-shaped face keeps its
+    /// normal.
+    #[test]
+    fn slivers_have_no_plane_and_small_faces_keep_theirs() {
+        let (n, _) = face_plane(DVec3::ZERO, DVec3::X, DVec3::new(0.5, 1e-9, 0.0), 1.0);
+        assert_eq!(n, DVec3::ZERO, "needle");
+        let (n, d) = face_plane(DVec3::ZERO, DVec3::X * 1e-3, DVec3::Y * 1e-3, 1.0);
+        assert!((n - DVec3::Z).length() < 1e-12 && d == 0.0, "small but well shaped");
+        let (n, _) = face_plane(DVec3::ZERO, DVec3::X * 1e-5, DVec3::Y * 1e-5, 1.0);
+        assert_eq!(n, DVec3::ZERO, "at rounding level of a 1 m hull");
+        let b = shapes::cuboid(DVec3::splat(0.5));
+        let (hv, ht) = convex_hull(&b.vertices).unwrap();
+        let planes = hull_planes(&hv, &ht);
+        assert!((outside_planes(&planes, DVec3::ZERO) + 0.5).abs() < 1e-6);
+        assert!((outside_planes(&planes, DVec3::new(0.0, 0.0, 0.7)) - 0.2).abs() < 1e-6);
     }
 }

@@ -123,7 +123,7 @@ pub fn stable_poses(hull: &Hull, com: DVec3, params: AnalyticParams) -> Result<A
 /// tolerance); returns the facets and each triangle's facet.
 fn merge_facets(hull: &Hull, params: AnalyticParams, diag: f64) -> (Vec<Facet>, Vec<usize>) {
     let ntri = hull.triangles.len();
-    let planes: Vec<(DVec3, f64)> = (0..ntri).map(|i| hull.plane(i)).collect();
+    let planes = hull.planes();
     let areas: Vec<f64> = hull
         .triangles
         .iter()

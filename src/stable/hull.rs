@@ -11,7 +11,7 @@
 use glam::DVec3;
 
 use crate::error::{Error, Result};
-use crate::mesh::mass::convex_hull;
+use crate::mesh::mass::{convex_hull, hull_planes, outside_planes};
 
 /// A closed convex polyhedron with outward, counter-clockwise triangles.
 #[derive(Clone, Debug)]
@@ -19,10 +19,6 @@ pub struct Hull {
     pub vertices: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
 }
-
-/// Doubled area below this fraction of the squared longest edge makes a
-/// hull face a sliver (corners collinear to about 1e-6 rad).
-const SLIVER_REL: f64 = 1e-6;
 
 impl Hull {
     /// The convex hull of `points`; `name` is used in error messages.
@@ -44,37 +40,16 @@ impl Hull {
         (hi - lo).length()
     }
 
-    /// Outward unit normal and plane offset (`n·x = d`) of triangle `i`.
-    pub fn plane(&self, i: usize) -> (DVec3, f64) {
-        let t = self.triangles[i];
-        let (a, b, c) = (
-            self.vertices[t[0] as usize],
-            self.vertices[t[1] as usize],
-            self.vertices[t[2] as usize],
-        );
-        // Slivers (near-zero area) have no reliable plane: their normal is
-        // rounding noise, so they are left out (zero normal) of the
-        // containment tests, like faces of zero area.
-        // (Measured against the longest edge: a sliver's corners are nearly
-        // collinear whatever its size.)
-        let n = (b - a).cross(c - a);
-        let edge2 = (b - a).length_squared().max((c - b).length_squared()).max((a - c).length_squared());
-        let n = if n.length() > SLIVER_REL * edge2 { n.normalize() } else { DVec3::ZERO };
-        (n, n.dot(a))
+    /// Outward unit normal and plane offset (`n·x = d`) of every triangle;
+    /// a zero normal for a sliver, whose normal is rounding noise (see
+    /// [`crate::mesh::mass::SLIVER_REL`]), so containment tests skip it.
+    pub fn planes(&self) -> Vec<(DVec3, f64)> {
+        hull_planes(&self.vertices, &self.triangles)
     }
 
     /// Largest distance of `p` outside any facet plane (negative inside).
     pub fn outside_distance(&self, p: DVec3) -> f64 {
-        (0..self.triangles.len())
-            .map(|i| {
-                let (n, d) = self.plane(i);
-                if n == DVec3::ZERO {
-                    f64::NEG_INFINITY
-                } else {
-                    n.dot(p) - d
-                }
-            })
-            .fold(f64::NEG_INFINITY, f64::max)
+        outside_planes(&self.planes(), p)
     }
 
     /// Simplified hull with at most `max_points` vertices (at least 4), by
@@ -118,14 +93,10 @@ impl Hull {
             if chosen.len() >= max_points.max(4) {
                 return Ok(hull);
             }
-            let planes: Vec<(DVec3, f64)> =
-                (0..hull.triangles.len()).map(|i| hull.plane(i)).collect();
+            let planes = hull.planes();
             let mut best = (usize::MAX, tolerance);
             for (i, p) in pts.iter().enumerate() {
-                let out = planes
-                    .iter()
-                    .map(|(n, d)| n.dot(*p) - d)
-                    .fold(f64::NEG_INFINITY, f64::max);
+                let out = outside_planes(&planes, *p);
                 if out > best.1 {
                     best = (i, out);
                 }
