@@ -152,6 +152,19 @@ fn gpu_plane_then_score_with_physics() {
     let list: Vec<serde_json::Value> = serde_json::from_slice(&std::fs::read(&hyps).unwrap()).unwrap();
     assert_eq!(list.len() % 24, 0);
     assert!(list[0].get("rest").is_some() && list[0].get("yaw_deg").is_some());
+    // The same plane's millimetre numbers declared as metres: the object is
+    // not on it, so no hypotheses 370 m away said to be centred on it.
+    let mut wrong: serde_json::Value = serde_json::from_slice(&std::fs::read(&plane).unwrap()).unwrap();
+    wrong["units"] = "m".into();
+    let wrong_path = dir.path().join("plane-m.json");
+    std::fs::write(&wrong_path, wrong.to_string()).unwrap();
+    let o = on_demo("hypotheses", &out).arg("--plane").arg(&wrong_path).arg("--out").arg(dir.path().join("h2.json")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("other units"), "{err}");
+    // A WGPU_BACKEND that names no backend is an error, not ignored.
+    let o = on_demo("score", &out).arg("--poses").arg(&hyps).args(["--device", "gpu"]).env("WGPU_BACKEND", "vulkan,nonsense").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("WGPU_BACKEND='vulkan,nonsense' names no backend"), "{err}");
     let scored = dir.path().join("hyps-scored.json");
     let o = on_demo("score", &out)
         .arg("--poses").arg(&hyps)

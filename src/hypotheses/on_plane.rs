@@ -230,6 +230,28 @@ fn observed_points(obs: &DepthImage, mask: &[bool]) -> Vec<DVec3> {
         .collect()
 }
 
+/// Refuses a plane the observed object does not stand on: the median
+/// height of its points above the plane must lie within one object size of
+/// the plane (a plane in the wrong units, or fitted to another surface,
+/// would otherwise place every hypothesis far from the object while the
+/// output says they are centred on it).
+fn check_object_on_plane(points: &[DVec3], to_plane: &Pose, diagonal: f64) -> Result<()> {
+    let mut heights: Vec<f64> = points.iter().map(|&x| to_plane.transform_point(x).z).collect();
+    heights.sort_by(f64::total_cmp);
+    let median = heights[heights.len() / 2];
+    if median < -0.5 * diagonal - 0.01 || median > 1.5 * diagonal + 0.01 {
+        return Err(Error::InvalidInput(format!(
+            "the object's observed points lie {:.3} m {} the support plane, and the object is {:.3} m across: \
+             is the plane in other units (\"units\": \"mm\" or \"m\"), or fitted to another surface?",
+            median.abs(),
+            if median < 0.0 { "below" } else { "above" },
+            diagonal
+        )));
+    }
+    Ok(())
+}
+
+
 /// Generates the hypotheses (see the module docs), in order of resting
 /// pose, then yaw, then offset.
 pub fn on_plane_hypotheses(
@@ -270,6 +292,7 @@ pub fn on_plane_hypotheses(
     let from_plane = to_plane.inverse();
     let centroid = |pts: &[DVec3]| pts.iter().map(|&x| to_plane.transform_point(x)).sum::<DVec3>().truncate() / pts.len() as f64;
     let observed = centroid(&points);
+    check_object_on_plane(&points, &to_plane, mesh.diagonal())?;
     let (mass, _) = MassProperties::of_mesh(mesh)?;
     let rmesh = RenderMesh::new(mesh)?;
     let k = obs.intrinsics;
