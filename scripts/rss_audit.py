@@ -74,7 +74,7 @@ def run(name, args, env=None):
     out = subprocess.run(["/usr/bin/time", "-f", "%M"] + args, capture_output=True, text=True, env=env)
     lines = out.stderr.strip().splitlines()
     rss_mb = int(lines[-1]) / 1024 if lines and lines[-1].isdigit() else float("nan")
-    tail = next((l for l in reversed(lines[:-1]) if l.strip()), "")[:110]
+    tail = next((l for l in reversed(lines[:-1]) if l.strip() and not l.startswith("Command exited")), "")[:110]
     bad = rss_mb >= LIMIT_MB or out.returncode in (101, 134) or math.isnan(rss_mb)
     print(f"{'FAIL' if bad else 'ok  '} {name:<38} exit {out.returncode:>3}  peak {rss_mb:8.1f} MB  {tail}", flush=True)
     return not bad

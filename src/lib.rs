@@ -28,6 +28,7 @@ pub mod metrics;
 pub mod observation;
 pub mod physical;
 pub mod pose;
+pub mod refine;
 pub mod support_plane;
 pub mod synth;
 pub mod visual;

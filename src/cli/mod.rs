@@ -9,6 +9,7 @@ pub mod demo;
 pub mod eval;
 pub mod hypotheses;
 pub mod plane;
+pub mod refine;
 pub mod score;
 pub mod stable;
 

@@ -96,24 +96,20 @@ impl MassProperties {
             // convex hull bounds every solid the vertices can make, so a
             // centre outside it (or more volume than it) means the closed
             // integration is not a solid's; use the hull instead.
-            if let Ok((hv, ht)) = convex_hull(&mesh.vertices) {
-                let hull = integrate(&hv, &ht);
-                let outside = outside_planes(&hull_planes(&hv, &ht), props.com);
-                if outside > 1e-9 * mesh.diagonal() || props.volume > hull.volume.abs() * 1.001 {
-                    warnings.push(format!(
-                        "{name}: the closed surface does not bound one solid (its centre of mass or volume exceeds \
-                         the convex hull: intersecting or inconsistently wound bodies); mass properties are computed \
-                         from the convex hull of its vertices"
-                    ));
-                    let mut props = hull;
-                    props.source = MassSource::ConvexHullFallback;
-                    if props.volume < 0.0 {
-                        props.volume = -props.volume;
-                        props.inertia_unit_density = -props.inertia_unit_density;
-                    }
-                    check_volume(&name, &props, mesh.diagonal())?;
-                    return Ok((props, warnings));
+            if let Some(hull) = hull_disagrees(&mesh.vertices, &props, mesh.diagonal()) {
+                warnings.push(format!(
+                    "{name}: the closed surface does not bound one solid (its centre of mass or volume exceeds \
+                     the convex hull: intersecting or inconsistently wound bodies); mass properties are computed \
+                     from the convex hull of its vertices"
+                ));
+                let mut props = hull;
+                props.source = MassSource::ConvexHullFallback;
+                if props.volume < 0.0 {
+                    props.volume = -props.volume;
+                    props.inertia_unit_density = -props.inertia_unit_density;
                 }
+                check_volume(&name, &props, mesh.diagonal())?;
+                return Ok((props, warnings));
             }
             return Ok((props, warnings));
         }
@@ -170,6 +166,30 @@ pub fn hull_planes(verts: &[DVec3], tris: &[[u32; 3]]) -> Vec<(DVec3, f64)> {
 /// (negative inside; −∞ when every face is a sliver).
 pub fn outside_planes(planes: &[(DVec3, f64)], p: DVec3) -> f64 {
     planes.iter().filter(|(n, _)| *n != DVec3::ZERO).map(|(n, d)| n.dot(p) - d).fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// Vertices whose hull is taken first in [`hull_disagrees`].
+const HULL_CHECK_POINTS: usize = 250_000;
+
+/// The mass properties of the vertices' convex hull when the closed
+/// integration `props` does not fit inside it (centre of mass outside, or
+/// more volume), else `None`. On large meshes the hull of an evenly strided
+/// subset is tried first (it lies inside the full hull, so agreement with
+/// it is agreement with the full one), and only a disagreement is confirmed
+/// on the full hull: a multi-million-vertex hull costs gigabytes.
+fn hull_disagrees(vertices: &[DVec3], props: &MassProperties, diagonal: f64) -> Option<MassProperties> {
+    let disagrees = |pts: &[DVec3]| -> Option<MassProperties> {
+        let (hv, ht) = convex_hull(pts).ok()?;
+        let hull = integrate(&hv, &ht);
+        let outside = outside_planes(&hull_planes(&hv, &ht), props.com);
+        (outside > 1e-9 * diagonal || props.volume > hull.volume.abs() * 1.001).then_some(hull)
+    };
+    if vertices.len() > HULL_CHECK_POINTS {
+        let stride = vertices.len().div_ceil(HULL_CHECK_POINTS);
+        let subset: Vec<DVec3> = vertices.iter().step_by(stride).copied().collect();
+        disagrees(&subset)?;
+    }
+    disagrees(vertices)
 }
 
 /// Rejects solids whose volume is negligible against their bounding box

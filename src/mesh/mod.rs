@@ -135,15 +135,23 @@ impl Mesh {
 
     /// Counts edges used by one face (boundary) and by more than two faces.
     pub fn edge_counts(&self) -> (usize, usize) {
-        let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(self.triangles.len() * 3);
-        for t in &self.triangles {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        // Sorted undirected edge keys (8 bytes each) rather than a hash map
+        // (about twice the memory on multi-million-triangle scans).
+        let mut edges: Vec<u64> = self
+            .triangles
+            .iter()
+            .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+            .map(|(a, b)| (a.min(b) as u64) << 32 | a.max(b) as u64)
+            .collect();
+        edges.sort_unstable();
+        let (mut boundary, mut nonmanifold) = (0, 0);
+        for run in edges.chunk_by(|a, b| a == b) {
+            match run.len() {
+                1 => boundary += 1,
+                2 => {}
+                _ => nonmanifold += 1,
             }
         }
-        let boundary = edges.values().filter(|&&c| c == 1).count();
-        let nonmanifold = edges.values().filter(|&&c| c > 2).count();
         (boundary, nonmanifold)
     }
 

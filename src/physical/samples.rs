@@ -35,6 +35,12 @@ pub const EPSILON_MAX: f64 = 0.005;
 /// `count` points uniformly distributed over the surface of `mesh` (model
 /// coordinates), reproducible from `seed`.
 pub fn surface_samples(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<DVec3>> {
+    Ok(surface_samples_on_faces(mesh, count, seed)?.into_iter().map(|(p, _)| p).collect())
+}
+
+/// [`surface_samples`] with the triangle each sample lies on (for its
+/// normal); the same points for the same seed.
+pub fn surface_samples_on_faces(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<(DVec3, usize)>> {
     if count == 0 {
         return Err(Error::InvalidInput(
             "the number of surface samples must be at least 1".into(),
@@ -68,7 +74,7 @@ pub fn surface_samples(mesh: &Mesh, count: usize, seed: u64) -> Result<Vec<DVec3
         // Uniform in the triangle: the square-root trick.
         let (u, v): (f64, f64) = (rng.random(), rng.random());
         let su = u.sqrt();
-        out.push(a * (1.0 - su) + b * (su * (1.0 - v)) + c * (su * v));
+        out.push((a * (1.0 - su) + b * (su * (1.0 - v)) + c * (su * v), i));
     }
     Ok(out)
 }

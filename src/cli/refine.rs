@@ -1,0 +1,165 @@
+//! `plausible refine`: refine another method's BOP results (REF, SIR, RIR)
+//! image by image, resumable and shardable.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _, Result};
+use plausible::bop::results::{format_line, HEADER};
+use plausible::bop::{read_results, Dataset};
+use plausible::refine::dataset::{image_jobs, load_models, refine_image, resume_from, ImageStats, Masks};
+use plausible::refine::{Method, RefineParams};
+
+#[derive(clap::Args, Debug)]
+pub struct RefineArgs {
+    /// BOP dataset folder (models/ or models_eval/, the split with depth/
+    /// and, for the oracle masks, mask_visib/).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Split folder inside the dataset.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Initial estimates: a BOP results CSV (several estimates of an object
+    /// in an image are its hypotheses).
+    #[arg(long)]
+    pub init: PathBuf,
+    /// Refined results CSV. Written image by image: if it exists, the
+    /// images already in it are skipped (a killed run resumes).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// ref (ICP), sir (ICP steps kept only if the score improves) or rir
+    /// (SIR steps spread over the hypotheses by UCB1).
+    #[arg(long, default_value = "rir", value_parser = ["ref", "sir", "rir"])]
+    pub method: String,
+    /// Refinement steps per hypothesis (RIR: the budget is this times the
+    /// object's hypotheses).
+    #[arg(long, default_value_t = 2)]
+    pub steps: usize,
+    /// ICP iterations per refinement step.
+    #[arg(long, default_value_t = 5)]
+    pub icp_iterations: usize,
+    /// UCB exploration constant.
+    #[arg(long, default_value_t = 0.1)]
+    pub exploration: f64,
+    /// Masks: `oracle` (the dataset's mask_visib/) or a folder with
+    /// SSSSSS/IIIIII_OOOOOO.png (scene, image, object id).
+    #[arg(long, default_value = "oracle")]
+    pub masks: String,
+    /// Only images i (0-based, in scene/image order) with i mod n = k - 1:
+    /// run shards 1/n .. n/n apart and concatenate their outputs (each
+    /// after its header line).
+    #[arg(long)]
+    pub shard: Option<String>,
+    /// Write a JSON summary (timings, steps) here.
+    #[arg(long)]
+    pub summary: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+    /// `auto`, `gpu` or `cpu` (as for eval).
+    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
+    pub device: String,
+    /// Use the first adapter whose name contains this text.
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+/// `k/n` with 1 ≤ k ≤ n.
+fn parse_shard(s: &str) -> Result<(usize, usize)> {
+    let (k, n) = s.split_once('/').context("--shard takes k/n, e.g. 2/4")?;
+    let (k, n): (usize, usize) = (k.trim().parse().context("--shard: k is not a number")?, n.trim().parse().context("--shard: n is not a number")?);
+    if n == 0 || k == 0 || k > n || n > 100_000 {
+        bail!("--shard {s}: need 1 <= k <= n <= 100000");
+    }
+    Ok((k, n))
+}
+
+pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
+    let params = RefineParams {
+        method: Method::parse(&a.method).context("--method")?,
+        steps: a.steps,
+        icp: plausible::refine::icp::IcpParams { iterations: a.icp_iterations, ..Default::default() },
+        exploration: a.exploration,
+        ..Default::default()
+    };
+    params.validate().context("check --steps, --icp-iterations and --exploration")?;
+    let shard = a.shard.as_deref().map(parse_shard).transpose()?;
+    let masks = if a.masks == "oracle" { Masks::Oracle } else { Masks::Dir(PathBuf::from(&a.masks)) };
+    if let Masks::Dir(d) = &masks {
+        if !d.is_dir() {
+            bail!("--masks {}: not a folder (give 'oracle' or a folder of masks)", d.display());
+        }
+    }
+    plausible::io::check_writable(&a.out)?;
+    let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let init = read_results(&a.init).context("--init")?;
+    let mut jobs = image_jobs(&init);
+    if let Some((k, n)) = shard {
+        jobs = jobs.into_iter().enumerate().filter(|(i, _)| i % n == k - 1).map(|(_, j)| j).collect();
+    }
+    let done = resume_from(&a.out).context("--out (resuming)")?;
+    let before = jobs.len();
+    jobs.retain(|j| !done.contains(&(j.scene_id, j.im_id)));
+    if before > jobs.len() {
+        eprintln!("resuming: {} of {before} images are already in {}", before - jobs.len(), a.out.display());
+    }
+    let mut objs: Vec<u32> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id)).collect();
+    objs.sort_unstable();
+    objs.dedup();
+    if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
+        bail!("--init: object {o} is not in the dataset's models_info.json");
+    }
+    let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
+    eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
+    let models = load_models(&ds, &objs, &params).context("loading the models")?;
+    let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&a.out).with_context(|| format!("cannot open {}", a.out.display()))?;
+    if file.metadata()?.len() == 0 {
+        writeln!(file, "{HEADER}")?;
+    }
+    let pb = super::progress(jobs.len() as u64, "images");
+    if a.quiet {
+        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let mut scenes = std::collections::HashMap::new();
+    let mut total = ImageStats::default();
+    for job in &jobs {
+        if !scenes.contains_key(&job.scene_id) {
+            scenes.insert(job.scene_id, ds.scene(job.scene_id).with_context(|| format!("scene {}", job.scene_id))?);
+        }
+        let scene = &scenes[&job.scene_id];
+        let (out, s) = refine_image(scene, job, &models, &device, &masks, &params).with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
+        // One write per image, flushed: a kill loses at most this image.
+        let text: String = out.iter().map(|e| format_line(e) + "\n").collect();
+        file.write_all(text.as_bytes()).and_then(|_| file.sync_data()).with_context(|| format!("cannot write {}", a.out.display()))?;
+        total.objects += s.objects;
+        total.unrefined += s.unrefined;
+        total.steps += s.steps;
+        total.kept += s.kept;
+        total.seconds += s.seconds;
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let per_image = total.seconds / jobs.len().max(1) as f64;
+    println!(
+        "refined {} images, {} objects ({} left as they were: no mask or too few observed points); {} steps, {} kept; {:.3} s per image",
+        jobs.len(),
+        total.objects,
+        total.unrefined,
+        total.steps,
+        total.kept,
+        per_image
+    );
+    println!("wrote {}", a.out.display());
+    if let Some(p) = &a.summary {
+        let v = serde_json::json!({
+            "method": params.method.name(), "steps": params.steps, "icp_iterations": params.icp.iterations,
+            "masks": masks.describe(), "images": jobs.len(), "objects": total.objects, "unrefined": total.unrefined,
+            "refinement_steps": total.steps, "kept_steps": total.kept, "seconds": total.seconds, "seconds_per_image": per_image,
+        });
+        plausible::io::write_atomically(p, |w| {
+            serde_json::to_writer_pretty(&mut *w, &v)?;
+            writeln!(w)
+        })?;
+    }
+    Ok(())
+}

@@ -1,0 +1,200 @@
+//! Refinement over the images of a BOP dataset: every estimate of an
+//! object in an image is a hypothesis of it; each object is refined against
+//! the image's depth inside its mask, and the refined estimates come back
+//! with their visual-alignment score and the image's time.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::icp::ModelSurface;
+use super::{refine_hypotheses, ObjectView, RefineParams};
+use crate::bop::dataset::{Dataset, PoseMm, Scene};
+use crate::bop::results::Estimate;
+use crate::error::{Error, Result};
+use crate::kernels::RenderMesh;
+use crate::mesh::Mesh;
+use crate::observation::{read_mask_png, DepthImage};
+use crate::visual::Device;
+
+/// Where the objects' masks come from.
+#[derive(Clone, Debug)]
+pub enum Masks {
+    /// The dataset's own `mask_visib/` of the ground-truth instances
+    /// (an oracle segmentation: the union over the object's instances).
+    Oracle,
+    /// A folder with `SSSSSS/IIIIII_OOOOOO.png` (scene, image, object id):
+    /// another method's segmentation, one mask per object and image.
+    Dir(PathBuf),
+}
+
+impl Masks {
+    /// The object's mask in an image, `None` when it has none (no
+    /// ground-truth instance, or no file in the folder).
+    fn read(&self, scene: &Scene, im_id: u32, obj_id: u32, width: u32, height: u32) -> Result<Option<Vec<bool>>> {
+        let paths: Vec<PathBuf> = match self {
+            Masks::Oracle => scene
+                .gt
+                .get(&im_id)
+                .map(|gt| {
+                    gt.iter()
+                        .enumerate()
+                        .filter(|(_, g)| g.obj_id == obj_id)
+                        .map(|(k, _)| scene.dir.join("mask_visib").join(format!("{im_id:06}_{k:06}.png")))
+                        .collect()
+                })
+                .unwrap_or_default(),
+            Masks::Dir(d) => {
+                let p = d.join(format!("{:06}", scene.id)).join(format!("{im_id:06}_{obj_id:06}.png"));
+                if p.exists() { vec![p] } else { vec![] }
+            }
+        };
+        if paths.is_empty() {
+            return Ok(None);
+        }
+        let mut union = vec![false; (width * height) as usize];
+        for p in paths {
+            for (u, m) in union.iter_mut().zip(read_mask_png(&p, width, height)?) {
+                *u |= m;
+            }
+        }
+        Ok(Some(union))
+    }
+
+    pub fn describe(&self) -> String {
+        match self {
+            Masks::Oracle => "the dataset's mask_visib (oracle segmentation)".into(),
+            Masks::Dir(d) => format!("masks from {}", d.display()),
+        }
+    }
+}
+
+/// An object's meshes for refinement: the render mesh (scoring) and its
+/// surface samples (ICP), in metres.
+pub struct Model {
+    pub render: RenderMesh,
+    pub surface: ModelSurface,
+}
+
+/// Loads the models of `obj_ids` (BOP models are millimetres).
+pub fn load_models(ds: &Dataset, obj_ids: &[u32], p: &RefineParams) -> Result<HashMap<u32, Model>> {
+    obj_ids
+        .par_iter()
+        .map(|&id| {
+            let path = ds.model_path(id);
+            let (pts, tris) = crate::mesh::load_positions(&path)?;
+            let metres: Vec<DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
+            let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
+            Ok((id, Model { render: RenderMesh::new(&mesh)?, surface: ModelSurface::sample(&mesh, p.samples, p.seed)? }))
+        })
+        .collect()
+}
+
+/// The estimates of one image.
+#[derive(Clone, Debug)]
+pub struct ImageJob {
+    pub scene_id: u32,
+    pub im_id: u32,
+    pub estimates: Vec<Estimate>,
+}
+
+/// Groups estimates by image, images in (scene, image) order, estimates in
+/// file order.
+pub fn image_jobs(estimates: &[Estimate]) -> Vec<ImageJob> {
+    let mut by: BTreeMap<(u32, u32), Vec<Estimate>> = BTreeMap::new();
+    for e in estimates {
+        by.entry((e.scene_id, e.im_id)).or_default().push(*e);
+    }
+    by.into_iter().map(|((scene_id, im_id), estimates)| ImageJob { scene_id, im_id, estimates }).collect()
+}
+
+/// What refining one image did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ImageStats {
+    pub objects: usize,
+    /// Objects left as they were (no mask, or too few observed points).
+    pub unrefined: usize,
+    pub steps: usize,
+    pub kept: usize,
+    pub seconds: f64,
+}
+
+/// Refines the estimates of one image; returns them (input order) with
+/// their new poses and scores, and the image's wall time as `time`.
+pub fn refine_image(
+    scene: &Scene,
+    job: &ImageJob,
+    models: &HashMap<u32, Model>,
+    device: &Device,
+    masks: &Masks,
+    p: &RefineParams,
+) -> Result<(Vec<Estimate>, ImageStats)> {
+    let t0 = Instant::now();
+    let depth_mm = scene.read_depth(job.im_id)?;
+    let k = scene.intrinsics(job.im_id, depth_mm.width, depth_mm.height)?;
+    let depth = DepthImage { intrinsics: k, depth: depth_mm.mm.iter().map(|v| v * 1e-3).collect() };
+    let mut objs: Vec<u32> = job.estimates.iter().map(|e| e.obj_id).collect();
+    objs.sort_unstable();
+    objs.dedup();
+    let results: Vec<(u32, Option<Vec<super::Refined>>)> = objs
+        .par_iter()
+        .map(|&obj| {
+            let model = models.get(&obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model in the dataset")))?;
+            let Some(mask) = masks.read(scene, job.im_id, obj, depth_mm.width, depth_mm.height)? else { return Ok((obj, None)) };
+            if !mask.iter().any(|&m| m) {
+                return Ok((obj, None));
+            }
+            let view = ObjectView::new(device, &model.render, &depth, &mask, p)?;
+            let initial: Vec<_> = job.estimates.iter().filter(|e| e.obj_id == obj).map(|e| e.pose.to_pose()).collect();
+            Ok((obj, Some(refine_hypotheses(&model.surface, &view, &initial, p)?)))
+        })
+        .collect::<Result<_>>()?;
+    let mut stats = ImageStats { objects: objs.len(), ..Default::default() };
+    let mut out = job.estimates.clone();
+    for (obj, refined) in results {
+        let Some(refined) = refined else {
+            stats.unrefined += 1;
+            continue;
+        };
+        if refined.iter().all(|r| r.steps == 0) {
+            stats.unrefined += 1;
+        }
+        for (e, r) in out.iter_mut().filter(|e| e.obj_id == obj).zip(refined) {
+            e.pose = PoseMm { r: r.pose.r, t: r.pose.t * 1e3 };
+            e.score = r.score;
+            stats.steps += r.steps;
+            stats.kept += r.kept;
+        }
+    }
+    stats.seconds = t0.elapsed().as_secs_f64();
+    for e in &mut out {
+        e.time = stats.seconds;
+        e.line = 0;
+    }
+    Ok((out, stats))
+}
+
+/// Images already in a (partial) output file, for resuming: every complete
+/// line's (scene, image). A last line cut off by a kill is dropped and the
+/// file truncated to the complete lines. A missing file is an empty set.
+pub fn resume_from(path: &Path) -> Result<std::collections::BTreeSet<(u32, u32)>> {
+    let mut done = std::collections::BTreeSet::new();
+    let Ok(text) = std::fs::read_to_string(path) else { return Ok(done) };
+    let complete = text.rfind('\n').map_or(0, |i| i + 1);
+    if complete < text.len() {
+        let f = std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::Io { path: path.to_path_buf(), error: e })?;
+        f.set_len(complete as u64).map_err(|e| Error::Io { path: path.to_path_buf(), error: e })?;
+    }
+    for (i, line) in text[..complete].lines().enumerate() {
+        if i == 0 && line.starts_with("scene_id") || line.trim().is_empty() {
+            continue;
+        }
+        let e = crate::bop::results::parse_line(line)
+            .map_err(|r| Error::InvalidInput(format!("{}: line {}: {r} (not a results file this command wrote?)", path.display(), i + 1)))?;
+        done.insert((e.scene_id, e.im_id));
+    }
+    Ok(done)
+}

@@ -1,0 +1,190 @@
+//! Refinement of pose estimates against a depth observation (VeREFINE,
+//! paper section 3.2): REF (robust point-to-plane ICP, [`icp`]), SIR (a
+//! refinement step is kept only if the visual-alignment score of eq. 3
+//! improves, so the score also verifies the final pose) and RIR (a budget
+//! of SIR steps spread over an object's hypotheses by UCB1 on the score,
+//! [`bandit`]). [`dataset`] runs them over the images of a BOP dataset.
+
+pub mod bandit;
+pub mod dataset;
+pub mod icp;
+
+use glam::DVec3;
+
+use crate::error::{Error, Result};
+use crate::kernels::score::ScoreParams;
+use crate::kernels::RenderMesh;
+use crate::observation::{DepthImage, RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+use crate::pose::Pose;
+use crate::visual::{Device, Scorer};
+use bandit::Ucb;
+use icp::{icp, IcpParams, ModelSurface};
+
+/// Which refinement (the paper's names).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// ICP steps, no verification.
+    Ref,
+    /// ICP steps kept only where the score improves.
+    Sir,
+    /// SIR steps allocated over the hypotheses by UCB1.
+    Rir,
+}
+
+impl Method {
+    /// Parses `ref`, `sir` or `rir`.
+    pub fn parse(s: &str) -> Option<Method> {
+        match s {
+            "ref" => Some(Method::Ref),
+            "sir" => Some(Method::Sir),
+            "rir" => Some(Method::Rir),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ref => "ref",
+            Method::Sir => "sir",
+            Method::Rir => "rir",
+        }
+    }
+}
+
+/// Refinement settings.
+#[derive(Clone, Copy, Debug)]
+pub struct RefineParams {
+    pub method: Method,
+    /// Refinement steps per hypothesis (RIR: the budget is this times the
+    /// number of hypotheses, spread by UCB1).
+    pub steps: usize,
+    pub icp: IcpParams,
+    /// UCB exploration constant (the paper: 0.1).
+    pub exploration: f64,
+    /// UCB discount γ (1 = UCB1; the paper uses 0.99 for scenes).
+    pub gamma: f64,
+    pub score: ScoreParams,
+    /// Scoring region resolution (pixels a side).
+    pub res: u32,
+    /// Model surface samples for ICP, and their seed.
+    pub samples: usize,
+    pub seed: u64,
+}
+
+impl Default for RefineParams {
+    fn default() -> Self {
+        RefineParams {
+            method: Method::Rir,
+            steps: 2,
+            icp: IcpParams::default(),
+            exploration: 0.1,
+            gamma: 1.0,
+            score: ScoreParams::default(),
+            res: 128,
+            samples: 3000,
+            seed: 0,
+        }
+    }
+}
+
+impl RefineParams {
+    /// Refuses settings that cannot work (library terms; the CLI names flags).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::InvalidInput(m));
+        if self.steps == 0 || self.steps > 100 {
+            return bad(format!("refinement steps per hypothesis must lie in 1..=100, got {}", self.steps));
+        }
+        if self.icp.iterations == 0 || self.icp.iterations > 100 {
+            return bad(format!("ICP iterations per step must lie in 1..=100, got {}", self.icp.iterations));
+        }
+        if !(self.exploration.is_finite() && self.exploration >= 0.0) {
+            return bad(format!("the UCB exploration constant must be a non-negative number, got {}", self.exploration));
+        }
+        if !(self.gamma > 0.0 && self.gamma <= 1.0) {
+            return bad(format!("the UCB discount must lie in (0, 1], got {}", self.gamma));
+        }
+        if !(16..=512).contains(&self.res) {
+            return bad(format!("the scoring resolution must lie in 16..=512 pixels, got {}", self.res));
+        }
+        Ok(())
+    }
+}
+
+/// One object as the observation shows it: its observed points (camera
+/// frame, m) and a scorer of poses against its masked depth.
+pub struct ObjectView {
+    pub points: Vec<DVec3>,
+    scorer: Scorer,
+}
+
+impl ObjectView {
+    /// The object's view in `depth` through `mask` (same size).
+    pub fn new(device: &Device, mesh: &RenderMesh, depth: &DepthImage, mask: &[bool], p: &RefineParams) -> Result<ObjectView> {
+        let k = depth.intrinsics;
+        let points: Vec<DVec3> =
+            (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();
+        let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
+        let scorer = Scorer::new(device, mesh, &target, p.score, 8)?;
+        Ok(ObjectView { points, scorer })
+    }
+
+    /// The visual-alignment score (eq. 3) of one pose.
+    pub fn score(&self, pose: &Pose) -> Result<f64> {
+        let (rec, _) = self.scorer.score(std::slice::from_ref(pose), &mut |_| {})?;
+        Ok(rec[0].score as f64)
+    }
+}
+
+/// One refined hypothesis.
+#[derive(Clone, Copy, Debug)]
+pub struct Refined {
+    pub pose: Pose,
+    /// Its visual-alignment score.
+    pub score: f64,
+    /// Refinement steps spent on it, and how many were kept.
+    pub steps: usize,
+    pub kept: usize,
+}
+
+/// Refines an object's hypotheses (`initial`, model → camera, m) against
+/// its view; returns one result per hypothesis, in input order. Fewer than
+/// 20 observed points leave the poses unrefined (scored as they are).
+pub fn refine_hypotheses(model: &ModelSurface, view: &ObjectView, initial: &[Pose], p: &RefineParams) -> Result<Vec<Refined>> {
+    let mut out: Vec<Refined> =
+        initial.iter().map(|&pose| Ok(Refined { pose, score: view.score(&pose)?, steps: 0, kept: 0 })).collect::<Result<_>>()?;
+    if view.points.len() < 20 || initial.is_empty() {
+        return Ok(out);
+    }
+    match p.method {
+        Method::Ref | Method::Sir => {
+            for h in out.iter_mut() {
+                for _ in 0..p.steps {
+                    step(model, view, h, p)?;
+                }
+            }
+        }
+        Method::Rir => {
+            let mut ucb = Ucb::new(out.len(), p.exploration, p.gamma);
+            for _ in 0..p.steps * out.len() {
+                let arm = ucb.select();
+                step(model, view, &mut out[arm], p)?;
+                ucb.update(arm, out[arm].score);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// One refinement step of a hypothesis: ICP, then (SIR, RIR) kept only if
+/// the score improves.
+fn step(model: &ModelSurface, view: &ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
+    let (pose, _) = icp(model, &view.points, &h.pose, &p.icp)?;
+    let score = view.score(&pose)?;
+    h.steps += 1;
+    if p.method == Method::Ref || score > h.score {
+        h.pose = pose;
+        h.score = score;
+        h.kept += 1;
+    }
+    Ok(())
+}
