@@ -28,6 +28,15 @@ for name in ["scene_gt.json", "scene_camera.json", "scene_gt_info.json"]:
     json.dump({str(i): d[str(i)] for i in FRAMES}, open(os.path.join(dst, scene, name), "w"))
 for i in FRAMES:
     shutil.copyfile(os.path.join(src, scene, "depth", "%06d.png" % i), os.path.join(dst, scene, "depth", "%06d.png" % i))
+# The visible masks of the chosen objects' instances (named by the instance's
+# index in scene_gt, which the filtered scene_gt keeps), for `refine`.
+os.makedirs(os.path.join(dst, scene, "mask_visib"), exist_ok=True)
+gt = json.load(open(os.path.join(src, scene, "scene_gt.json")))
+for i in FRAMES:
+    for k, inst in enumerate(gt[str(i)]):
+        if inst["obj_id"] in OBJS:
+            name = "%06d_%06d.png" % (i, k)
+            shutil.copyfile(os.path.join(src, scene, "mask_visib", name), os.path.join(dst, scene, "mask_visib", name))
 sub = [t for t in targets if t["im_id"] in FRAMES and t["obj_id"] in OBJS]
 with open(os.path.join(dst, "test_targets_bop19.json"), "w") as f:
     f.write("[\n" + ",\n".join("  " + json.dumps(t, sort_keys=True) for t in sub) + "\n]\n")

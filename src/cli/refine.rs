@@ -91,13 +91,17 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         }
     }
     plausible::io::check_writable(&a.out)?;
+    if a.out.canonicalize().ok().is_some_and(|o| a.init.canonicalize().ok() == Some(o)) {
+        bail!("--out is the --init file: write the refined results elsewhere");
+    }
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let init = read_results(&a.init).context("--init")?;
     let mut jobs = image_jobs(&init);
     if let Some((k, n)) = shard {
         jobs = jobs.into_iter().enumerate().filter(|(i, _)| i % n == k - 1).map(|(_, j)| j).collect();
     }
-    let done = resume_from(&a.out).context("--out (resuming)")?;
+    let expected = jobs.iter().map(|j| ((j.scene_id, j.im_id), j.estimates.len())).collect();
+    let done = resume_from(&a.out, &expected).context("--out (resuming)")?;
     let before = jobs.len();
     jobs.retain(|j| !done.contains(&(j.scene_id, j.im_id)));
     if before > jobs.len() {

@@ -177,24 +177,36 @@ pub fn refine_image(
     Ok((out, stats))
 }
 
-/// Images already in a (partial) output file, for resuming: every complete
-/// line's (scene, image). A last line cut off by a kill is dropped and the
-/// file truncated to the complete lines. A missing file is an empty set.
-pub fn resume_from(path: &Path) -> Result<std::collections::BTreeSet<(u32, u32)>> {
-    let mut done = std::collections::BTreeSet::new();
-    let Ok(text) = std::fs::read_to_string(path) else { return Ok(done) };
-    let complete = text.rfind('\n').map_or(0, |i| i + 1);
-    if complete < text.len() {
-        let f = std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::Io { path: path.to_path_buf(), error: e })?;
-        f.set_len(complete as u64).map_err(|e| Error::Io { path: path.to_path_buf(), error: e })?;
-    }
-    for (i, line) in text[..complete].lines().enumerate() {
+/// Images already complete in a (partial) output file, for resuming: an
+/// image counts when the file holds as many of its estimates as `expected`
+/// says (its count in the input). A kill can leave a line cut off or an
+/// image half written; those lines are removed (the file is rewritten
+/// atomically) and the images run again. A missing file is an empty set.
+pub fn resume_from(path: &Path, expected: &HashMap<(u32, u32), usize>) -> Result<std::collections::BTreeSet<(u32, u32)>> {
+    let Ok(text) = std::fs::read_to_string(path) else { return Ok(Default::default()) };
+    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    let mut rows: Vec<((u32, u32), &str)> = Vec::new();
+    for (i, line) in complete.lines().enumerate() {
         if i == 0 && line.starts_with("scene_id") || line.trim().is_empty() {
             continue;
         }
         let e = crate::bop::results::parse_line(line)
             .map_err(|r| Error::InvalidInput(format!("{}: line {}: {r} (not a results file this command wrote?)", path.display(), i + 1)))?;
-        done.insert((e.scene_id, e.im_id));
+        rows.push(((e.scene_id, e.im_id), line));
+    }
+    let mut count: HashMap<(u32, u32), usize> = HashMap::new();
+    for (k, _) in &rows {
+        *count.entry(*k).or_default() += 1;
+    }
+    let done: std::collections::BTreeSet<(u32, u32)> =
+        count.iter().filter(|(k, n)| expected.get(k) == Some(n)).map(|(k, _)| *k).collect();
+    let kept: Vec<&str> = rows.iter().filter(|(k, _)| done.contains(k)).map(|(_, l)| *l).collect();
+    if kept.len() != rows.len() || complete.len() != text.len() {
+        crate::io::write_atomically(path, |w| {
+            use std::io::Write;
+            writeln!(w, "{}", crate::bop::results::HEADER)?;
+            kept.iter().try_for_each(|l| writeln!(w, "{l}"))
+        })?;
     }
     Ok(done)
 }
