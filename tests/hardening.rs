@@ -219,3 +219,32 @@ fn a_corrupt_database_column_is_an_error_not_a_default() {
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("corrupt column"), "{err}");
 }
+
+/// A scene of a million objects (a 190 MB JSON) took 24 GB before being
+/// killed; more than `MAX_OBJECTS` objects is now an error before any mesh
+/// work.
+#[test]
+fn a_scene_with_too_many_objects_is_refused_before_loading_meshes() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/cube.obj");
+    let obj = format!(r#"{{"mesh": "{cube}", "units": "m", "R": [1,0,0,0,1,0,0,0,1], "t": [0,0,0.02]}}"#);
+    let n = plausible::physical::scene::MAX_OBJECTS + 1;
+    let text = format!(r#"{{"planes": [{{"point": [0,0,0], "normal": [0,0,1]}}], "objects": [{}]}}"#, vec![obj; n].join(","));
+    let path = d.path().join("scene.json");
+    std::fs::write(&path, text).unwrap();
+    let (code, err) = run(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains(&format!("the scene has {n} objects")), "{err}");
+}
+
+/// A dense convex mesh (a 164k-vertex sphere, every vertex on its hull) has
+/// mass properties and a stable-pose hull: the hull check no longer tests
+/// every point against every face (hours at this size).
+#[test]
+fn a_dense_sphere_has_mass_properties_and_a_hull_quickly() {
+    let sphere = plausible::shapes::icosphere(0.05, 7); // 327,680 triangles
+    let (mass, _) = plausible::mesh::mass::MassProperties::of_mesh(&sphere).unwrap();
+    let (hull, note) = plausible::stable::hull::Hull::of_mesh_vertices("sphere", &sphere.vertices).unwrap();
+    assert!((mass.com.length()) < 1e-6 && hull.volume() > 0.99 * mass.volume, "{} vs {}", hull.volume(), mass.volume);
+    assert!(note.is_none(), "163,842 vertices are below the subsampling limit");
+}

@@ -123,7 +123,7 @@ pub struct OnPlaneHypothesis {
 /// The quasi-static resting poses of `mesh` (stable facets of its convex
 /// hull, most probable first): the prior when no drop-test database exists.
 pub fn analytic_resting_poses(mesh: &Mesh) -> Result<Vec<RestingPose>> {
-    let hull = crate::stable::hull::Hull::of_points("object", &mesh.vertices)?;
+    let (hull, _) = crate::stable::hull::Hull::of_mesh_vertices("object", &mesh.vertices)?;
     let (mass, _) = MassProperties::of_mesh(mesh)?;
     let a = crate::stable::analytic::stable_poses(&hull, mass.com, Default::default())?;
     Ok(a.poses

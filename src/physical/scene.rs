@@ -27,6 +27,10 @@ use crate::error::{Error, Result};
 use crate::mesh::{Mesh, MeshUnits};
 use crate::pose::{orthonormalize_rotation, Pose, ORTHONORMAL_TOL};
 
+/// Most objects in one scene (each is tested against every other; their
+/// grids and samples stay in memory together).
+pub const MAX_OBJECTS: usize = 256;
+
 /// Default density of objects in kg/m³ (water; only masses depend on it).
 pub const DEFAULT_DENSITY: f64 = 1000.0;
 
@@ -351,6 +355,12 @@ impl Scene {
         let raw: RawScene = parse(text).map_err(bad)?;
         if raw.objects.is_empty() {
             return Err(bad("the scene has no objects".into()));
+        }
+        if raw.objects.len() > MAX_OBJECTS {
+            return Err(bad(format!(
+                "the scene has {} objects; at most {MAX_OBJECTS} are checked together (every object is tested against every other, with a signed-distance grid each)",
+                raw.objects.len()
+            )));
         }
         let frame = SceneFrame::of(&raw).map_err(bad)?;
         let mut cache: Vec<(PathBuf, MeshUnits, Arc<Mesh>)> = Vec::new();

@@ -13,6 +13,9 @@ use glam::DVec3;
 use crate::error::{Error, Result};
 use crate::mesh::mass::{convex_hull, hull_planes, outside_planes};
 
+/// Most mesh vertices [`Hull::of_mesh_vertices`] takes the hull of.
+pub const MAX_HULL_POINTS: usize = 250_000;
+
 /// A closed convex polyhedron with outward, counter-clockwise triangles.
 #[derive(Clone, Debug)]
 pub struct Hull {
@@ -29,6 +32,35 @@ impl Hull {
             vertices,
             triangles,
         })
+    }
+
+    /// The convex hull of a mesh's vertices for the stable-pose analysis.
+    /// Beyond [`MAX_HULL_POINTS`] vertices (a multi-million-vertex scan,
+    /// whose full hull costs gigabytes) the hull is taken of an evenly
+    /// strided subset plus the extreme vertices along 128 directions, and a
+    /// note says so: the points left out lie within the scan's own
+    /// sampling distance of that hull, far below what a resting pose feels.
+    pub fn of_mesh_vertices(name: &str, vertices: &[DVec3]) -> Result<(Hull, Option<String>)> {
+        if vertices.len() <= MAX_HULL_POINTS {
+            return Ok((Hull::of_points(name, vertices)?, None));
+        }
+        let stride = vertices.len().div_ceil(MAX_HULL_POINTS);
+        let mut pts: Vec<DVec3> = vertices.iter().step_by(stride).copied().collect();
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        for i in 0..128 {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / 128.0;
+            let r = (1.0 - z * z).sqrt();
+            let d = DVec3::new(r * (golden * i as f64).cos(), r * (golden * i as f64).sin(), z);
+            let best = vertices.iter().copied().fold(vertices[0], |b, v| if v.dot(d) > b.dot(d) { v } else { b });
+            pts.push(best);
+        }
+        let hull = Hull::of_points(name, &pts)?;
+        let note = format!(
+            "{name}: the convex hull for the stable poses is taken of {} of its {} vertices (every {stride}th and the extremes along 128 directions)",
+            pts.len(),
+            vertices.len()
+        );
+        Ok((hull, Some(note)))
     }
 
     /// Bounding-box diagonal of the hull.

@@ -171,7 +171,8 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     let (mass, mut warnings) = MassProperties::of_mesh(&mesh)?;
     let diagonal = mesh.diagonal();
     let tol = params.hull_tolerance_diag * diagonal;
-    let full = Hull::of_points(name, &mesh.vertices)?;
+    let (full, note) = Hull::of_mesh_vertices(name, &mesh.vertices)?;
+    warnings.extend(note);
     let analytic = analytic::stable_poses(&full, mass.com, AnalyticParams::default())
         .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
     let parts: Vec<Hull> = match params.collider {
