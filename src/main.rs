@@ -37,6 +37,8 @@ enum Command {
     Check(cli::check::CheckArgs),
     /// Evaluate a BOP results file: AR from VSD, MSSD, MSPD (and ADD/ADI), as the BOP toolkit does, on any GPU.
     Eval(cli::eval::EvalArgs),
+    /// Estimate the poses of a BOP dataset's target objects from stable-pose hypotheses on the fitted plane, scored and refined.
+    Estimate(cli::estimate::EstimateArgs),
     /// Refine another method's BOP results against the depth (ICP; SIR, RIR verified by the visual score), resumable.
     Refine(cli::refine::RefineArgs),
 }
@@ -96,6 +98,7 @@ fn main() {
         Command::StablePoses(a) => cli::stable::stable_poses(a),
         Command::Check(a) => cli::check::run(a),
         Command::Eval(a) => cli::eval::run(a, cli.verbose),
+        Command::Estimate(a) => cli::estimate::run(a, cli.verbose),
         Command::Refine(a) => cli::refine::run(a, cli.verbose),
     };
     if let Err(e) = result {

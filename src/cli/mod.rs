@@ -6,6 +6,7 @@ pub mod bench_eval;
 pub mod bench_physics;
 pub mod check;
 pub mod demo;
+pub mod estimate;
 pub mod eval;
 pub mod hypotheses;
 pub mod plane;

@@ -64,8 +64,43 @@ pub struct RefineArgs {
     pub adapter: Option<String>,
 }
 
+/// `oracle` or a folder of masks.
+pub fn parse_masks(s: &str) -> Result<Masks> {
+    if s == "oracle" {
+        return Ok(Masks::Oracle);
+    }
+    let d = PathBuf::from(s);
+    if !d.is_dir() {
+        bail!("--masks {}: not a folder (give 'oracle' or a folder of masks)", d.display());
+    }
+    Ok(Masks::Dir(d))
+}
+
+/// A results CSV written image by image: each image's lines in one write,
+/// synced, so a kill loses at most the image being written (and resuming
+/// drops a partial one).
+pub struct ResultsAppender {
+    file: std::fs::File,
+    path: PathBuf,
+}
+
+impl ResultsAppender {
+    pub fn open(path: &std::path::Path) -> Result<ResultsAppender> {
+        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        if file.metadata()?.len() == 0 {
+            writeln!(file, "{HEADER}")?;
+        }
+        Ok(ResultsAppender { file, path: path.to_path_buf() })
+    }
+
+    pub fn append(&mut self, estimates: &[plausible::bop::Estimate]) -> Result<()> {
+        let text: String = estimates.iter().map(|e| format_line(e) + "\n").collect();
+        self.file.write_all(text.as_bytes()).and_then(|_| self.file.sync_data()).with_context(|| format!("cannot write {}", self.path.display()))
+    }
+}
+
 /// `k/n` with 1 ≤ k ≤ n.
-fn parse_shard(s: &str) -> Result<(usize, usize)> {
+pub fn parse_shard(s: &str) -> Result<(usize, usize)> {
     let (k, n) = s.split_once('/').context("--shard takes k/n, e.g. 2/4")?;
     let (k, n): (usize, usize) = (k.trim().parse().context("--shard: k is not a number")?, n.trim().parse().context("--shard: n is not a number")?);
     if n == 0 || k == 0 || k > n || n > 100_000 {
@@ -84,12 +119,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     };
     params.validate().context("check --steps, --icp-iterations and --exploration")?;
     let shard = a.shard.as_deref().map(parse_shard).transpose()?;
-    let masks = if a.masks == "oracle" { Masks::Oracle } else { Masks::Dir(PathBuf::from(&a.masks)) };
-    if let Masks::Dir(d) = &masks {
-        if !d.is_dir() {
-            bail!("--masks {}: not a folder (give 'oracle' or a folder of masks)", d.display());
-        }
-    }
+    let masks = parse_masks(&a.masks)?;
     plausible::io::check_writable(&a.out)?;
     if a.out.canonicalize().ok().is_some_and(|o| a.init.canonicalize().ok() == Some(o)) {
         bail!("--out is the --init file: write the refined results elsewhere");
@@ -116,10 +146,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
-    let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&a.out).with_context(|| format!("cannot open {}", a.out.display()))?;
-    if file.metadata()?.len() == 0 {
-        writeln!(file, "{HEADER}")?;
-    }
+    let mut file = ResultsAppender::open(&a.out)?;
     let pb = super::progress(jobs.len() as u64, "images");
     if a.quiet {
         pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
@@ -132,9 +159,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         }
         let scene = &scenes[&job.scene_id];
         let (out, s) = refine_image(scene, job, &models, &device, &masks, &params).with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
-        // One write per image, flushed: a kill loses at most this image.
-        let text: String = out.iter().map(|e| format_line(e) + "\n").collect();
-        file.write_all(text.as_bytes()).and_then(|_| file.sync_data()).with_context(|| format!("cannot write {}", a.out.display()))?;
+        file.append(&out)?;
         total.objects += s.objects;
         total.unrefined += s.unrefined;
         total.steps += s.steps;

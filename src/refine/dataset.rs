@@ -64,6 +64,22 @@ impl Masks {
         Ok(Some(union))
     }
 
+    /// Each instance's own mask of the object in an image (oracle: one per
+    /// ground-truth instance; a folder: its one mask), empty when none.
+    pub fn instances(&self, scene: &Scene, im_id: u32, obj_id: u32, width: u32, height: u32) -> Result<Vec<Vec<bool>>> {
+        match self {
+            Masks::Oracle => {
+                let Some(gt) = scene.gt.get(&im_id) else { return Ok(vec![]) };
+                gt.iter()
+                    .enumerate()
+                    .filter(|(_, g)| g.obj_id == obj_id)
+                    .map(|(k, _)| read_mask_png(&scene.dir.join("mask_visib").join(format!("{im_id:06}_{k:06}.png")), width, height))
+                    .collect()
+            }
+            Masks::Dir(_) => Ok(self.read(scene, im_id, obj_id, width, height)?.into_iter().collect()),
+        }
+    }
+
     pub fn describe(&self) -> String {
         match self {
             Masks::Oracle => "the dataset's mask_visib (oracle segmentation)".into(),

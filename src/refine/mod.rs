@@ -7,6 +7,7 @@
 
 pub mod bandit;
 pub mod dataset;
+pub mod estimate;
 pub mod icp;
 
 use glam::DVec3;
@@ -126,6 +127,12 @@ impl ObjectView {
         let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
         let scorer = Scorer::new(device, mesh, &target, p.score, 8)?;
         Ok(ObjectView { points, scorer })
+    }
+
+    /// The visual-alignment scores (eq. 3) of many poses, in order.
+    pub fn score_many(&self, poses: &[Pose]) -> Result<Vec<f64>> {
+        let (rec, _) = self.scorer.score(poses, &mut |_| {})?;
+        Ok(rec.iter().map(|r| r.score as f64).collect())
     }
 
     /// The visual-alignment score (eq. 3) of one pose.

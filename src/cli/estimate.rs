@@ -1,0 +1,169 @@
+//! `plausible estimate`: poses of every target object in BOP images from
+//! stable-pose hypotheses on the fitted support plane, scored and refined
+//! (RIR); resumable and shardable like `refine`.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _, Result};
+use plausible::bop::Dataset;
+use plausible::refine::dataset::resume_from;
+use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
+use plausible::refine::{Method, RefineParams};
+
+use super::refine::{parse_masks, parse_shard, ResultsAppender};
+
+#[derive(clap::Args, Debug)]
+pub struct EstimateArgs {
+    /// BOP dataset folder (models/, the split with depth/ and, for the
+    /// oracle masks, mask_visib/, and usually test_targets_bop19.json).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Split folder inside the dataset.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Targets file (default: test_targets_bop19.json; without one every
+    /// annotated object of every image).
+    #[arg(long)]
+    pub targets: Option<PathBuf>,
+    /// Only these scenes (comma-separated ids).
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<u32>,
+    /// Only these images (comma-separated ids).
+    #[arg(long, value_delimiter = ',')]
+    pub images: Vec<u32>,
+    /// Resting poses: a `stable-poses export` JSON holding the dataset's
+    /// models (default: the quasi-static analysis of each convex hull).
+    #[arg(long)]
+    pub stable: Option<PathBuf>,
+    /// Results CSV (BOP format, score = visual-alignment score, time = the
+    /// image's seconds). Written image by image; images already in it are
+    /// skipped (a killed run resumes).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Masks: `oracle` (the dataset's mask_visib/, one estimate per
+    /// instance) or a folder with SSSSSS/IIIIII_OOOOOO.png.
+    #[arg(long, default_value = "oracle")]
+    pub masks: String,
+    /// Yaw steps per resting pose (15° apart by default).
+    #[arg(long, default_value_t = 24)]
+    pub yaw_steps: usize,
+    /// Best-scored hypotheses refined per instance (RIR over them).
+    #[arg(long, default_value_t = 5)]
+    pub top: usize,
+    /// Refinement steps per refined hypothesis (0: no refinement).
+    #[arg(long, default_value_t = 2)]
+    pub steps: usize,
+    /// Only images i (0-based, in scene/image order) with i mod n = k - 1.
+    #[arg(long)]
+    pub shard: Option<String>,
+    /// Write a JSON summary (timings per stage) here.
+    #[arg(long)]
+    pub summary: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+    /// `auto`, `gpu` or `cpu` (as for eval).
+    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
+    pub device: String,
+    /// Use the first adapter whose name contains this text.
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
+    let mut params = EstimateParams { top: a.top, ..Default::default() };
+    params.hypotheses.yaw_steps = a.yaw_steps;
+    params.refine = RefineParams { method: Method::Rir, steps: a.steps.max(1), ..Default::default() };
+    params.refine.validate().context("check --steps")?;
+    if a.top == 0 || a.top > 100 {
+        bail!("--top {}: between 1 and 100 hypotheses are refined", a.top);
+    }
+    if a.yaw_steps == 0 || a.yaw_steps > 360 {
+        bail!("--yaw-steps {}: between 1 and 360", a.yaw_steps);
+    }
+    let shard = a.shard.as_deref().map(parse_shard).transpose()?;
+    let masks = parse_masks(&a.masks)?;
+    plausible::io::check_writable(&a.out)?;
+    let stable = a.stable.as_ref().map(|p| std::fs::read_to_string(p).with_context(|| format!("--stable {}", p.display()))).transpose()?;
+    let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let (targets, _) = ds.targets(a.targets.as_deref()).context("--targets")?;
+    let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
+    for t in targets {
+        if (a.scenes.is_empty() || a.scenes.contains(&t.scene_id)) && (a.images.is_empty() || a.images.contains(&t.im_id)) {
+            by_image.entry((t.scene_id, t.im_id)).or_default().push(t);
+        }
+    }
+    if by_image.is_empty() {
+        bail!("no targets in the chosen scenes and images");
+    }
+    let mut jobs: Vec<((u32, u32), Vec<_>)> = by_image.into_iter().collect();
+    if let Some((k, n)) = shard {
+        jobs = jobs.into_iter().enumerate().filter(|(i, _)| i % n == k - 1).map(|(_, j)| j).collect();
+    }
+    let expected: HashMap<(u32, u32), usize> = jobs.iter().map(|(k, ts)| (*k, ts.iter().map(|t| t.inst_count as usize).sum())).collect();
+    let done = resume_from(&a.out, &expected).context("--out (resuming)")?;
+    let before = jobs.len();
+    jobs.retain(|(k, _)| !done.contains(k));
+    if before > jobs.len() {
+        eprintln!("resuming: {} of {before} images are already in {}", before - jobs.len(), a.out.display());
+    }
+    let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
+    objs.sort_unstable();
+    objs.dedup();
+    let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
+    let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
+    eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by RIR; {}", jobs.len(), a.yaw_steps, a.top, masks.describe());
+    let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;
+    let mut out = ResultsAppender::open(&a.out)?;
+    let pb = super::progress(jobs.len() as u64, "images");
+    if a.quiet {
+        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let mut scenes = HashMap::new();
+    let mut total = EstimateStats::default();
+    for ((scene_id, im_id), ts) in &jobs {
+        if !scenes.contains_key(scene_id) {
+            scenes.insert(*scene_id, ds.scene(*scene_id).with_context(|| format!("scene {scene_id}"))?);
+        }
+        let (est, s) = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params)
+            .with_context(|| format!("scene {scene_id} image {im_id}"))?;
+        out.append(&est)?;
+        total.instances += s.instances;
+        total.skipped += s.skipped;
+        total.hypotheses += s.hypotheses;
+        total.seconds += s.seconds;
+        total.plane_s += s.plane_s;
+        total.hypotheses_s += s.hypotheses_s;
+        total.refine_s += s.refine_s;
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let n = jobs.len().max(1) as f64;
+    println!(
+        "estimated {} instances in {} images ({} without observed points); {} hypotheses; {:.3} s per image (plane {:.3} s, hypotheses and scoring {:.3} s, refinement {:.3} s, per image and summed over threads)",
+        total.instances - total.skipped,
+        jobs.len(),
+        total.skipped,
+        total.hypotheses,
+        total.seconds / n,
+        total.plane_s / n,
+        total.hypotheses_s / n,
+        total.refine_s / n
+    );
+    println!("wrote {}", a.out.display());
+    if let Some(p) = &a.summary {
+        let v = serde_json::json!({
+            "images": jobs.len(), "instances": total.instances, "skipped": total.skipped, "hypotheses": total.hypotheses,
+            "masks": masks.describe(), "resting_poses": source, "yaw_steps": a.yaw_steps, "top": a.top, "steps": a.steps,
+            "seconds": total.seconds, "seconds_per_image": total.seconds / n,
+            "stage_seconds_per_image": {"plane": total.plane_s / n, "hypotheses_and_scoring": total.hypotheses_s / n, "refinement": total.refine_s / n},
+        });
+        plausible::io::write_atomically(p, |w| {
+            use std::io::Write;
+            serde_json::to_writer_pretty(&mut *w, &v)?;
+            writeln!(w)
+        })?;
+    }
+    Ok(())
+}

@@ -1,0 +1,172 @@
+//! Pose estimation over BOP images from stable poses (paper section 3.1):
+//! per image the support plane is fitted to the depth outside the objects'
+//! masks; per object instance the hypotheses are its resting poses × yaw
+//! steps, each placed on the plane under the instance's observed points
+//! ([`crate::hypotheses::on_plane`]); all are scored by the visual
+//! alignment (eq. 3) and the best few are refined by RIR (UCB1 over them,
+//! ICP steps kept only where the score improves).
+
+use std::collections::HashMap;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::dataset::{Masks, Model};
+use super::{refine_hypotheses, ObjectView, RefineParams};
+use crate::bop::dataset::{PoseMm, Scene, Target};
+use crate::bop::results::Estimate;
+use crate::error::{Error, Result};
+use crate::hypotheses::on_plane::{on_plane_hypotheses, OnPlaneParams, RestingPose};
+use crate::mesh::Mesh;
+use crate::observation::DepthImage;
+use crate::support_plane::{fit_support_plane, PlaneFitParams};
+use crate::visual::Device;
+
+/// Estimation settings.
+#[derive(Clone, Copy, Debug)]
+pub struct EstimateParams {
+    pub hypotheses: OnPlaneParams,
+    pub plane: PlaneFitParams,
+    /// Best-scored hypotheses refined per instance (the paper: 5).
+    pub top: usize,
+    pub refine: RefineParams,
+}
+
+impl Default for EstimateParams {
+    fn default() -> Self {
+        EstimateParams { hypotheses: OnPlaneParams::default(), plane: PlaneFitParams::default(), top: 5, refine: RefineParams::default() }
+    }
+}
+
+/// An object for estimation: its refinement model, its mesh (metres) and
+/// its resting poses.
+pub struct EstimateModel {
+    pub model: Model,
+    pub mesh: Mesh,
+    pub rests: Vec<RestingPose>,
+}
+
+/// What estimating one image did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct EstimateStats {
+    pub instances: usize,
+    /// Instances without a mask or observed points (no estimate written).
+    pub skipped: usize,
+    pub hypotheses: usize,
+    pub seconds: f64,
+    /// Of which: plane fit, hypotheses + scoring, refinement (summed over
+    /// the parallel instances, so they may exceed the wall time).
+    pub plane_s: f64,
+    pub hypotheses_s: f64,
+    pub refine_s: f64,
+}
+
+/// Estimates every target object of one image (`targets` of this image):
+/// one estimate per mask instance, scored by the visual alignment.
+pub fn estimate_image(
+    scene: &Scene,
+    im_id: u32,
+    targets: &[Target],
+    models: &HashMap<u32, EstimateModel>,
+    device: &Device,
+    masks: &Masks,
+    p: &EstimateParams,
+) -> Result<(Vec<Estimate>, EstimateStats)> {
+    let t0 = Instant::now();
+    let depth_mm = scene.read_depth(im_id)?;
+    let (w, h) = (depth_mm.width, depth_mm.height);
+    let k = scene.intrinsics(im_id, w, h)?;
+    let depth = DepthImage { intrinsics: k, depth: depth_mm.mm.iter().map(|v| v * 1e-3).collect() };
+    // Every instance mask of the image's target objects.
+    let mut instances: Vec<(u32, Vec<bool>)> = Vec::new();
+    for t in targets {
+        for m in masks.instances(scene, im_id, t.obj_id, w, h)? {
+            instances.push((t.obj_id, m));
+        }
+    }
+    let mut stats = EstimateStats { instances: instances.len(), ..Default::default() };
+    let mut all = vec![false; (w * h) as usize];
+    for (_, m) in &instances {
+        all.iter_mut().zip(m).for_each(|(a, b)| *a |= *b);
+    }
+    let tp = Instant::now();
+    let plane = fit_support_plane(&depth, Some(&all), &p.plane)
+        .map_err(|e| Error::InvalidInput(format!("image {im_id}: support plane: {e}")))?
+        .plane;
+    stats.plane_s = tp.elapsed().as_secs_f64();
+    let per: Vec<Option<(Estimate, usize, f64, f64)>> = instances
+        .par_iter()
+        .map(|(obj, mask)| {
+            let m = models.get(obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model")))?;
+            if mask.iter().zip(&depth.depth).filter(|(m, d)| **m && **d > 0.0).count() < 20 {
+                return Ok(None);
+            }
+            let th = Instant::now();
+            let hyps = on_plane_hypotheses(&m.mesh, &m.rests, &plane, &depth, mask, &p.hypotheses)?;
+            let view = ObjectView::new(device, &m.model.render, &depth, mask, &p.refine)?;
+            let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
+            let scores = view.score_many(&poses)?;
+            let mut order: Vec<usize> = (0..poses.len()).collect();
+            order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+            let best: Vec<_> = order.iter().take(p.top.max(1)).map(|&i| poses[i]).collect();
+            let hyp_s = th.elapsed().as_secs_f64();
+            let tr = Instant::now();
+            let refined = refine_hypotheses(&m.model.surface, &view, &best, &p.refine)?;
+            let top = refined.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("at least one hypothesis");
+            let e = Estimate {
+                scene_id: scene.id,
+                im_id,
+                obj_id: *obj,
+                score: top.score,
+                pose: PoseMm { r: top.pose.r, t: top.pose.t * 1e3 },
+                time: 0.0,
+                line: 0,
+            };
+            Ok(Some((e, poses.len(), hyp_s, tr.elapsed().as_secs_f64())))
+        })
+        .collect::<Result<_>>()?;
+    let mut out = Vec::new();
+    for r in per {
+        match r {
+            Some((e, n, hs, rs)) => {
+                out.push(e);
+                stats.hypotheses += n;
+                stats.hypotheses_s += hs;
+                stats.refine_s += rs;
+            }
+            None => stats.skipped += 1,
+        }
+    }
+    stats.seconds = t0.elapsed().as_secs_f64();
+    out.iter_mut().for_each(|e| e.time = stats.seconds);
+    Ok((out, stats))
+}
+
+/// Loads the objects for estimation: meshes (BOP models are millimetres),
+/// refinement models and resting poses, from a stable-pose export
+/// (`stable-poses export` JSON) when given, else from the quasi-static
+/// analysis of each convex hull.
+pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &RefineParams, stable: Option<&str>) -> Result<HashMap<u32, EstimateModel>> {
+    obj_ids
+        .par_iter()
+        .map(|&id| {
+            let path = ds.model_path(id);
+            let (pts, tris) = crate::mesh::load_positions(&path)?;
+            let metres: Vec<glam::DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
+            let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
+            let rests = match stable {
+                Some(text) => {
+                    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                    let (rests, how) = crate::hypotheses::on_plane::resting_poses_from_export(text, &crate::stable::mesh_sha256(&mesh), &name)?;
+                    if how == crate::hypotheses::on_plane::ExportMatch::OnlyEntry {
+                        return Err(Error::InvalidInput(format!("the stable-pose export has no entry for {name} (object {id})")));
+                    }
+                    rests
+                }
+                None => crate::hypotheses::on_plane::analytic_resting_poses(&mesh)?,
+            };
+            let model = Model { render: crate::kernels::RenderMesh::new(&mesh)?, surface: super::icp::ModelSurface::sample(&mesh, p.samples, p.seed)? };
+            Ok((id, EstimateModel { model, mesh, rests }))
+        })
+        .collect()
+}
