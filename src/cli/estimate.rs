@@ -54,6 +54,9 @@ pub struct EstimateArgs {
     /// Refinement steps per refined hypothesis (0: no refinement).
     #[arg(long, default_value_t = 2)]
     pub steps: usize,
+    /// Refine without the simulation between ICP steps (SIR without PIR).
+    #[arg(long)]
+    pub no_physics: bool,
     /// Only images i (0-based, in scene/image order) with i mod n = k - 1.
     #[arg(long)]
     pub shard: Option<String>,
@@ -74,8 +77,9 @@ pub struct EstimateArgs {
 pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;
-    params.refine = RefineParams { method: Method::Rir, steps: a.steps.max(1), ..Default::default() };
+    params.refine = RefineParams { method: Method::Rir, steps: a.steps.max(1), physics: !a.no_physics, ..Default::default() };
     params.refine.validate().context("check --steps")?;
+    params.refine.steps = a.steps;
     if a.top == 0 || a.top > 100 {
         bail!("--top {}: between 1 and 100 hypotheses are refined", a.top);
     }

@@ -27,10 +27,14 @@ pub struct RefineArgs {
     /// images already in it are skipped (a killed run resumes).
     #[arg(long)]
     pub out: PathBuf,
-    /// ref (ICP), sir (ICP steps kept only if the score improves) or rir
-    /// (SIR steps spread over the hypotheses by UCB1).
-    #[arg(long, default_value = "rir", value_parser = ["ref", "sir", "rir"])]
+    /// ref (ICP), pir (ICP after a short simulation on the support plane
+    /// among the other objects), sir (PIR steps kept only if the score
+    /// improves) or rir (SIR steps spread over the hypotheses by UCB1).
+    #[arg(long, default_value = "rir", value_parser = ["ref", "pir", "sir", "rir"])]
     pub method: String,
+    /// SIR and RIR without the simulation (ICP steps only).
+    #[arg(long)]
+    pub no_physics: bool,
     /// Refinement steps per hypothesis (RIR: the budget is this times the
     /// object's hypotheses).
     #[arg(long, default_value_t = 2)]
@@ -115,6 +119,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         steps: a.steps,
         icp: plausible::refine::icp::IcpParams { iterations: a.icp_iterations, ..Default::default() },
         exploration: a.exploration,
+        physics: !a.no_physics,
         ..Default::default()
     };
     params.validate().context("check --steps, --icp-iterations and --exploration")?;
@@ -181,7 +186,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     println!("wrote {}", a.out.display());
     if let Some(p) = &a.summary {
         let v = serde_json::json!({
-            "method": params.method.name(), "steps": params.steps, "icp_iterations": params.icp.iterations,
+            "method": params.method.name(), "physics": params.method.simulates(params.physics), "steps": params.steps, "icp_iterations": params.icp.iterations,
             "masks": masks.describe(), "images": jobs.len(), "objects": total.objects, "unrefined": total.unrefined,
             "refinement_steps": total.steps, "kept_steps": total.kept, "seconds": total.seconds, "seconds_per_image": per_image,
         });

@@ -16,13 +16,14 @@ use rapier3d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder, SharedS
 use serde::Serialize;
 
 use super::scene::Scene;
+use crate::pose::Pose;
 use crate::error::{Error, Result};
 use crate::mesh::mass::MassProperties;
 
 /// Simulation settings. Defaults: the reference values of VeREFINE (dt
 /// 1/60 s, 3 steps per round), 10 rounds (0.5 s of simulated time in all),
 /// friction 0.5, 10 solver iterations.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct SimSettings {
     pub dt: f64,
     /// Steps per round; velocities are reset to zero after each round.
@@ -55,109 +56,104 @@ pub struct Displacement {
     pub rotation_deg: f64,
 }
 
-/// Per object (in scene order): the displacement after every round, or
-/// `None` for static objects.
-pub fn displacement(
-    scene: &Scene,
-    settings: &SimSettings,
-) -> Result<Vec<Option<Vec<Displacement>>>> {
-    if !(settings.dt > 0.0 && settings.dt.is_finite())
-        || settings.steps == 0
-        || settings.rounds == 0
-    {
-        return Err(Error::InvalidInput(
-            "simulation needs dt > 0, steps ≥ 1 and rounds ≥ 1".into(),
-        ));
-    }
-    let mut world = PhysicsWorld::new();
-    world.gravity = scene.gravity.as_vec3();
-    let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>()
-        / scene.objects.len().max(1) as f64;
-    let ip = &mut world.integration_parameters;
-    ip.dt = settings.dt as f32;
-    ip.length_unit = diag.max(1e-3) as f32;
-    ip.num_solver_iterations = settings.solver_iterations.max(1);
-    let mu = settings.friction as f32;
-    for p in &scene.planes {
-        world.colliders.insert(
-            ColliderBuilder::new(SharedShape::halfspace(p.normal.as_vec3()))
-                .translation(p.point.as_vec3())
-                .friction(mu),
-        );
-    }
-    let mut handles = Vec::new();
-    for o in &scene.objects {
-        let q = DQuat::from_mat3(&o.pose.r);
-        let pose = rapier3d::math::Pose::from_parts(
-            o.pose.t.as_vec3(),
-            Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize(),
-        );
-        let verts: Vec<Vec3> = o.mesh.vertices.iter().map(|v| v.as_vec3()).collect();
-        if o.is_static {
-            let shape = SharedShape::trimesh(verts, o.mesh.triangles.clone()).map_err(|e| {
-                Error::InvalidInput(format!("{}: cannot build a collider: {e}", o.name))
-            })?;
-            let h = world.insert_body(RigidBodyBuilder::fixed().pose(pose));
-            world.colliders.insert_with_parent(
-                ColliderBuilder::new(shape).friction(mu),
-                h,
-                &mut world.bodies,
-            );
-            handles.push(None);
-        } else {
-            let shape = SharedShape::convex_hull(&verts).ok_or_else(|| {
-                Error::InvalidInput(format!(
-                    "{}: the convex hull of the mesh is degenerate",
-                    o.name
-                ))
-            })?;
-            let (m, _) = MassProperties::of_mesh(&o.mesh)?;
-            let mprops = m.to_rapier(o.density);
-            let h = world.insert_body(
-                RigidBodyBuilder::dynamic()
-                    .pose(pose)
-                    .additional_mass_properties(mprops)
-                    .can_sleep(false),
-            );
-            world.colliders.insert_with_parent(
-                ColliderBuilder::new(shape).density(0.0).friction(mu),
-                h,
-                &mut world.bodies,
-            );
-            handles.push(Some(h));
+/// A scene in rapier, kept alive between rounds: the world, and each
+/// object's body (`None` for static objects).
+pub struct SimWorld {
+    world: PhysicsWorld,
+    handles: Vec<Option<rapier3d::prelude::RigidBodyHandle>>,
+    steps: usize,
+}
+
+fn rapier_pose(p: &Pose) -> rapier3d::math::Pose {
+    let q = DQuat::from_mat3(&p.r);
+    rapier3d::math::Pose::from_parts(p.t.as_vec3(), Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize())
+}
+
+impl SimWorld {
+    /// Places the scene: planes as half-spaces, static objects as triangle
+    /// meshes, dynamic ones as the hull of their vertices with the closed
+    /// mesh's mass properties.
+    pub fn new(scene: &Scene, settings: &SimSettings) -> Result<SimWorld> {
+        if !(settings.dt > 0.0 && settings.dt.is_finite()) || settings.steps == 0 || settings.rounds == 0 {
+            return Err(Error::InvalidInput("simulation needs dt > 0, steps ≥ 1 and rounds ≥ 1".into()));
         }
-    }
-    let mut out: Vec<Option<Vec<Displacement>>> =
-        handles.iter().map(|h| h.map(|_| Vec::new())).collect();
-    for round in 0..settings.rounds {
-        for _ in 0..settings.steps {
-            world.step();
+        let mut world = PhysicsWorld::new();
+        world.gravity = scene.gravity.as_vec3();
+        let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>() / scene.objects.len().max(1) as f64;
+        let ip = &mut world.integration_parameters;
+        ip.dt = settings.dt as f32;
+        ip.length_unit = diag.max(1e-3) as f32;
+        ip.num_solver_iterations = settings.solver_iterations.max(1);
+        let mu = settings.friction as f32;
+        for p in &scene.planes {
+            world.colliders.insert(ColliderBuilder::new(SharedShape::halfspace(p.normal.as_vec3())).translation(p.point.as_vec3()).friction(mu));
         }
-        let time_s = ((round + 1) * settings.steps) as f64 * settings.dt;
-        for (i, h) in handles.iter().enumerate() {
-            let Some(h) = h else { continue };
-            let Some(b) = world.bodies.get_mut(*h) else {
-                continue;
-            };
-            let p = b.position();
-            let t = DVec3::new(
-                p.translation.x as f64,
-                p.translation.y as f64,
-                p.translation.z as f64,
-            );
-            let r = p.rotation;
-            let q = DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
-            let q0 = DQuat::from_mat3(&scene.objects[i].pose.r);
-            let angle = q0.angle_between(q).to_degrees();
-            if let Some(v) = out[i].as_mut() {
-                v.push(Displacement {
-                    time_s,
-                    translation: (t - scene.objects[i].pose.t).length(),
-                    rotation_deg: angle,
-                });
+        let mut handles = Vec::new();
+        for o in &scene.objects {
+            let pose = rapier_pose(&o.pose);
+            let verts: Vec<Vec3> = o.mesh.vertices.iter().map(|v| v.as_vec3()).collect();
+            if o.is_static {
+                let shape = SharedShape::trimesh(verts, o.mesh.triangles.clone())
+                    .map_err(|e| Error::InvalidInput(format!("{}: cannot build a collider: {e}", o.name)))?;
+                let h = world.insert_body(RigidBodyBuilder::fixed().pose(pose));
+                world.colliders.insert_with_parent(ColliderBuilder::new(shape).friction(mu), h, &mut world.bodies);
+                handles.push(None);
+            } else {
+                let shape = SharedShape::convex_hull(&verts)
+                    .ok_or_else(|| Error::InvalidInput(format!("{}: the convex hull of the mesh is degenerate", o.name)))?;
+                let (m, _) = MassProperties::of_mesh(&o.mesh)?;
+                let h = world.insert_body(RigidBodyBuilder::dynamic().pose(pose).additional_mass_properties(m.to_rapier(o.density)).can_sleep(false));
+                world.colliders.insert_with_parent(ColliderBuilder::new(shape).density(0.0).friction(mu), h, &mut world.bodies);
+                handles.push(Some(h));
             }
+        }
+        Ok(SimWorld { world, handles, steps: settings.steps })
+    }
+
+    /// Moves dynamic object `i` to `pose`, at rest.
+    pub fn set_pose(&mut self, i: usize, pose: &Pose) {
+        if let Some(b) = self.handles[i].and_then(|h| self.world.bodies.get_mut(h)) {
+            b.set_position(rapier_pose(pose), true);
             b.set_linvel(Vec3::ZERO, true);
             b.set_angvel(Vec3::ZERO, true);
+        }
+    }
+
+    /// One round: `steps` steps, then every velocity back to zero.
+    pub fn round(&mut self) {
+        for _ in 0..self.steps {
+            self.world.step();
+        }
+        for h in self.handles.iter().flatten() {
+            if let Some(b) = self.world.bodies.get_mut(*h) {
+                b.set_linvel(Vec3::ZERO, true);
+                b.set_angvel(Vec3::ZERO, true);
+            }
+        }
+    }
+
+    /// The pose of dynamic object `i` (`None` for a static one).
+    pub fn pose(&self, i: usize) -> Option<Pose> {
+        let b = self.world.bodies.get(self.handles[i]?)?;
+        let p = b.position();
+        let r = p.rotation;
+        let q = DQuat::from_xyzw(r.x as f64, r.y as f64, r.z as f64, r.w as f64).normalize();
+        Some(Pose::new(glam::DMat3::from_quat(q), DVec3::new(p.translation.x as f64, p.translation.y as f64, p.translation.z as f64)))
+    }
+}
+
+/// Per object (in scene order): the displacement after every round, or
+/// `None` for static objects.
+pub fn displacement(scene: &Scene, settings: &SimSettings) -> Result<Vec<Option<Vec<Displacement>>>> {
+    let mut sim = SimWorld::new(scene, settings)?;
+    let mut out: Vec<Option<Vec<Displacement>>> = sim.handles.iter().map(|h| h.map(|_| Vec::new())).collect();
+    for round in 0..settings.rounds {
+        sim.round();
+        let time_s = ((round + 1) * settings.steps) as f64 * settings.dt;
+        for (i, o) in scene.objects.iter().enumerate() {
+            let (Some(p), Some(v)) = (sim.pose(i), out[i].as_mut()) else { continue };
+            let angle = DQuat::from_mat3(&o.pose.r).angle_between(DQuat::from_mat3(&p.r)).to_degrees();
+            v.push(Displacement { time_s, translation: (p.t - o.pose.t).length(), rotation_deg: angle });
         }
     }
     Ok(out)

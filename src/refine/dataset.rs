@@ -18,6 +18,9 @@ use crate::error::{Error, Result};
 use crate::kernels::RenderMesh;
 use crate::mesh::Mesh;
 use crate::observation::{read_mask_png, DepthImage};
+use crate::physical::scene::{Scene as PhysScene, SceneObject};
+use crate::physical::simulate::SimWorld;
+use crate::support_plane::{fit_support_plane, PlaneFitParams};
 use crate::visual::Device;
 
 /// Where the objects' masks come from.
@@ -93,6 +96,34 @@ impl Masks {
 pub struct Model {
     pub render: RenderMesh,
     pub surface: ModelSurface,
+    /// The mesh (metres), for the simulation.
+    pub mesh: std::sync::Arc<Mesh>,
+}
+
+impl Model {
+    /// The render mesh, surface samples and the mesh itself.
+    pub fn new(mesh: Mesh, p: &RefineParams) -> Result<Model> {
+        Ok(Model { render: RenderMesh::new(&mesh)?, surface: ModelSurface::sample(&mesh, p.samples, p.seed)?, mesh: std::sync::Arc::new(mesh) })
+    }
+}
+
+/// The simulation PIR steps in: the object (dynamic, index 0) on the
+/// support plane (camera frame, gravity against its normal) among the
+/// other objects at their current estimates (static).
+pub fn physics_world(plane: &crate::physical::Plane, body: &Model, others: &[(&Model, crate::pose::Pose)], p: &RefineParams) -> Result<SimWorld> {
+    let object = |i: usize, m: &Model, pose: crate::pose::Pose, is_static: bool| SceneObject {
+        name: format!("object {i}"),
+        mesh: m.mesh.clone(),
+        mesh_path: PathBuf::new(),
+        units: crate::mesh::MeshUnits::Metres,
+        pose,
+        is_static,
+        density: crate::physical::scene::DEFAULT_DENSITY,
+    };
+    let mut objects = vec![object(0, body, crate::pose::Pose::new(glam::DMat3::IDENTITY, plane.point + plane.normal), false)];
+    objects.extend(others.iter().enumerate().map(|(i, (m, pose))| object(i + 1, m, *pose, true)));
+    let scene = PhysScene { gravity: -9.81 * plane.normal, planes: vec![*plane], objects };
+    SimWorld::new(&scene, &p.sim)
 }
 
 /// Loads the models of `obj_ids` (BOP models are millimetres).
@@ -104,7 +135,7 @@ pub fn load_models(ds: &Dataset, obj_ids: &[u32], p: &RefineParams) -> Result<Ha
             let (pts, tris) = crate::mesh::load_positions(&path)?;
             let metres: Vec<DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
             let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
-            Ok((id, Model { render: RenderMesh::new(&mesh)?, surface: ModelSurface::sample(&mesh, p.samples, p.seed)? }))
+            Ok((id, Model::new(mesh, p)?))
         })
         .collect()
 }
@@ -131,6 +162,8 @@ pub fn image_jobs(estimates: &[Estimate]) -> Vec<ImageJob> {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ImageStats {
     pub objects: usize,
+    /// Whether the image's refinement simulated (a support plane was found).
+    pub physics: bool,
     /// Objects left as they were (no mask, or too few observed points).
     pub unrefined: usize,
     pub steps: usize,
@@ -155,20 +188,42 @@ pub fn refine_image(
     let mut objs: Vec<u32> = job.estimates.iter().map(|e| e.obj_id).collect();
     objs.sort_unstable();
     objs.dedup();
+    for obj in &objs {
+        if !models.contains_key(obj) {
+            return Err(Error::InvalidInput(format!("object {obj} has no model in the dataset")));
+        }
+    }
+    let object_masks: Vec<Option<Vec<bool>>> =
+        objs.iter().map(|&obj| masks.read(scene, job.im_id, obj, depth_mm.width, depth_mm.height)).collect::<Result<_>>()?;
+    // The support plane, fitted outside every object's mask, for PIR.
+    let plane = if p.method.simulates(p.physics) {
+        let mut all = vec![false; depth.depth.len()];
+        for m in object_masks.iter().flatten() {
+            all.iter_mut().zip(m).for_each(|(a, b)| *a |= *b);
+        }
+        fit_support_plane(&depth, Some(&all), &PlaneFitParams::default()).ok().map(|f| f.plane)
+    } else {
+        None
+    };
+    // Each object's best-scored estimate stands for it among the others.
+    let best = |obj: u32| job.estimates.iter().filter(|e| e.obj_id == obj).max_by(|a, b| a.score.total_cmp(&b.score)).map(|e| e.pose.to_pose());
     let results: Vec<(u32, Option<Vec<super::Refined>>)> = objs
         .par_iter()
-        .map(|&obj| {
-            let model = models.get(&obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model in the dataset")))?;
-            let Some(mask) = masks.read(scene, job.im_id, obj, depth_mm.width, depth_mm.height)? else { return Ok((obj, None)) };
-            if !mask.iter().any(|&m| m) {
-                return Ok((obj, None));
+        .zip(&object_masks)
+        .map(|(&obj, mask)| {
+            let model = &models[&obj];
+            let Some(mask) = mask.as_ref().filter(|m| m.iter().any(|&v| v)) else { return Ok((obj, None)) };
+            let mut view = ObjectView::new(device, &model.render, &depth, mask, p)?;
+            if let Some(plane) = &plane {
+                let others: Vec<(&Model, crate::pose::Pose)> =
+                    objs.iter().filter(|&&o| o != obj).filter_map(|&o| Some((&models[&o], best(o)?))).collect();
+                view.sim = physics_world(plane, model, &others, p).ok();
             }
-            let view = ObjectView::new(device, &model.render, &depth, &mask, p)?;
             let initial: Vec<_> = job.estimates.iter().filter(|e| e.obj_id == obj).map(|e| e.pose.to_pose()).collect();
-            Ok((obj, Some(refine_hypotheses(&model.surface, &view, &initial, p)?)))
+            Ok((obj, Some(refine_hypotheses(&model.surface, &mut view, &initial, p)?)))
         })
         .collect::<Result<_>>()?;
-    let mut stats = ImageStats { objects: objs.len(), ..Default::default() };
+    let mut stats = ImageStats { objects: objs.len(), physics: plane.is_some(), ..Default::default() };
     let mut out = job.estimates.clone();
     for (obj, refined) in results {
         let Some(refined) = refined else {

@@ -42,7 +42,6 @@ impl Default for EstimateParams {
 /// its resting poses.
 pub struct EstimateModel {
     pub model: Model,
-    pub mesh: Mesh,
     pub rests: Vec<RestingPose>,
 }
 
@@ -102,8 +101,13 @@ pub fn estimate_image(
                 return Ok(None);
             }
             let th = Instant::now();
-            let hyps = on_plane_hypotheses(&m.mesh, &m.rests, &plane, &depth, mask, &p.hypotheses)?;
-            let view = ObjectView::new(device, &m.model.render, &depth, mask, &p.refine)?;
+            let hyps = on_plane_hypotheses(&m.model.mesh, &m.rests, &plane, &depth, mask, &p.hypotheses)?;
+            let mut view = ObjectView::new(device, &m.model.render, &depth, mask, &p.refine)?;
+            if p.refine.method.simulates(p.refine.physics) {
+                // Alone on the plane: the other objects' poses are not known
+                // yet (no multi-object support order).
+                view.sim = super::dataset::physics_world(&plane, &m.model, &[], &p.refine).ok();
+            }
             let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
             let scores = view.score_many(&poses)?;
             let mut order: Vec<usize> = (0..poses.len()).collect();
@@ -111,7 +115,12 @@ pub fn estimate_image(
             let best: Vec<_> = order.iter().take(p.top.max(1)).map(|&i| poses[i]).collect();
             let hyp_s = th.elapsed().as_secs_f64();
             let tr = Instant::now();
-            let refined = refine_hypotheses(&m.model.surface, &view, &best, &p.refine)?;
+            // Refinement steps 0: the best hypothesis as it is.
+            let refined = if p.refine.steps == 0 {
+                vec![super::Refined { pose: best[0], score: scores[order[0]], steps: 0, kept: 0 }]
+            } else {
+                refine_hypotheses(&m.model.surface, &mut view, &best, &p.refine)?
+            };
             let top = refined.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("at least one hypothesis");
             let e = Estimate {
                 scene_id: scene.id,
@@ -165,8 +174,7 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
                 }
                 None => crate::hypotheses::on_plane::analytic_resting_poses(&mesh)?,
             };
-            let model = Model { render: crate::kernels::RenderMesh::new(&mesh)?, surface: super::icp::ModelSurface::sample(&mesh, p.samples, p.seed)? };
-            Ok((id, EstimateModel { model, mesh, rests }))
+            Ok((id, EstimateModel { model: Model::new(mesh, p)?, rests }))
         })
         .collect()
 }

@@ -16,6 +16,7 @@ use crate::error::{Error, Result};
 use crate::kernels::score::ScoreParams;
 use crate::kernels::RenderMesh;
 use crate::observation::{DepthImage, RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
+use crate::physical::simulate::SimWorld;
 use crate::pose::Pose;
 use crate::visual::{Device, Scorer};
 use bandit::Ucb;
@@ -26,6 +27,10 @@ use icp::{icp, IcpParams, ModelSurface};
 pub enum Method {
     /// ICP steps, no verification.
     Ref,
+    /// ICP steps, each after a short simulation of the object on the
+    /// support plane among the other objects (velocities reset), no
+    /// verification.
+    Pir,
     /// ICP steps kept only where the score improves.
     Sir,
     /// SIR steps allocated over the hypotheses by UCB1.
@@ -37,6 +42,7 @@ impl Method {
     pub fn parse(s: &str) -> Option<Method> {
         match s {
             "ref" => Some(Method::Ref),
+            "pir" => Some(Method::Pir),
             "sir" => Some(Method::Sir),
             "rir" => Some(Method::Rir),
             _ => None,
@@ -46,6 +52,7 @@ impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::Ref => "ref",
+            Method::Pir => "pir",
             Method::Sir => "sir",
             Method::Rir => "rir",
         }
@@ -70,6 +77,21 @@ pub struct RefineParams {
     /// Model surface samples for ICP, and their seed.
     pub samples: usize,
     pub seed: u64,
+    /// The simulation interleaved with ICP (PIR; SIR and RIR too unless
+    /// `physics` is false): rounds per step and their settings.
+    pub physics: bool,
+    pub sim: crate::physical::simulate::SimSettings,
+}
+
+impl Method {
+    /// Whether the method simulates between ICP steps (given `physics`).
+    pub fn simulates(self, physics: bool) -> bool {
+        match self {
+            Method::Ref => false,
+            Method::Pir => true,
+            Method::Sir | Method::Rir => physics,
+        }
+    }
 }
 
 impl Default for RefineParams {
@@ -84,6 +106,9 @@ impl Default for RefineParams {
             res: 128,
             samples: 3000,
             seed: 0,
+            physics: true,
+            // VeREFINE's settings: dt 1/60 s, 3 steps, one round per step.
+            sim: crate::physical::simulate::SimSettings { rounds: 1, ..Default::default() },
         }
     }
 }
@@ -116,6 +141,9 @@ impl RefineParams {
 pub struct ObjectView {
     pub points: Vec<DVec3>,
     scorer: Scorer,
+    /// The object (dynamic, index 0) on the support plane among the other
+    /// objects (static), for PIR; `None` without physics.
+    pub sim: Option<SimWorld>,
 }
 
 impl ObjectView {
@@ -126,7 +154,7 @@ impl ObjectView {
             (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();
         let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
         let scorer = Scorer::new(device, mesh, &target, p.score, 8)?;
-        Ok(ObjectView { points, scorer })
+        Ok(ObjectView { points, scorer, sim: None })
     }
 
     /// The visual-alignment scores (eq. 3) of many poses, in order.
@@ -156,17 +184,17 @@ pub struct Refined {
 /// Refines an object's hypotheses (`initial`, model → camera, m) against
 /// its view; returns one result per hypothesis, in input order. Fewer than
 /// 20 observed points leave the poses unrefined (scored as they are).
-pub fn refine_hypotheses(model: &ModelSurface, view: &ObjectView, initial: &[Pose], p: &RefineParams) -> Result<Vec<Refined>> {
+pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &[Pose], p: &RefineParams) -> Result<Vec<Refined>> {
     let mut out: Vec<Refined> =
         initial.iter().map(|&pose| Ok(Refined { pose, score: view.score(&pose)?, steps: 0, kept: 0 })).collect::<Result<_>>()?;
     if view.points.len() < 20 || initial.is_empty() {
         return Ok(out);
     }
     match p.method {
-        Method::Ref | Method::Sir => {
+        Method::Ref | Method::Pir | Method::Sir => {
             for h in out.iter_mut() {
                 for _ in 0..p.steps {
-                    step(model, view, h, p)?;
+                    step(model, &mut *view, h, p)?;
                 }
             }
         }
@@ -174,7 +202,7 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &ObjectView, initial: &[Pos
             let mut ucb = Ucb::new(out.len(), p.exploration, p.gamma);
             for _ in 0..p.steps * out.len() {
                 let arm = ucb.select();
-                step(model, view, &mut out[arm], p)?;
+                step(model, &mut *view, &mut out[arm], p)?;
                 ucb.update(arm, out[arm].score);
             }
         }
@@ -182,13 +210,21 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &ObjectView, initial: &[Pos
     Ok(out)
 }
 
-/// One refinement step of a hypothesis: ICP, then (SIR, RIR) kept only if
-/// the score improves.
-fn step(model: &ModelSurface, view: &ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
-    let (pose, _) = icp(model, &view.points, &h.pose, &p.icp)?;
+/// One refinement step of a hypothesis: (PIR) a round of simulation from
+/// its pose, ICP, then (SIR, RIR) kept only if the score improves.
+fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
+    let mut start = h.pose;
+    if let Some(sim) = view.sim.as_mut().filter(|_| p.method.simulates(p.physics)) {
+        sim.set_pose(0, &start);
+        for _ in 0..p.sim.rounds {
+            sim.round();
+        }
+        start = sim.pose(0).unwrap_or(start);
+    }
+    let (pose, _) = icp(model, &view.points, &start, &p.icp)?;
     let score = view.score(&pose)?;
     h.steps += 1;
-    if p.method == Method::Ref || score > h.score {
+    if matches!(p.method, Method::Ref | Method::Pir) || score > h.score {
         h.pose = pose;
         h.score = score;
         h.kept += 1;
