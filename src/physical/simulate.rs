@@ -69,42 +69,83 @@ fn rapier_pose(p: &Pose) -> rapier3d::math::Pose {
     rapier3d::math::Pose::from_parts(p.t.as_vec3(), Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize())
 }
 
+/// An object's colliders and mass, built once and placed in many worlds:
+/// the hull of its vertices (when dynamic), its triangle mesh (when
+/// static), and the closed mesh's mass properties.
+#[derive(Clone)]
+pub struct SimShapes {
+    pub name: String,
+    pub hull: SharedShape,
+    pub trimesh: SharedShape,
+    pub mass: MassProperties,
+}
+
+impl SimShapes {
+    pub fn new(name: &str, mesh: &crate::mesh::Mesh) -> Result<SimShapes> {
+        let verts: Vec<Vec3> = mesh.vertices.iter().map(|v| v.as_vec3()).collect();
+        let trimesh = SharedShape::trimesh(verts.clone(), mesh.triangles.clone())
+            .map_err(|e| Error::InvalidInput(format!("{name}: cannot build a collider: {e}")))?;
+        let hull = SharedShape::convex_hull(&verts).ok_or_else(|| Error::InvalidInput(format!("{name}: the convex hull of the mesh is degenerate")))?;
+        let (mass, _) = MassProperties::of_mesh(mesh)?;
+        Ok(SimShapes { name: name.to_string(), hull, trimesh, mass })
+    }
+}
+
+/// One object placed in a world: its shapes, pose (model to world), and
+/// density when dynamic (`None`: static).
+pub struct SimBody<'a> {
+    pub shapes: &'a SimShapes,
+    pub pose: Pose,
+    pub density: Option<f64>,
+}
+
 impl SimWorld {
     /// Places the scene: planes as half-spaces, static objects as triangle
     /// meshes, dynamic ones as the hull of their vertices with the closed
     /// mesh's mass properties.
     pub fn new(scene: &Scene, settings: &SimSettings) -> Result<SimWorld> {
+        let shapes: Vec<SimShapes> = scene.objects.iter().map(|o| SimShapes::new(&o.name, &o.mesh)).collect::<Result<_>>()?;
+        let bodies: Vec<SimBody> = scene
+            .objects
+            .iter()
+            .zip(&shapes)
+            .map(|(o, shapes)| SimBody { shapes, pose: o.pose, density: (!o.is_static).then_some(o.density) })
+            .collect();
+        let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>() / scene.objects.len().max(1) as f64;
+        SimWorld::from_bodies(&scene.planes, scene.gravity, &bodies, diag, settings)
+    }
+
+    /// A world of prebuilt bodies (see [`SimShapes`]); `length_unit` (m) is
+    /// the objects' typical size, which rapier scales its tolerances by.
+    pub fn from_bodies(planes: &[super::Plane], gravity: DVec3, bodies: &[SimBody], length_unit: f64, settings: &SimSettings) -> Result<SimWorld> {
         if !(settings.dt > 0.0 && settings.dt.is_finite()) || settings.steps == 0 || settings.rounds == 0 {
             return Err(Error::InvalidInput("simulation needs dt > 0, steps ≥ 1 and rounds ≥ 1".into()));
         }
         let mut world = PhysicsWorld::new();
-        world.gravity = scene.gravity.as_vec3();
-        let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>() / scene.objects.len().max(1) as f64;
+        world.gravity = gravity.as_vec3();
         let ip = &mut world.integration_parameters;
         ip.dt = settings.dt as f32;
-        ip.length_unit = diag.max(1e-3) as f32;
+        ip.length_unit = length_unit.max(1e-3) as f32;
         ip.num_solver_iterations = settings.solver_iterations.max(1);
         let mu = settings.friction as f32;
-        for p in &scene.planes {
+        for p in planes {
             world.colliders.insert(ColliderBuilder::new(SharedShape::halfspace(p.normal.as_vec3())).translation(p.point.as_vec3()).friction(mu));
         }
         let mut handles = Vec::new();
-        for o in &scene.objects {
-            let pose = rapier_pose(&o.pose);
-            let verts: Vec<Vec3> = o.mesh.vertices.iter().map(|v| v.as_vec3()).collect();
-            if o.is_static {
-                let shape = SharedShape::trimesh(verts, o.mesh.triangles.clone())
-                    .map_err(|e| Error::InvalidInput(format!("{}: cannot build a collider: {e}", o.name)))?;
-                let h = world.insert_body(RigidBodyBuilder::fixed().pose(pose));
-                world.colliders.insert_with_parent(ColliderBuilder::new(shape).friction(mu), h, &mut world.bodies);
-                handles.push(None);
-            } else {
-                let shape = SharedShape::convex_hull(&verts)
-                    .ok_or_else(|| Error::InvalidInput(format!("{}: the convex hull of the mesh is degenerate", o.name)))?;
-                let (m, _) = MassProperties::of_mesh(&o.mesh)?;
-                let h = world.insert_body(RigidBodyBuilder::dynamic().pose(pose).additional_mass_properties(m.to_rapier(o.density)).can_sleep(false));
-                world.colliders.insert_with_parent(ColliderBuilder::new(shape).density(0.0).friction(mu), h, &mut world.bodies);
-                handles.push(Some(h));
+        for b in bodies {
+            let pose = rapier_pose(&b.pose);
+            match b.density {
+                None => {
+                    let h = world.insert_body(RigidBodyBuilder::fixed().pose(pose));
+                    world.colliders.insert_with_parent(ColliderBuilder::new(b.shapes.trimesh.clone()).friction(mu), h, &mut world.bodies);
+                    handles.push(None);
+                }
+                Some(density) => {
+                    let mprops = b.shapes.mass.to_rapier(density);
+                    let h = world.insert_body(RigidBodyBuilder::dynamic().pose(pose).additional_mass_properties(mprops).can_sleep(false));
+                    world.colliders.insert_with_parent(ColliderBuilder::new(b.shapes.hull.clone()).density(0.0).friction(mu), h, &mut world.bodies);
+                    handles.push(Some(h));
+                }
             }
         }
         Ok(SimWorld { world, handles, steps: settings.steps })

@@ -18,8 +18,7 @@ use crate::error::{Error, Result};
 use crate::kernels::RenderMesh;
 use crate::mesh::Mesh;
 use crate::observation::{read_mask_png, DepthImage};
-use crate::physical::scene::{Scene as PhysScene, SceneObject};
-use crate::physical::simulate::SimWorld;
+use crate::physical::simulate::{SimBody, SimShapes, SimWorld};
 use crate::support_plane::{fit_support_plane, PlaneFitParams};
 use crate::visual::Device;
 
@@ -96,14 +95,20 @@ impl Masks {
 pub struct Model {
     pub render: RenderMesh,
     pub surface: ModelSurface,
-    /// The mesh (metres), for the simulation.
+    /// The mesh (metres), and its colliders and mass for the simulation.
     pub mesh: std::sync::Arc<Mesh>,
+    pub shapes: SimShapes,
 }
 
 impl Model {
     /// The render mesh, surface samples and the mesh itself.
     pub fn new(mesh: Mesh, p: &RefineParams) -> Result<Model> {
-        Ok(Model { render: RenderMesh::new(&mesh)?, surface: ModelSurface::sample(&mesh, p.samples, p.seed)?, mesh: std::sync::Arc::new(mesh) })
+        Ok(Model {
+            render: RenderMesh::new(&mesh)?,
+            surface: ModelSurface::sample(&mesh, p.samples, p.seed)?,
+            shapes: SimShapes::new(&mesh.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "object".into()), &mesh)?,
+            mesh: std::sync::Arc::new(mesh),
+        })
     }
 }
 
@@ -111,19 +116,13 @@ impl Model {
 /// support plane (camera frame, gravity against its normal) among the
 /// other objects at their current estimates (static).
 pub fn physics_world(plane: &crate::physical::Plane, body: &Model, others: &[(&Model, crate::pose::Pose)], p: &RefineParams) -> Result<SimWorld> {
-    let object = |i: usize, m: &Model, pose: crate::pose::Pose, is_static: bool| SceneObject {
-        name: format!("object {i}"),
-        mesh: m.mesh.clone(),
-        mesh_path: PathBuf::new(),
-        units: crate::mesh::MeshUnits::Metres,
-        pose,
-        is_static,
-        density: crate::physical::scene::DEFAULT_DENSITY,
-    };
-    let mut objects = vec![object(0, body, crate::pose::Pose::new(glam::DMat3::IDENTITY, plane.point + plane.normal), false)];
-    objects.extend(others.iter().enumerate().map(|(i, (m, pose))| object(i + 1, m, *pose, true)));
-    let scene = PhysScene { gravity: -9.81 * plane.normal, planes: vec![*plane], objects };
-    SimWorld::new(&scene, &p.sim)
+    let mut bodies = vec![SimBody {
+        shapes: &body.shapes,
+        pose: crate::pose::Pose::new(glam::DMat3::IDENTITY, plane.point + plane.normal),
+        density: Some(crate::physical::scene::DEFAULT_DENSITY),
+    }];
+    bodies.extend(others.iter().map(|(m, pose)| SimBody { shapes: &m.shapes, pose: *pose, density: None }));
+    SimWorld::from_bodies(std::slice::from_ref(plane), -9.81 * plane.normal, &bodies, body.mesh.diagonal(), &p.sim)
 }
 
 /// Loads the models of `obj_ids` (BOP models are millimetres).

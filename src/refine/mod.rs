@@ -1,9 +1,13 @@
 //! Refinement of pose estimates against a depth observation (VeREFINE,
-//! paper section 3.2): REF (robust point-to-plane ICP, [`icp`]), SIR (a
-//! refinement step is kept only if the visual-alignment score of eq. 3
-//! improves, so the score also verifies the final pose) and RIR (a budget
-//! of SIR steps spread over an object's hypotheses by UCB1 on the score,
-//! [`bandit`]). [`dataset`] runs them over the images of a BOP dataset.
+//! paper section 3.2): REF (robust point-to-plane ICP, [`icp`]), PIR (ICP
+//! after a round of rigid-body simulation on the support plane among the
+//! other objects, [`crate::physical::simulate::SimWorld`]), SIR (the
+//! simulated and the refined pose are scored and the better one kept only
+//! if the visual-alignment score of eq. 3 improves, so the score also
+//! verifies the final pose) and RIR (a budget of SIR steps spread over an
+//! object's hypotheses by UCB1 on the score, [`bandit`]). [`dataset`] runs
+//! them over the images of a BOP dataset, [`estimate`] makes the
+//! hypotheses from resting poses.
 
 pub mod bandit;
 pub mod dataset;
@@ -38,7 +42,7 @@ pub enum Method {
 }
 
 impl Method {
-    /// Parses `ref`, `sir` or `rir`.
+    /// Parses `ref`, `pir`, `sir` or `rir`.
     pub fn parse(s: &str) -> Option<Method> {
         match s {
             "ref" => Some(Method::Ref),
@@ -210,23 +214,37 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &
     Ok(out)
 }
 
-/// One refinement step of a hypothesis: (PIR) a round of simulation from
-/// its pose, ICP, then (SIR, RIR) kept only if the score improves.
+/// One refinement step of a hypothesis. PIR: a round of simulation from its
+/// pose, whose rotation only is kept (as VeREFINE does: the translation
+/// follows the fitted plane's noise; ICP sets it from the data), then ICP.
+/// SIR and RIR score both the simulated and the refined pose and keep the
+/// better one if it beats the hypothesis' score.
 fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
-    let mut start = h.pose;
+    let mut simulated = None;
     if let Some(sim) = view.sim.as_mut().filter(|_| p.method.simulates(p.physics)) {
-        sim.set_pose(0, &start);
+        sim.set_pose(0, &h.pose);
         for _ in 0..p.sim.rounds {
             sim.round();
         }
-        start = sim.pose(0).unwrap_or(start);
+        simulated = sim.pose(0).map(|s| Pose::new(s.r, h.pose.t));
     }
-    let (pose, _) = icp(model, &view.points, &start, &p.icp)?;
-    let score = view.score(&pose)?;
+    let (refined, _) = icp(model, &view.points, &simulated.unwrap_or(h.pose), &p.icp)?;
     h.steps += 1;
-    if matches!(p.method, Method::Ref | Method::Pir) || score > h.score {
-        h.pose = pose;
-        h.score = score;
+    let refined_score = view.score(&refined)?;
+    if matches!(p.method, Method::Ref | Method::Pir) {
+        (h.pose, h.score) = (refined, refined_score);
+        h.kept += 1;
+        return Ok(());
+    }
+    let mut best = (refined, refined_score);
+    if let Some(s) = simulated {
+        let score = view.score(&s)?;
+        if score > best.1 {
+            best = (s, score);
+        }
+    }
+    if best.1 > h.score {
+        (h.pose, h.score) = best;
         h.kept += 1;
     }
     Ok(())
