@@ -66,12 +66,8 @@ pub struct EstimateArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// `auto`, `gpu` or `cpu` (as for eval).
-    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
-    pub device: String,
-    /// Use the first adapter whose name contains this text.
-    #[arg(long)]
-    pub adapter: Option<String>,
+    #[command(flatten)]
+    pub dev: super::AutoDeviceArgs,
 }
 
 pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
@@ -115,7 +111,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();
-    let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
+    let device = a.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by RIR; {}", jobs.len(), a.yaw_steps, a.top, masks.describe());
     let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;

@@ -54,15 +54,8 @@ pub struct EvalArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// `auto` (a hardware GPU when there is one, else the CPU twin, which
-    /// beats a software adapter like lavapipe on the same cores), `gpu` (any
-    /// wgpu adapter, lavapipe included) or `cpu` (the CPU twin).
-    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
-    pub device: String,
-    /// Use the first adapter whose name contains this text. WGPU_BACKEND
-    /// (vulkan, metal, dx12, gl) and WGPU_POWER_PREF are honoured too.
-    #[arg(long)]
-    pub adapter: Option<String>,
+    #[command(flatten)]
+    pub dev: super::AutoDeviceArgs,
 }
 
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
@@ -110,7 +103,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         }
         (None, None) => bail!("give --results or --gt-as-results"),
     };
-    let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
+    let device = a.dev.open(verbose)?;
     let n_images = {
         let mut ims: Vec<(u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id)).collect();
         ims.sort_unstable();

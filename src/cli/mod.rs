@@ -106,6 +106,28 @@ pub struct DeviceArgs {
     pub adapter: Option<String>,
 }
 
+/// Where to run, for the dataset commands (eval, refine, estimate), whose
+/// default is `auto`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct AutoDeviceArgs {
+    /// `auto` (a hardware GPU when there is one, else the CPU twin, which
+    /// beats a software adapter like lavapipe on the same cores), `gpu` (any
+    /// wgpu adapter, lavapipe included) or `cpu` (the CPU twin).
+    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
+    pub device: String,
+    /// Use the first adapter whose name contains this text. WGPU_BACKEND
+    /// (vulkan, metal, dx12, gl) and WGPU_POWER_PREF are honoured too.
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+impl AutoDeviceArgs {
+    /// Opens the device; a missing GPU adapter falls back to the CPU twin.
+    pub fn open(&self, verbose: u8) -> Result<Device> {
+        open_device(&self.device, self.adapter.as_deref(), verbose, true)
+    }
+}
+
 impl DeviceArgs {
     /// Opens the requested device. With `fallback`, a missing GPU adapter is
     /// reported and the CPU twin is used instead.

@@ -60,12 +60,8 @@ pub struct RefineArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// `auto`, `gpu` or `cpu` (as for eval).
-    #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
-    pub device: String,
-    /// Use the first adapter whose name contains this text.
-    #[arg(long)]
-    pub adapter: Option<String>,
+    #[command(flatten)]
+    pub dev: super::AutoDeviceArgs,
 }
 
 /// `oracle` or a folder of masks.
@@ -148,7 +144,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
         bail!("--init: object {o} is not in the dataset's models_info.json");
     }
-    let device = super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?;
+    let device = a.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
     let mut file = ResultsAppender::open(&a.out)?;

@@ -170,6 +170,13 @@ pub struct ImageStats {
     pub seconds: f64,
 }
 
+/// An image's depth in metres with its intrinsics.
+pub fn depth_image(scene: &Scene, im_id: u32) -> Result<DepthImage> {
+    let mm = scene.read_depth(im_id)?;
+    let intrinsics = scene.intrinsics(im_id, mm.width, mm.height)?;
+    Ok(DepthImage { intrinsics, depth: mm.mm.iter().map(|v| v * 1e-3).collect() })
+}
+
 /// Refines the estimates of one image; returns them (input order) with
 /// their new poses and scores, and the image's wall time as `time`.
 pub fn refine_image(
@@ -181,9 +188,8 @@ pub fn refine_image(
     p: &RefineParams,
 ) -> Result<(Vec<Estimate>, ImageStats)> {
     let t0 = Instant::now();
-    let depth_mm = scene.read_depth(job.im_id)?;
-    let k = scene.intrinsics(job.im_id, depth_mm.width, depth_mm.height)?;
-    let depth = DepthImage { intrinsics: k, depth: depth_mm.mm.iter().map(|v| v * 1e-3).collect() };
+    let depth = depth_image(scene, job.im_id)?;
+    let (width, height) = (depth.intrinsics.width, depth.intrinsics.height);
     let mut objs: Vec<u32> = job.estimates.iter().map(|e| e.obj_id).collect();
     objs.sort_unstable();
     objs.dedup();
@@ -193,7 +199,7 @@ pub fn refine_image(
         }
     }
     let object_masks: Vec<Option<Vec<bool>>> =
-        objs.iter().map(|&obj| masks.read(scene, job.im_id, obj, depth_mm.width, depth_mm.height)).collect::<Result<_>>()?;
+        objs.iter().map(|&obj| masks.read(scene, job.im_id, obj, width, height)).collect::<Result<_>>()?;
     // The support plane, fitted outside every object's mask, for PIR.
     let plane = if p.method.simulates(p.physics) {
         let mut all = vec![false; depth.depth.len()];

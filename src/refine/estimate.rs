@@ -18,7 +18,6 @@ use crate::bop::results::Estimate;
 use crate::error::{Error, Result};
 use crate::hypotheses::on_plane::{on_plane_hypotheses, OnPlaneParams, RestingPose};
 use crate::mesh::Mesh;
-use crate::observation::DepthImage;
 use crate::support_plane::{fit_support_plane, PlaneFitParams};
 use crate::visual::Device;
 
@@ -72,10 +71,8 @@ pub fn estimate_image(
     p: &EstimateParams,
 ) -> Result<(Vec<Estimate>, EstimateStats)> {
     let t0 = Instant::now();
-    let depth_mm = scene.read_depth(im_id)?;
-    let (w, h) = (depth_mm.width, depth_mm.height);
-    let k = scene.intrinsics(im_id, w, h)?;
-    let depth = DepthImage { intrinsics: k, depth: depth_mm.mm.iter().map(|v| v * 1e-3).collect() };
+    let depth = super::dataset::depth_image(scene, im_id)?;
+    let (w, h) = (depth.intrinsics.width, depth.intrinsics.height);
     // Every instance mask of the image's target objects.
     let mut instances: Vec<(u32, Vec<bool>)> = Vec::new();
     for t in targets {
