@@ -215,10 +215,12 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &
 }
 
 /// One refinement step of a hypothesis. PIR: a round of simulation from its
-/// pose, whose rotation only is kept (as VeREFINE does: the translation
-/// follows the fitted plane's noise; ICP sets it from the data), then ICP.
-/// SIR and RIR score both the simulated and the refined pose and keep the
-/// better one if it beats the hypothesis' score.
+/// pose, then ICP from the simulated pose. SIR and RIR score both the
+/// simulated and the refined pose and keep the better one if it beats the
+/// hypothesis' score. (VeREFINE keeps only the simulated rotation; keeping
+/// the translation too is what brings an estimate floating above its
+/// support down when ICP cannot see the gap, e.g. with the top face
+/// occluded: see the stacked-cube test.)
 fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
     let mut simulated = None;
     if let Some(sim) = view.sim.as_mut().filter(|_| p.method.simulates(p.physics)) {
@@ -226,7 +228,7 @@ fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &Refine
         for _ in 0..p.sim.rounds {
             sim.round();
         }
-        simulated = sim.pose(0).map(|s| Pose::new(s.r, h.pose.t));
+        simulated = sim.pose(0);
     }
     let (refined, _) = icp(model, &view.points, &simulated.unwrap_or(h.pose), &p.icp)?;
     h.steps += 1;
