@@ -108,6 +108,13 @@ fn refine_refuses_bad_flags_before_any_work() {
     }
     let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&init).output().unwrap();
     assert!(String::from_utf8_lossy(&o.stderr).contains("is the --init file"));
+    // A device as the output: never read for resuming (reading /dev/full
+    // grew memory until the process was killed); the write error is named.
+    if std::path::Path::new("/dev/full").exists() {
+        let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).args(["--out", "/dev/full", "--quiet", "--device", "cpu"]).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && err.contains("/dev/full"), "{err}");
+    }
 }
 
 /// `estimate` from the quasi-static resting poses on the fitted plane, with

@@ -82,20 +82,32 @@ pub fn parse_masks(s: &str) -> Result<Masks> {
 pub struct ResultsAppender {
     file: std::fs::File,
     path: PathBuf,
+    /// A regular file is synced after each image (a pipe or device cannot be).
+    regular: bool,
 }
 
 impl ResultsAppender {
     pub fn open(path: &std::path::Path) -> Result<ResultsAppender> {
-        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("cannot open {}", path.display()))?;
-        if file.metadata()?.len() == 0 {
-            writeln!(file, "{HEADER}")?;
+        let file = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let regular = file.metadata().is_ok_and(|m| m.is_file());
+        let mut out = ResultsAppender { file, path: path.to_path_buf(), regular };
+        if !regular || out.file.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
+            out.write(&format!("{HEADER}\n"))?;
         }
-        Ok(ResultsAppender { file, path: path.to_path_buf() })
+        Ok(out)
     }
 
     pub fn append(&mut self, estimates: &[plausible::bop::Estimate]) -> Result<()> {
         let text: String = estimates.iter().map(|e| format_line(e) + "\n").collect();
-        self.file.write_all(text.as_bytes()).and_then(|_| self.file.sync_data()).with_context(|| format!("cannot write {}", self.path.display()))
+        self.write(&text)
+    }
+
+    fn write(&mut self, text: &str) -> Result<()> {
+        self.file.write_all(text.as_bytes()).with_context(|| format!("cannot write {}", self.path.display()))?;
+        if self.regular {
+            self.file.sync_data().with_context(|| format!("cannot write {}", self.path.display()))?;
+        }
+        Ok(())
     }
 }
 

@@ -257,9 +257,15 @@ pub fn refine_image(
 /// image counts when the file holds as many of its estimates as `expected`
 /// says (its count in the input). A kill can leave a line cut off or an
 /// image half written; those lines are removed (the file is rewritten
-/// atomically) and the images run again. A missing file is an empty set.
+/// atomically) and the images run again. A missing file, or one that is not
+/// a regular file, is an empty set.
 pub fn resume_from(path: &Path, expected: &HashMap<(u32, u32), usize>) -> Result<std::collections::BTreeSet<(u32, u32)>> {
-    let Ok(text) = std::fs::read_to_string(path) else { return Ok(Default::default()) };
+    // Only a regular file can be resumed (reading /dev/full or a FIFO would
+    // never end); anything else is written to as it is.
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return Ok(Default::default());
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
     let mut rows: Vec<((u32, u32), &str)> = Vec::new();
     for (i, line) in complete.lines().enumerate() {
