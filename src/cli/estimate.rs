@@ -7,11 +7,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::Dataset;
-use plausible::refine::dataset::resume_from;
 use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
 use plausible::refine::{Method, RefineParams};
 
-use super::refine::{parse_masks, parse_shard, ResultsAppender};
+use super::refine::{parse_masks, parse_shard, shard_of, skip_done, ResultsAppender};
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
@@ -97,17 +96,8 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     if by_image.is_empty() {
         bail!("no targets in the chosen scenes and images");
     }
-    let mut jobs: Vec<((u32, u32), Vec<_>)> = by_image.into_iter().collect();
-    if let Some((k, n)) = shard {
-        jobs = jobs.into_iter().enumerate().filter(|(i, _)| i % n == k - 1).map(|(_, j)| j).collect();
-    }
-    let expected: HashMap<(u32, u32), usize> = jobs.iter().map(|(k, ts)| (*k, ts.iter().map(|t| t.inst_count as usize).sum())).collect();
-    let done = resume_from(&a.out, &expected).context("--out (resuming)")?;
-    let before = jobs.len();
-    jobs.retain(|(k, _)| !done.contains(k));
-    if before > jobs.len() {
-        eprintln!("resuming: {} of {before} images are already in {}", before - jobs.len(), a.out.display());
-    }
+    let mut jobs: Vec<((u32, u32), Vec<_>)> = shard_of(by_image.into_iter().collect(), shard);
+    skip_done(&mut jobs, &a.out, |(k, _)| *k, |(_, ts)| ts.iter().map(|t| t.inst_count as usize).sum())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();

@@ -121,6 +121,27 @@ pub fn parse_shard(s: &str) -> Result<(usize, usize)> {
     Ok((k, n))
 }
 
+/// The images of shard `k/n` (every n-th, from the k-th), all without one.
+pub fn shard_of<T>(jobs: Vec<T>, shard: Option<(usize, usize)>) -> Vec<T> {
+    match shard {
+        Some((k, n)) => jobs.into_iter().enumerate().filter(|(i, _)| i % n == k - 1).map(|(_, j)| j).collect(),
+        None => jobs,
+    }
+}
+
+/// Drops the images already complete in `out` (see [`resume_from`]);
+/// `key` gives a job's (scene, image) and `expected` its estimate count.
+pub fn skip_done<T>(jobs: &mut Vec<T>, out: &std::path::Path, key: impl Fn(&T) -> (u32, u32), expected: impl Fn(&T) -> usize) -> Result<()> {
+    let counts = jobs.iter().map(|j| (key(j), expected(j))).collect();
+    let done = resume_from(out, &counts).context("--out (resuming)")?;
+    let before = jobs.len();
+    jobs.retain(|j| !done.contains(&key(j)));
+    if before > jobs.len() {
+        eprintln!("resuming: {} of {before} images are already in {}", before - jobs.len(), out.display());
+    }
+    Ok(())
+}
+
 pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     let params = RefineParams {
         method: Method::parse(&a.method).context("--method")?,
@@ -139,17 +160,8 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     }
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let init = read_results(&a.init).context("--init")?;
-    let mut jobs = image_jobs(&init);
-    if let Some((k, n)) = shard {
-        jobs = jobs.into_iter().enumerate().filter(|(i, _)| i % n == k - 1).map(|(_, j)| j).collect();
-    }
-    let expected = jobs.iter().map(|j| ((j.scene_id, j.im_id), j.estimates.len())).collect();
-    let done = resume_from(&a.out, &expected).context("--out (resuming)")?;
-    let before = jobs.len();
-    jobs.retain(|j| !done.contains(&(j.scene_id, j.im_id)));
-    if before > jobs.len() {
-        eprintln!("resuming: {} of {before} images are already in {}", before - jobs.len(), a.out.display());
-    }
+    let mut jobs = shard_of(image_jobs(&init), shard);
+    skip_done(&mut jobs, &a.out, |j| (j.scene_id, j.im_id), |j| j.estimates.len())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();

@@ -281,8 +281,7 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
         return Err("all points coincide".into());
     }
     let pts: Vec<Vec3> = points.iter().map(|p| (*p - centre).as_vec3()).collect();
-    let (mut hv, mut ht) = rapier3d::parry::transformation::try_convex_hull(&pts)
-        .map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))?;
+    let (mut hv, mut ht) = quickhull(&pts)?;
     if ht.len() < 4 {
         return Err("the points span no volume (flat or degenerate hull)".into());
     }
@@ -303,14 +302,18 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
     Ok((hv.iter().map(|v| v.as_dvec3() + centre).collect(), ht))
 }
 
+/// parry's quickhull of `pts`, its failure as text.
+fn quickhull(pts: &[Vec3]) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), String> {
+    rapier3d::parry::transformation::try_convex_hull(pts).map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))
+}
+
 /// The hull of `pts` (centred, extent `diag`) built from the points moved
 /// by a deterministic jitter of 1e-4 of the size, which breaks the
 /// coplanarity that trips quickhull, with the jittered points taken back;
 /// checked to hold every point within `20 · tol`.
 fn jittered_hull(pts: &[Vec3], diag: f32, tol: f32) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), String> {
     let jittered: Vec<Vec3> = pts.iter().enumerate().map(|(i, p)| *p + jitter(i) * (1e-4 * diag)).collect();
-    let (jv, mut jt) = rapier3d::parry::transformation::try_convex_hull(&jittered)
-        .map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))?;
+    let (jv, mut jt) = quickhull(&jittered)?;
     orient_outward(&jv, &mut jt);
     let index: std::collections::HashMap<[u32; 3], usize> =
         jittered.iter().enumerate().map(|(i, p)| ([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()], i)).collect();

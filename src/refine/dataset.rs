@@ -34,10 +34,10 @@ pub enum Masks {
 }
 
 impl Masks {
-    /// The object's mask in an image, `None` when it has none (no
-    /// ground-truth instance, or no file in the folder).
-    fn read(&self, scene: &Scene, im_id: u32, obj_id: u32, width: u32, height: u32) -> Result<Option<Vec<bool>>> {
-        let paths: Vec<PathBuf> = match self {
+    /// The mask files of the object's instances in an image (oracle: one
+    /// per ground-truth instance; a folder: its one file, when present).
+    fn paths(&self, scene: &Scene, im_id: u32, obj_id: u32) -> Vec<PathBuf> {
+        match self {
             Masks::Oracle => scene
                 .gt
                 .get(&im_id)
@@ -53,33 +53,19 @@ impl Masks {
                 let p = d.join(format!("{:06}", scene.id)).join(format!("{im_id:06}_{obj_id:06}.png"));
                 if p.exists() { vec![p] } else { vec![] }
             }
-        };
-        if paths.is_empty() {
-            return Ok(None);
         }
-        let mut union = vec![false; (width * height) as usize];
-        for p in paths {
-            for (u, m) in union.iter_mut().zip(read_mask_png(&p, width, height)?) {
-                *u |= m;
-            }
-        }
-        Ok(Some(union))
     }
 
-    /// Each instance's own mask of the object in an image (oracle: one per
-    /// ground-truth instance; a folder: its one mask), empty when none.
+    /// Each instance's own mask of the object in an image, empty when none.
     pub fn instances(&self, scene: &Scene, im_id: u32, obj_id: u32, width: u32, height: u32) -> Result<Vec<Vec<bool>>> {
-        match self {
-            Masks::Oracle => {
-                let Some(gt) = scene.gt.get(&im_id) else { return Ok(vec![]) };
-                gt.iter()
-                    .enumerate()
-                    .filter(|(_, g)| g.obj_id == obj_id)
-                    .map(|(k, _)| read_mask_png(&scene.dir.join("mask_visib").join(format!("{im_id:06}_{k:06}.png")), width, height))
-                    .collect()
-            }
-            Masks::Dir(_) => Ok(self.read(scene, im_id, obj_id, width, height)?.into_iter().collect()),
-        }
+        self.paths(scene, im_id, obj_id).iter().map(|p| read_mask_png(p, width, height)).collect()
+    }
+
+    /// The object's mask in an image (the union of its instances'), `None`
+    /// when it has none (no ground-truth instance, or no file in the folder).
+    fn read(&self, scene: &Scene, im_id: u32, obj_id: u32, width: u32, height: u32) -> Result<Option<Vec<bool>>> {
+        let masks = self.instances(scene, im_id, obj_id, width, height)?;
+        Ok((!masks.is_empty()).then(|| union(masks.iter().map(Vec::as_slice), (width * height) as usize)))
     }
 
     pub fn describe(&self) -> String {
@@ -88,6 +74,21 @@ impl Masks {
             Masks::Dir(d) => format!("masks from {}", d.display()),
         }
     }
+}
+
+/// The pixels in any of `masks` (each `n` pixels).
+pub fn union<'a>(masks: impl IntoIterator<Item = &'a [bool]>, n: usize) -> Vec<bool> {
+    let mut all = vec![false; n];
+    for m in masks {
+        all.iter_mut().zip(m).for_each(|(a, b)| *a |= *b);
+    }
+    all
+}
+
+/// The support plane fitted to the depth outside every object's mask.
+pub fn support_plane<'a>(depth: &DepthImage, masks: impl IntoIterator<Item = &'a [bool]>, p: &PlaneFitParams) -> Result<crate::physical::Plane> {
+    let outside = union(masks, depth.depth.len());
+    Ok(fit_support_plane(depth, Some(&outside), p)?.plane)
 }
 
 /// An object's meshes for refinement: the render mesh (scoring) and its
@@ -125,18 +126,17 @@ pub fn physics_world(plane: &crate::physical::Plane, body: &Model, others: &[(&M
     SimWorld::from_bodies(std::slice::from_ref(plane), -9.81 * plane.normal, &bodies, body.mesh.diagonal(), &p.sim)
 }
 
-/// Loads the models of `obj_ids` (BOP models are millimetres).
+/// A dataset model in metres (BOP models are millimetres).
+pub fn model_mesh(ds: &Dataset, obj_id: u32) -> Result<Mesh> {
+    let path = ds.model_path(obj_id);
+    let (pts, tris) = crate::mesh::load_positions(&path)?;
+    let metres: Vec<DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
+    Ok(Mesh::from_raw(&path, metres, tris)?.0)
+}
+
+/// Loads the models of `obj_ids`.
 pub fn load_models(ds: &Dataset, obj_ids: &[u32], p: &RefineParams) -> Result<HashMap<u32, Model>> {
-    obj_ids
-        .par_iter()
-        .map(|&id| {
-            let path = ds.model_path(id);
-            let (pts, tris) = crate::mesh::load_positions(&path)?;
-            let metres: Vec<DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
-            let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
-            Ok((id, Model::new(mesh, p)?))
-        })
-        .collect()
+    obj_ids.par_iter().map(|&id| Ok((id, Model::new(model_mesh(ds, id)?, p)?))).collect()
 }
 
 /// The estimates of one image.
@@ -161,8 +161,6 @@ pub fn image_jobs(estimates: &[Estimate]) -> Vec<ImageJob> {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ImageStats {
     pub objects: usize,
-    /// Whether the image's refinement simulated (a support plane was found).
-    pub physics: bool,
     /// Objects left as they were (no mask, or too few observed points).
     pub unrefined: usize,
     pub steps: usize,
@@ -202,11 +200,7 @@ pub fn refine_image(
         objs.iter().map(|&obj| masks.read(scene, job.im_id, obj, width, height)).collect::<Result<_>>()?;
     // The support plane, fitted outside every object's mask, for PIR.
     let plane = if p.method.simulates(p.physics) {
-        let mut all = vec![false; depth.depth.len()];
-        for m in object_masks.iter().flatten() {
-            all.iter_mut().zip(m).for_each(|(a, b)| *a |= *b);
-        }
-        fit_support_plane(&depth, Some(&all), &PlaneFitParams::default()).ok().map(|f| f.plane)
+        support_plane(&depth, object_masks.iter().flatten().map(Vec::as_slice), &PlaneFitParams::default()).ok()
     } else {
         None
     };
@@ -228,7 +222,7 @@ pub fn refine_image(
             Ok((obj, Some(refine_hypotheses(&model.surface, &mut view, &initial, p)?)))
         })
         .collect::<Result<_>>()?;
-    let mut stats = ImageStats { objects: objs.len(), physics: plane.is_some(), ..Default::default() };
+    let mut stats = ImageStats { objects: objs.len(), ..Default::default() };
     let mut out = job.estimates.clone();
     for (obj, refined) in results {
         let Some(refined) = refined else {

@@ -11,14 +11,13 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::dataset::{Masks, Model};
-use super::{refine_hypotheses, ObjectView, RefineParams};
+use super::dataset::{model_mesh, support_plane, Masks, Model};
+use super::{refine_hypotheses, ObjectView, RefineParams, MIN_OBSERVED_POINTS};
 use crate::bop::dataset::{PoseMm, Scene, Target};
 use crate::bop::results::Estimate;
 use crate::error::{Error, Result};
 use crate::hypotheses::on_plane::{on_plane_hypotheses, OnPlaneParams, RestingPose};
-use crate::mesh::Mesh;
-use crate::support_plane::{fit_support_plane, PlaneFitParams};
+use crate::support_plane::PlaneFitParams;
 use crate::visual::Device;
 
 /// Estimation settings.
@@ -81,20 +80,15 @@ pub fn estimate_image(
         }
     }
     let mut stats = EstimateStats { instances: instances.len(), ..Default::default() };
-    let mut all = vec![false; (w * h) as usize];
-    for (_, m) in &instances {
-        all.iter_mut().zip(m).for_each(|(a, b)| *a |= *b);
-    }
     let tp = Instant::now();
-    let plane = fit_support_plane(&depth, Some(&all), &p.plane)
-        .map_err(|e| Error::InvalidInput(format!("image {im_id}: support plane: {e}")))?
-        .plane;
+    let plane = support_plane(&depth, instances.iter().map(|(_, m)| m.as_slice()), &p.plane)
+        .map_err(|e| Error::InvalidInput(format!("image {im_id}: support plane: {e}")))?;
     stats.plane_s = tp.elapsed().as_secs_f64();
     let per: Vec<Option<(Estimate, usize, f64, f64)>> = instances
         .par_iter()
         .map(|(obj, mask)| {
             let m = models.get(obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model")))?;
-            if mask.iter().zip(&depth.depth).filter(|(m, d)| **m && **d > 0.0).count() < 20 {
+            if mask.iter().zip(&depth.depth).filter(|(m, d)| **m && **d > 0.0).count() < MIN_OBSERVED_POINTS {
                 return Ok(None);
             }
             let th = Instant::now();
@@ -157,9 +151,7 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
         .par_iter()
         .map(|&id| {
             let path = ds.model_path(id);
-            let (pts, tris) = crate::mesh::load_positions(&path)?;
-            let metres: Vec<glam::DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
-            let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
+            let mesh = model_mesh(ds, id)?;
             let rests = match stable {
                 Some(text) => {
                     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();

@@ -174,6 +174,10 @@ impl ObjectView {
     }
 }
 
+/// Fewest observed points (depth pixels in the mask) an object is refined
+/// or estimated from.
+pub const MIN_OBSERVED_POINTS: usize = 20;
+
 /// One refined hypothesis.
 #[derive(Clone, Copy, Debug)]
 pub struct Refined {
@@ -187,11 +191,11 @@ pub struct Refined {
 
 /// Refines an object's hypotheses (`initial`, model → camera, m) against
 /// its view; returns one result per hypothesis, in input order. Fewer than
-/// 20 observed points leave the poses unrefined (scored as they are).
+/// [`MIN_OBSERVED_POINTS`] leave the poses unrefined (scored as they are).
 pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &[Pose], p: &RefineParams) -> Result<Vec<Refined>> {
     let mut out: Vec<Refined> =
         initial.iter().map(|&pose| Ok(Refined { pose, score: view.score(&pose)?, steps: 0, kept: 0 })).collect::<Result<_>>()?;
-    if view.points.len() < 20 || initial.is_empty() {
+    if view.points.len() < MIN_OBSERVED_POINTS || initial.is_empty() {
         return Ok(out);
     }
     match p.method {
