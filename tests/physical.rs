@@ -465,24 +465,26 @@ mod gpu {
             .collect()
     }
 
-    #[test]
-    fn gpu_agrees_with_the_cpu_twin_on_10000_poses_near_contact() {
-        let ctx = plausible::gpu::test_context();
+    /// A 4 cm cube and the scene of `near_contact_poses`: the table plane
+    /// and a static cylinder (r 5 cm, h 4 cm, yawed 0.3 rad) standing on it,
+    /// with the cylinder's signed-distance grid.
+    fn cube_by_cylinder() -> (plausible::mesh::Mesh, Arc<SdfGrid>, Environment) {
         let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
         let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
         let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());
         let (lo, _) = cyl.bounds();
         let env = Environment {
-            planes: vec![Plane {
-                point: DVec3::ZERO,
-                normal: DVec3::Z,
-            }],
-            obstacles: vec![Obstacle {
-                sdf: grid.clone(),
-                pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.0, 0.0, -lo.z)),
-            }],
+            planes: vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }],
+            obstacles: vec![Obstacle { sdf: grid.clone(), pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.0, 0.0, -lo.z)) }],
             gravity: DVec3::new(0.0, 0.0, -9.81),
         };
+        (cube, grid, env)
+    }
+
+    #[test]
+    fn gpu_agrees_with_the_cpu_twin_on_10000_poses_near_contact() {
+        let ctx = plausible::gpu::test_context();
+        let (cube, grid, env) = cube_by_cylinder();
         let body = Body::new(&cube, 1024, 5, None).unwrap();
         let poses = near_contact_poses(10_000, &cube);
         let cpu = evaluate_batch(&body, &poses, &env);
@@ -540,15 +542,7 @@ mod gpu {
         use plausible::kernels::GpuPose;
         use plausible::physical::gpu::contact_scene;
         let ctx = plausible::gpu::test_context();
-        let cube = plausible::shapes::cuboid(DVec3::splat(0.02));
-        let cyl = plausible::shapes::cylinder(0.05, 0.04, 48);
-        let grid = Arc::new(SdfGrid::bake(&cyl, DEFAULT_RESOLUTION).unwrap());
-        let (lo, _) = cyl.bounds();
-        let env = Environment {
-            planes: vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }],
-            obstacles: vec![Obstacle { sdf: grid, pose: Pose::new(axis_angle(DVec3::Z, 0.3), DVec3::new(0.0, 0.0, -lo.z)) }],
-            gravity: DVec3::new(0.0, 0.0, -9.81),
-        };
+        let (cube, _, env) = cube_by_cylinder();
         let body = Body::new(&cube, 512, 5, None).unwrap();
         let poses: Vec<GpuPose> = near_contact_poses(2000, &cube).iter().map(GpuPose::from).collect();
         let scene = contact_scene(&body, &env);
