@@ -2,6 +2,9 @@
 // rendering so no image leaves the workgroup. Prefixed with raster.wgsl.
 //
 // Over V = {observed depth > 0} ∪ {rendered depth > 0}:
+// (scene-level scoring: observed.w < 0 carries another object's depth -w
+// where this object is not observed; a rendered pixel behind it is hidden,
+// neither rendered nor in V)
 // (only the rectangle of drawn triangles is visited: outside it nothing is
 // rendered, so those pixels are in V exactly when observed, scoring 0; their
 // count comes from params.n_obs, the observed pixels of the whole region)
@@ -55,13 +58,20 @@ fn score_hypothesis(h: u32, slot: u32, lid: u32) {
             if (key == EMPTY) {
                 continue;
             }
-            cnt.y += 1u;
             let obs = observed[i];
+            let x = f32(i % params.width);
+            let y = f32(i / params.width);
             if (obs.w <= 0.0) {
+                // Only where another object is: hidden behind it?
+                if (obs.w < 0.0 && resolve(p, key, x, y).w > -obs.w) {
+                    continue;
+                }
+                cnt.y += 1u;
                 cnt.x += 1u;
                 continue;
             }
-            let r = resolve(p, key, f32(i % params.width), f32(i / params.width));
+            cnt.y += 1u;
+            let r = resolve(p, key, x, y);
             let diff = r.w - obs.w;
             sum.x += 1.0 - min(1.0, abs(diff) / params.tau);
             if (dot(obs.xyz, obs.xyz) > 0.0) {

@@ -280,6 +280,11 @@ pub struct ScoreTarget {
     pub normals: Vec<Vec3>,
     /// The crop in the original image: `(x0, y0, w, h)` in pixel-edge units.
     pub crop: (f64, f64, f64, f64),
+    /// Depth (m) of the other objects' nearest surface per pixel, 0 where
+    /// none; empty when the object is scored alone. A hypothesis pixel
+    /// outside the mask that lies behind it is hidden by another object: it
+    /// is not in V (the scene-level score, [`ScoreTarget::set_occluders`]).
+    pub occluder: Vec<f32>,
 }
 
 /// Fraction by which the mask's bounding box is grown on each side.
@@ -376,7 +381,50 @@ impl ScoreTarget {
                 normals[v * out_w as usize + u] = normals_full[src];
             }
         }
-        Ok(ScoreTarget { intrinsics, depth, normals, crop })
+        Ok(ScoreTarget { intrinsics, depth, normals, crop, occluder: Vec::new() })
+    }
+
+    /// Sets the depth of the other objects in the scene (one value per
+    /// region pixel, 0 where none; e.g. their current estimates rendered
+    /// with [`crate::kernels::render::render_cpu`] in [`Self::intrinsics`]):
+    /// a hypothesis is then scored as part of the whole scene, its pixels
+    /// hidden behind another object neither rendered nor in V. Pixels of
+    /// the object's own mask are never hidden (the mask says it is in front).
+    pub fn set_occluders(&mut self, depth: Vec<f32>) -> Result<()> {
+        if depth.len() != self.depth.len() {
+            return Err(Error::InvalidInput(format!(
+                "the occluders' depth has {} pixels, the region {}",
+                depth.len(),
+                self.depth.len()
+            )));
+        }
+        if depth.iter().any(|d| !(d.is_finite() && *d >= 0.0)) {
+            return Err(Error::InvalidInput("the occluders' depth must be finite and non-negative".into()));
+        }
+        self.occluder = depth;
+        Ok(())
+    }
+
+    /// Whether a hypothesis pixel `i` rendered at depth `d` is hidden by
+    /// another object (not observed as this object, and behind the
+    /// occluder's surface).
+    #[inline]
+    pub fn hidden(&self, i: usize, d: f32) -> bool {
+        self.depth[i] <= 0.0 && self.occluder.get(i).is_some_and(|&o| o > 0.0 && d > o)
+    }
+
+    /// The observation as the `score` kernel reads it, one `vec4` per pixel:
+    /// the normal in xyz and in w the observed depth, or where there is none
+    /// the occluder's depth negated (0: neither).
+    pub fn packed(&self) -> Vec<[f32; 4]> {
+        (0..self.depth.len())
+            .map(|i| {
+                let n = self.normals[i];
+                let d = self.depth[i];
+                let w = if d > 0.0 { d } else { -self.occluder.get(i).copied().unwrap_or(0.0) };
+                [n.x, n.y, n.z, w]
+            })
+            .collect()
     }
 
     /// Number of observed (valid, masked) pixels in the region.

@@ -264,6 +264,7 @@ fn score_image_follows_the_definition() {
         depth: vec![0.5, 0.5, 0.0],
         normals: vec![n, n, Vec3::ZERO],
         crop: (0.0, 0.0, 3.0, 1.0),
+        occluder: Vec::new(),
     };
     let tilted = Vec3::new(3f32.sqrt() / 2.0, 0.0, -0.5);
     let rec = score_image(&target, &[0.505, 0.0, 0.6], &[tilted, Vec3::ZERO, n], &ScoreParams::default());
@@ -273,6 +274,16 @@ fn score_image_follows_the_definition() {
     assert!((rec.mean_ad - ad / 3.0).abs() < 1e-5);
     assert!((rec.mean_an - an / 3.0).abs() < 1e-5);
     assert!((rec.score - 0.5 * (ad + an) / 3.0).abs() < 1e-5);
+    // Another object 0.55 m away at the third pixel hides the rendering
+    // there (0.6 m): it leaves V; one 0.65 m away does not.
+    let mut scene = target.clone();
+    scene.set_occluders(vec![0.0, 0.0, 0.55]).unwrap();
+    let hidden = score_image(&scene, &[0.505, 0.0, 0.6], &[tilted, Vec3::ZERO, n], &ScoreParams::default());
+    assert_eq!((hidden.valid, hidden.rendered, hidden.observed), (2, 1, 2));
+    assert!((hidden.score - 0.5 * (ad + an) / 2.0).abs() < 1e-5);
+    scene.set_occluders(vec![0.0, 0.0, 0.65]).unwrap();
+    assert_eq!(score_image(&scene, &[0.505, 0.0, 0.6], &[tilted, Vec3::ZERO, n], &ScoreParams::default()), rec);
+    assert!(scene.set_occluders(vec![0.0; 2]).is_err() && scene.set_occluders(vec![f32::NAN; 3]).is_err());
     // Empty V scores 0.
     let empty = ScoreTarget { depth: vec![0.0; 3], ..target };
     assert_eq!(score_image(&empty, &[0.0; 3], &[Vec3::ZERO; 3], &ScoreParams::default()).score, 0.0);
@@ -287,4 +298,42 @@ fn hypothesis_outside_the_image_is_valid_and_scores_low() {
     assert_eq!(rec.rendered, 0);
     assert_eq!(rec.score, 0.0);
     assert_eq!(rec.valid as usize, target.observed_pixels());
+}
+
+/// The scene-level score: the duck half hidden behind a box. Scored alone,
+/// the true pose loses the pixels behind the box (rendered, not observed);
+/// with the box's depth as occluder they leave V and the true pose scores
+/// as if unoccluded. GPU and CPU twin agree on 256 poses around it.
+#[test]
+fn gpu_scene_level_score_hides_pixels_behind_other_objects_like_the_cpu_twin() {
+    let duck = RenderMesh::new(&duck()).unwrap();
+    let cam = linemod_camera();
+    let box_mesh = RenderMesh::new(&shapes::cuboid(DVec3::new(0.04, 0.12, 0.01))).unwrap();
+    let box_pose = Pose::new(glam::DMat3::IDENTITY, DVec3::new(0.06, -0.01, 0.6));
+    let (d, b) = (render_cpu(&duck, &true_pose(), &cam), render_cpu(&box_mesh, &box_pose, &cam));
+    let nearest = |i: usize| match (d.depth[i], b.depth[i]) {
+        (0.0, x) | (x, 0.0) => x,
+        (x, y) => x.min(y),
+    };
+    let depth: Vec<f32> = (0..cam.pixels()).map(nearest).collect();
+    let mask: Vec<bool> = (0..cam.pixels()).map(|i| d.depth[i] > 0.0 && (b.depth[i] == 0.0 || d.depth[i] < b.depth[i])).collect();
+    let hidden = (0..cam.pixels()).filter(|&i| d.depth[i] > 0.0 && !mask[i]).count();
+    assert!(hidden > 1000, "the box hides part of the duck ({hidden} pixels)");
+    let obs = plausible::observation::DepthImage { intrinsics: cam, depth };
+    let alone = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN).unwrap();
+    let mut scene = alone.clone();
+    scene.set_occluders(render_cpu(&box_mesh, &box_pose, &scene.intrinsics).depth).unwrap();
+    let params = ScoreParams::default();
+    let s_alone = score_cpu(&duck, &alone, &[true_pose()], &params)[0];
+    let s_scene = score_cpu(&duck, &scene, &[true_pose()], &params)[0];
+    eprintln!("true pose: alone {s_alone:?}, in the scene {s_scene:?}");
+    assert!(s_scene.score > 0.9 && s_scene.score > s_alone.score + 0.15, "alone {} scene {}", s_alone.score, s_scene.score);
+    assert!(s_scene.rendered < s_alone.rendered && s_scene.observed == s_alone.observed);
+    let poses = around_and_random(&true_pose(), 256, 5);
+    let cpu = score_cpu(&duck, &scene, &poses, &params);
+    let (gpu, _) = GpuScorer::new(&test_context(), &duck, &scene, params, poses.len()).unwrap().score(&poses).unwrap();
+    for (i, (c, g)) in cpu.iter().zip(&gpu).enumerate() {
+        assert!((c.score - g.score).abs() < 1e-3, "hypothesis {i}: cpu {c:?} gpu {g:?}");
+        assert!(c.rendered.abs_diff(g.rendered) <= 2 + c.rendered / 100, "hypothesis {i}: cpu {c:?} gpu {g:?}");
+    }
 }

@@ -106,7 +106,7 @@ impl Acc {
 pub fn score_image(target: &ScoreTarget, depth: &[f32], normals: &[Vec3], p: &ScoreParams) -> ScoreRecord {
     let mut acc = Acc::default();
     for i in 0..target.depth.len() {
-        let ren = (depth[i] > 0.0).then(|| (depth[i], normals[i]));
+        let ren = (depth[i] > 0.0 && !target.hidden(i, depth[i])).then(|| (depth[i], normals[i]));
         acc.pixel(target.depth[i], target.normals[i], ren, p);
     }
     acc.finish()
@@ -147,6 +147,9 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
                                 continue;
                             }
                             let ren = resolve(&mesh.triangles[ids[i] as usize], &gp, mesh.radius, k, x as f32, y as f32);
+                            if target.hidden(i, ren.0) {
+                                continue; // behind another object of the scene
+                            }
                             acc.pixel(target.depth[i], target.normals[i], Some(ren), p);
                         }
                     }
@@ -263,12 +266,7 @@ impl GpuScorer {
         let words = physics.map_or(0, |(p, _)| p.words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
-        let obs: Vec<[f32; 4]> = target
-            .depth
-            .iter()
-            .zip(&target.normals)
-            .map(|(&d, n)| [n.x, n.y, n.z, d])
-            .collect();
+        let obs = target.packed();
         let observed = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("observed"),
             contents: bytemuck::cast_slice(&obs),
