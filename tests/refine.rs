@@ -97,6 +97,9 @@ fn refine_refuses_bad_flags_before_any_work() {
     let init = dataset().join("perturbed.csv");
     for (extra, want) in [
         (vec!["--steps", "0"], "steps"),
+        (vec!["--budget", "0"], "budget"),
+        (vec!["--discount", "1.5"], "discount"),
+        (vec!["--budget", "3", "--method", "sir"], "--budget"),
         (vec!["--icp-iterations", "100000"], "ICP iterations"),
         (vec!["--exploration", "nan"], "exploration"),
         (vec!["--shard", "4/3"], "--shard"),
@@ -131,16 +134,42 @@ fn estimate_reaches_ar_065_on_the_shipped_frames() {
     eprintln!("estimate: AR {ar:.4}");
     assert!(ar >= 0.65, "AR {ar}");
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&summary).unwrap()).unwrap();
-    for k in ["plane", "hypotheses_and_scoring", "refinement"] {
+    for k in ["plane", "hypotheses_and_scoring", "scene_refinement"] {
         assert!(v["stage_seconds_per_image"][k].as_f64().is_some(), "{v}");
     }
+    for k in ["scene", "score", "icp", "simulate"] {
+        assert!(v["scene_refinement_stages_per_image"][k].as_f64().is_some(), "{v}");
+    }
+}
+
+/// `--explain DIR` draws one picture per image (refine and estimate), and a
+/// folder that cannot be made is refused before any work.
+#[test]
+fn explain_draws_a_picture_per_image() {
+    let d = tempfile::tempdir().unwrap();
+    let pics = d.path().join("pics");
+    let init = dataset().join("perturbed.csv");
+    let text = refine(&init, &d.path().join("r.csv"), &["--shard", "1/12", "--explain", pics.to_str().unwrap()]);
+    assert!(text.contains("refined 1 images"), "{text}");
+    run(plausible().arg("estimate").arg("--dataset").arg(dataset()).arg("--out").arg(d.path().join("e.csv")).arg("--explain").arg(&pics).args(["--images", "89", "--quiet", "--device", "cpu"]));
+    let mut names: Vec<String> = std::fs::read_dir(&pics).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert_eq!(names, ["000002_000003.png", "000002_000089.png"]);
+    for n in &names {
+        let img = image::open(pics.join(n)).unwrap();
+        assert!(img.width() >= 1024 && img.height() > 512, "{n}: {}x{}", img.width(), img.height());
+    }
+    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(d.path().join("x.csv")).args(["--explain", "/dev/null/pics"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("--explain"), "{err}");
 }
 
 /// A cube stacked on a slab, seen at 45° with only its front face in the
 /// mask (its top hidden, as by an occluder): the estimate floats 8 mm above
 /// the slab, which ICP cannot see (the front face slides along itself).
-/// With the simulation (SIR with PIR) the refined cube comes out resting on
-/// the slab; without it, it stays in the air.
+/// Refined as a scene (support order: slab, then cube) with the simulation
+/// (SIR with PIR) the cube comes out resting on the slab; without it, it
+/// stays in the air.
 #[test]
 fn a_cube_stacked_on_a_slab_comes_out_resting_on_it() {
     use glam::{DMat3, DVec3};
@@ -150,8 +179,9 @@ fn a_cube_stacked_on_a_slab_comes_out_resting_on_it() {
     use plausible::observation::DepthImage;
     use plausible::physical::Plane;
     use plausible::pose::{axis_angle, Pose};
-    use plausible::refine::dataset::{physics_world, Model};
-    use plausible::refine::{refine_hypotheses, Method, ObjectView, RefineParams};
+    use plausible::refine::dataset::Model;
+    use plausible::refine::scene::{refine_scene, SceneObject, Support};
+    use plausible::refine::{Method, RefineParams};
 
     // World: table z = 0, slab 12 × 12 × 2 cm on it, 4 cm cube on the slab.
     let centre = DVec3::new(0.0, -0.4, 0.4);
@@ -187,13 +217,22 @@ fn a_cube_stacked_on_a_slab_comes_out_resting_on_it() {
         cube_mesh.vertices.iter().map(|v| world.transform_point(*v).z).fold(f64::INFINITY, f64::min) - 0.02
     };
     assert!((height(&start) - 0.008).abs() < 2e-3);
+    // The slab's visible pixels are its mask; both objects are refined as
+    // one scene, in support order: the slab (on the plane) first, then the
+    // cube simulated on the refined slab.
+    let slab_mask: Vec<bool> = (0..k.pixels()).map(|i| slab_img.depth[i] > 0.0 && !front_cube(i) && !(cube_img.depth[i] > 0.0 && cube_img.depth[i] < slab_img.depth[i])).collect();
     let run = |physics: bool| {
         let p = RefineParams { method: Method::Sir, steps: 8, physics, ..Default::default() };
         let cube = Model::new(cube_mesh.clone(), &p).unwrap();
         let slab = Model::new(slab_mesh.clone(), &p).unwrap();
-        let mut view = ObjectView::new(&plausible::visual::Device::Cpu, &cube.render, &obs, &mask, &p).unwrap();
-        view.sim = Some(physics_world(&plane, &cube, &[(&slab, slab_pose)], &p).unwrap());
-        refine_hypotheses(&cube.surface, &mut view, &[start], &p).unwrap()[0]
+        let objects = [
+            SceneObject { model: &cube, mask: mask.clone(), hypotheses: vec![start], lead: 0 },
+            SceneObject { model: &slab, mask: slab_mask.clone(), hypotheses: vec![slab_pose], lead: 0 },
+        ];
+        let out = refine_scene(&plausible::visual::Device::Cpu, &obs, Some(&plane), &objects, 5, &p).unwrap();
+        assert_eq!(out.support, vec![Support::Object(1), Support::Plane], "the cube rests on the slab, the slab on the plane");
+        assert_eq!(out.order, vec![1, 0], "the slab is refined first");
+        out.objects[0].as_ref().unwrap()[0]
     };
     let (with, without) = (run(true), run(false));
     eprintln!("gap above the slab: start {:.4} m, with the simulation {:.4} m, without {:.4} m", height(&start), height(&with.pose), height(&without.pose));

@@ -36,6 +36,8 @@ pub enum BenchKind {
     Physics(super::bench_physics::BenchPhysicsArgs),
     /// BOP evaluation: estimates/s for VSD, MSSD + MSPD and the BOP'19 set.
     Eval(super::bench_eval::BenchEvalArgs),
+    /// Refinement and estimation over BOP frames: seconds per image by stage.
+    Estimate(super::bench_estimate::BenchEstimateArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -91,6 +93,7 @@ pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
         BenchKind::Stable(s) => super::stable::bench_stable(s),
         BenchKind::Physics(p) => super::bench_physics::bench_physics(p, verbose),
         BenchKind::Eval(e) => super::bench_eval::bench_eval(e, verbose),
+        BenchKind::Estimate(e) => super::bench_estimate::bench_estimate(e, verbose),
     }
 }
 

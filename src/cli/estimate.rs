@@ -10,7 +10,7 @@ use plausible::bop::Dataset;
 use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
 use plausible::refine::{Method, RefineParams};
 
-use super::refine::{parse_masks, parse_shard, shard_of, skip_done, ResultsAppender};
+use super::refine::{parse_masks, parse_shard, prepare_explain, save_picture, shard_of, skip_done, ResultsAppender};
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
@@ -62,6 +62,11 @@ pub struct EstimateArgs {
     /// Write a JSON summary (timings per stage) here.
     #[arg(long)]
     pub summary: Option<PathBuf>,
+    /// Write a picture per image to this folder (SSSSSS_IIIIII.png): each
+    /// instance's alignment of its best hypothesis before and after
+    /// refinement, its verdict, and the scene's physical views.
+    #[arg(long)]
+    pub explain: Option<PathBuf>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -101,6 +106,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();
+    prepare_explain(a.explain.as_deref())?;
     let device = a.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by RIR; {}", jobs.len(), a.yaw_steps, a.top, masks.describe());
@@ -116,9 +122,11 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         if !scenes.contains_key(scene_id) {
             scenes.insert(*scene_id, ds.scene(*scene_id).with_context(|| format!("scene {scene_id}"))?);
         }
-        let (est, s) = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params)
+        let r = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params, a.explain.is_some())
             .with_context(|| format!("scene {scene_id} image {im_id}"))?;
-        out.append(&est)?;
+        save_picture(a.explain.as_deref(), *scene_id, *im_id, r.picture.as_ref())?;
+        out.append(&r.estimates)?;
+        let s = r.stats;
         total.instances += s.instances;
         total.skipped += s.skipped;
         total.hypotheses += s.hypotheses;
@@ -126,12 +134,13 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         total.plane_s += s.plane_s;
         total.hypotheses_s += s.hypotheses_s;
         total.refine_s += s.refine_s;
+        total.scene += s.scene;
         pb.inc(1);
     }
     pb.finish_and_clear();
     let n = jobs.len().max(1) as f64;
     println!(
-        "estimated {} instances in {} images ({} without observed points); {} hypotheses; {:.3} s per image (plane {:.3} s, hypotheses and scoring {:.3} s, refinement {:.3} s, per image and summed over threads)",
+        "estimated {} instances in {} images ({} without observed points); {} hypotheses; {:.3} s per image (plane {:.3} s, hypotheses and scoring alone {:.3} s summed over threads, scene: re-scoring and refinement in support order {:.3} s)",
         total.instances - total.skipped,
         jobs.len(),
         total.skipped,
@@ -147,7 +156,8 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
             "images": jobs.len(), "instances": total.instances, "skipped": total.skipped, "hypotheses": total.hypotheses,
             "masks": masks.describe(), "resting_poses": source, "yaw_steps": a.yaw_steps, "top": a.top, "steps": a.steps,
             "seconds": total.seconds, "seconds_per_image": total.seconds / n,
-            "stage_seconds_per_image": {"plane": total.plane_s / n, "hypotheses_and_scoring": total.hypotheses_s / n, "refinement": total.refine_s / n},
+            "stage_seconds_per_image": {"plane": total.plane_s / n, "hypotheses_and_scoring": total.hypotheses_s / n, "scene_refinement": total.refine_s / n},
+            "scene_refinement_stages_per_image": total.scene.json(n),
         });
         plausible::io::write_atomically(p, |w| {
             use std::io::Write;

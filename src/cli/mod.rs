@@ -2,6 +2,7 @@
 //! library).
 
 pub mod bench;
+pub mod bench_estimate;
 pub mod bench_eval;
 pub mod bench_physics;
 pub mod check;

@@ -39,12 +39,21 @@ pub struct RefineArgs {
     /// object's hypotheses).
     #[arg(long, default_value_t = 2)]
     pub steps: usize,
+    /// RIR: refinement steps per object, spread over its hypotheses by UCB1
+    /// (default: --steps times its hypotheses).
+    #[arg(long)]
+    pub budget: Option<usize>,
     /// ICP iterations per refinement step.
     #[arg(long, default_value_t = 5)]
     pub icp_iterations: usize,
     /// UCB exploration constant.
     #[arg(long, default_value_t = 0.1)]
     pub exploration: f64,
+    /// UCB discount γ in (0, 1]: 1 is UCB1; below 1 is discounted UCB,
+    /// which forgets old rewards (the paper: 0.99 when rewards change as
+    /// the rest of the scene does).
+    #[arg(long, default_value_t = 1.0)]
+    pub discount: f64,
     /// Masks: `oracle` (the dataset's mask_visib/) or a folder with
     /// SSSSSS/IIIIII_OOOOOO.png (scene, image, object id).
     #[arg(long, default_value = "oracle")]
@@ -54,9 +63,14 @@ pub struct RefineArgs {
     /// after its header line).
     #[arg(long)]
     pub shard: Option<String>,
-    /// Write a JSON summary (timings, steps) here.
+    /// Write a JSON summary (timings per stage, steps) here.
     #[arg(long)]
     pub summary: Option<PathBuf>,
+    /// Write a picture per image to this folder (SSSSSS_IIIIII.png): each
+    /// object's alignment before and after, its verdict, and the scene's
+    /// physical views.
+    #[arg(long)]
+    pub explain: Option<PathBuf>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -111,6 +125,24 @@ impl ResultsAppender {
     }
 }
 
+/// Makes the `--explain` folder (before any work, so a bad path fails fast).
+pub fn prepare_explain(dir: Option<&std::path::Path>) -> Result<()> {
+    if let Some(d) = dir {
+        std::fs::create_dir_all(d).with_context(|| format!("--explain {}: cannot create the folder", d.display()))?;
+        plausible::io::check_writable(&d.join(".plausible-write-test")).with_context(|| format!("--explain {}", d.display()))?;
+    }
+    Ok(())
+}
+
+/// Writes an image's picture as `SSSSSS_IIIIII.png` in the `--explain` folder.
+pub fn save_picture(dir: Option<&std::path::Path>, scene_id: u32, im_id: u32, picture: Option<&image::RgbImage>) -> Result<()> {
+    if let (Some(d), Some(pic)) = (dir, picture) {
+        let path = d.join(format!("{scene_id:06}_{im_id:06}.png"));
+        pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
 /// `k/n` with 1 ≤ k ≤ n.
 pub fn parse_shard(s: &str) -> Result<(usize, usize)> {
     let (k, n) = s.split_once('/').context("--shard takes k/n, e.g. 2/4")?;
@@ -146,12 +178,17 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     let params = RefineParams {
         method: Method::parse(&a.method).context("--method")?,
         steps: a.steps,
+        budget: a.budget,
         icp: plausible::refine::icp::IcpParams { iterations: a.icp_iterations, ..Default::default() },
         exploration: a.exploration,
+        gamma: a.discount,
         physics: !a.no_physics,
         ..Default::default()
     };
-    params.validate().context("check --steps, --icp-iterations and --exploration")?;
+    params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;
+    if a.budget.is_some() && params.method != Method::Rir {
+        bail!("--budget is for --method rir (the other methods take --steps per hypothesis)");
+    }
     let shard = a.shard.as_deref().map(parse_shard).transpose()?;
     let masks = parse_masks(&a.masks)?;
     plausible::io::check_writable(&a.out)?;
@@ -168,6 +205,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
         bail!("--init: object {o} is not in the dataset's models_info.json");
     }
+    prepare_explain(a.explain.as_deref())?;
     let device = a.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
@@ -183,13 +221,17 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
             scenes.insert(job.scene_id, ds.scene(job.scene_id).with_context(|| format!("scene {}", job.scene_id))?);
         }
         let scene = &scenes[&job.scene_id];
-        let (out, s) = refine_image(scene, job, &models, &device, &masks, &params).with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
-        file.append(&out)?;
+        let r = refine_image(scene, job, &models, &device, &masks, &params, a.explain.is_some())
+            .with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
+        save_picture(a.explain.as_deref(), job.scene_id, job.im_id, r.picture.as_ref())?;
+        file.append(&r.estimates)?;
+        let s = r.stats;
         total.objects += s.objects;
         total.unrefined += s.unrefined;
         total.steps += s.steps;
         total.kept += s.kept;
         total.seconds += s.seconds;
+        total.times += s.times;
         pb.inc(1);
     }
     pb.finish_and_clear();
@@ -209,6 +251,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
             "method": params.method.name(), "physics": params.method.simulates(params.physics), "steps": params.steps, "icp_iterations": params.icp.iterations,
             "masks": masks.describe(), "images": jobs.len(), "objects": total.objects, "unrefined": total.unrefined,
             "refinement_steps": total.steps, "kept_steps": total.kept, "seconds": total.seconds, "seconds_per_image": per_image,
+            "stage_seconds_per_image": total.times.json(jobs.len().max(1) as f64),
         });
         plausible::io::write_atomically(p, |w| {
             serde_json::to_writer_pretty(&mut *w, &v)?;

@@ -17,8 +17,8 @@ use glam::{DMat3, DVec2, DVec3};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::kernels::raster::render_cpu;
-use crate::kernels::RenderMesh;
+use crate::kernels::raster::{raster_ids, resolve};
+use crate::kernels::{GpuPose, RenderMesh};
 use crate::mesh::mass::MassProperties;
 use crate::mesh::Mesh;
 use crate::observation::DepthImage;
@@ -230,6 +230,31 @@ fn observed_points(obs: &DepthImage, mask: &[bool]) -> Vec<DVec3> {
         .collect()
 }
 
+/// The centroid (plane frame, in-plane part) of the surface points `pose`
+/// shows the camera, `None` when it shows none. Only the drawn rectangle of
+/// the z-buffer is visited (`zbuf` and `ids` are `k.pixels()` scratch): an
+/// object covers a few percent of a frame, and a full-frame render per
+/// alignment was most of `estimate`'s time.
+fn visible_centroid(mesh: &RenderMesh, pose: &Pose, k: &crate::camera::Intrinsics, to_plane: &Pose, zbuf: &mut [f32], ids: &mut [u32]) -> Option<DVec2> {
+    let gp = GpuPose::from(pose);
+    let [x0, y0, x1, y1] = raster_ids(mesh, &gp, k, zbuf, ids)?;
+    let w = k.width as usize;
+    let (mut sum, mut count) = (DVec3::ZERO, 0usize);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let id = ids[y * w + x];
+            if id != u32::MAX {
+                let (z, _) = resolve(&mesh.triangles[id as usize], &gp, mesh.radius, k, x as f32, y as f32);
+                if z > 0.0 {
+                    sum += to_plane.transform_point(k.pixel_point(y * w + x, z as f64));
+                    count += 1;
+                }
+            }
+        }
+    }
+    (count > 0).then(|| sum.truncate() / count as f64)
+}
+
 /// Refuses a plane the observed object does not stand on: the median
 /// height of its points above the plane must lie within one object size of
 /// the plane (a plane in the wrong units, or fitted to another surface,
@@ -302,31 +327,29 @@ pub fn on_plane_hypotheses(
         .filter(|(_, r)| r.group_probability >= p.min_probability)
         .flat_map(|(i, _)| (0..p.yaw_steps).map(move |y| (i, y)))
         .collect();
+    let n = k.pixels();
     let aligned: Vec<(usize, f64, Pose)> = jobs
         .par_iter()
-        .map(|&(i, y)| {
-            let yaw = std::f64::consts::TAU * y as f64 / p.yaw_steps as f64;
-            let r = axis_angle(DVec3::Z, yaw) * rests[i].r_model_to_plane;
-            let com = (r * mass.com).truncate();
-            let mut t = rest_on_plane(mesh, r, observed - com).t;
-            for _ in 0..p.align_iterations {
-                let cam = from_plane.compose(&Pose::new(r, t));
-                let img = render_cpu(&rmesh, &cam, &k);
-                let seen: Vec<DVec3> = (0..img.depth.len())
-                    .filter(|&j| img.depth[j] > 0.0)
-                    .map(|j| k.pixel_point(j, img.depth[j] as f64))
-                    .collect();
-                if seen.is_empty() {
-                    break; // out of view: keep the centre-of-mass placement
+        .map_init(
+            || (vec![f32::INFINITY; n], vec![u32::MAX; n]),
+            |(zbuf, ids), &(i, y)| {
+                let yaw = std::f64::consts::TAU * y as f64 / p.yaw_steps as f64;
+                let r = axis_angle(DVec3::Z, yaw) * rests[i].r_model_to_plane;
+                let com = (r * mass.com).truncate();
+                let mut t = rest_on_plane(mesh, r, observed - com).t;
+                for _ in 0..p.align_iterations {
+                    let cam = from_plane.compose(&Pose::new(r, t));
+                    // Out of view: keep the centre-of-mass placement.
+                    let Some(seen) = visible_centroid(&rmesh, &cam, &k, &to_plane, zbuf, ids) else { break };
+                    let shift = observed - seen;
+                    t += shift.extend(0.0);
+                    if shift.length() < 1e-4 {
+                        break;
+                    }
                 }
-                let shift = observed - centroid(&seen);
-                t += shift.extend(0.0);
-                if shift.length() < 1e-4 {
-                    break;
-                }
-            }
-            (i, yaw, Pose::new(r, t))
-        })
+                (i, yaw, Pose::new(r, t))
+            },
+        )
         .collect();
     let g = p.grid_radius as i64;
     let mut out = Vec::with_capacity(aligned.len() * (2 * p.grid_radius + 1).pow(2));

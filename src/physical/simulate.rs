@@ -97,6 +97,12 @@ pub struct SimBody<'a> {
     pub shapes: &'a SimShapes,
     pub pose: Pose,
     pub density: Option<f64>,
+    /// A static body collides as its convex hull instead of its triangle
+    /// mesh: far cheaper when another body starts deep inside it (a wrong
+    /// estimate can overlap a placed object by centimetres, and rapier then
+    /// generates contacts against hundreds of triangles per step), at the
+    /// price of filling its concavities.
+    pub static_hull: bool,
 }
 
 impl SimWorld {
@@ -109,7 +115,7 @@ impl SimWorld {
             .objects
             .iter()
             .zip(&shapes)
-            .map(|(o, shapes)| SimBody { shapes, pose: o.pose, density: (!o.is_static).then_some(o.density) })
+            .map(|(o, shapes)| SimBody { shapes, pose: o.pose, density: (!o.is_static).then_some(o.density), static_hull: false })
             .collect();
         let diag = scene.objects.iter().map(|o| o.mesh.diagonal()).sum::<f64>() / scene.objects.len().max(1) as f64;
         SimWorld::from_bodies(&scene.planes, scene.gravity, &bodies, diag, settings)
@@ -137,7 +143,8 @@ impl SimWorld {
             match b.density {
                 None => {
                     let h = world.insert_body(RigidBodyBuilder::fixed().pose(pose));
-                    world.colliders.insert_with_parent(ColliderBuilder::new(b.shapes.trimesh.clone()).friction(mu), h, &mut world.bodies);
+                    let shape = if b.static_hull { &b.shapes.hull } else { &b.shapes.trimesh };
+                    world.colliders.insert_with_parent(ColliderBuilder::new(shape.clone()).friction(mu), h, &mut world.bodies);
                     handles.push(None);
                 }
                 Some(density) => {

@@ -11,7 +11,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::icp::ModelSurface;
-use super::{refine_hypotheses, ObjectView, RefineParams};
+use super::RefineParams;
 use crate::bop::dataset::{Dataset, PoseMm, Scene};
 use crate::bop::results::Estimate;
 use crate::error::{Error, Result};
@@ -115,14 +115,16 @@ impl Model {
 
 /// The simulation PIR steps in: the object (dynamic, index 0) on the
 /// support plane (camera frame, gravity against its normal) among the
-/// other objects at their current estimates (static).
+/// other objects at their current estimates (static, as their convex hulls:
+/// see [`SimBody::static_hull`]).
 pub fn physics_world(plane: &crate::physical::Plane, body: &Model, others: &[(&Model, crate::pose::Pose)], p: &RefineParams) -> Result<SimWorld> {
     let mut bodies = vec![SimBody {
         shapes: &body.shapes,
         pose: crate::pose::Pose::new(glam::DMat3::IDENTITY, plane.point + plane.normal),
         density: Some(crate::physical::scene::DEFAULT_DENSITY),
+        static_hull: false,
     }];
-    bodies.extend(others.iter().map(|(m, pose)| SimBody { shapes: &m.shapes, pose: *pose, density: None }));
+    bodies.extend(others.iter().map(|(m, pose)| SimBody { shapes: &m.shapes, pose: *pose, density: None, static_hull: true }));
     SimWorld::from_bodies(std::slice::from_ref(plane), -9.81 * plane.normal, &bodies, body.mesh.diagonal(), &p.sim)
 }
 
@@ -166,6 +168,8 @@ pub struct ImageStats {
     pub steps: usize,
     pub kept: usize,
     pub seconds: f64,
+    /// Where the time went.
+    pub times: super::RefineTimes,
 }
 
 /// An image's depth in metres with its intrinsics.
@@ -175,8 +179,19 @@ pub fn depth_image(scene: &Scene, im_id: u32) -> Result<DepthImage> {
     Ok(DepthImage { intrinsics, depth: mm.mm.iter().map(|v| v * 1e-3).collect() })
 }
 
-/// Refines the estimates of one image; returns them (input order) with
-/// their new poses and scores, and the image's wall time as `time`.
+/// One refined (or estimated) image.
+pub struct ImageResult<S> {
+    /// The estimates with their new poses and scores (input order), the
+    /// image's wall time as `time`.
+    pub estimates: Vec<Estimate>,
+    pub stats: S,
+    /// The refinement's picture ([`super::explain::refinement_picture`]),
+    /// when asked for.
+    pub picture: Option<image::RgbImage>,
+}
+
+/// Refines the estimates of one image in support order
+/// ([`super::scene::refine_scene`]); `explain` also draws the refinement.
 pub fn refine_image(
     scene: &Scene,
     job: &ImageJob,
@@ -184,7 +199,8 @@ pub fn refine_image(
     device: &Device,
     masks: &Masks,
     p: &RefineParams,
-) -> Result<(Vec<Estimate>, ImageStats)> {
+    explain: bool,
+) -> Result<ImageResult<ImageStats>> {
     let t0 = Instant::now();
     let depth = depth_image(scene, job.im_id)?;
     let (width, height) = (depth.intrinsics.width, depth.intrinsics.height);
@@ -204,27 +220,21 @@ pub fn refine_image(
     } else {
         None
     };
-    // Each object's best-scored estimate stands for it among the others.
-    let best = |obj: u32| job.estimates.iter().filter(|e| e.obj_id == obj).max_by(|a, b| a.score.total_cmp(&b.score)).map(|e| e.pose.to_pose());
-    let results: Vec<(u32, Option<Vec<super::Refined>>)> = objs
-        .par_iter()
-        .zip(&object_masks)
-        .map(|(&obj, mask)| {
-            let model = &models[&obj];
-            let Some(mask) = mask.as_ref().filter(|m| m.iter().any(|&v| v)) else { return Ok((obj, None)) };
-            let mut view = ObjectView::new(device, &model.render, &depth, mask, p)?;
-            if let Some(plane) = &plane {
-                let others: Vec<(&Model, crate::pose::Pose)> =
-                    objs.iter().filter(|&&o| o != obj).filter_map(|&o| Some((&models[&o], best(o)?))).collect();
-                view.sim = physics_world(plane, model, &others, p).ok();
-            }
-            let initial: Vec<_> = job.estimates.iter().filter(|e| e.obj_id == obj).map(|e| e.pose.to_pose()).collect();
-            Ok((obj, Some(refine_hypotheses(&model.surface, &mut view, &initial, p)?)))
-        })
-        .collect::<Result<_>>()?;
-    let mut stats = ImageStats { objects: objs.len(), ..Default::default() };
+    // Each object's estimates are its hypotheses; its best-scored one
+    // stands for it among the others until it is refined.
+    let (mut ids, mut objects) = (Vec::new(), Vec::new());
+    for (&obj, mask) in objs.iter().zip(object_masks) {
+        let Some(mask) = mask.filter(|m| m.iter().any(|&v| v)) else { continue };
+        let mine: Vec<&Estimate> = job.estimates.iter().filter(|e| e.obj_id == obj).collect();
+        let lead = (0..mine.len()).max_by(|&a, &b| mine[a].score.total_cmp(&mine[b].score).then(b.cmp(&a))).unwrap_or(0);
+        let hypotheses = mine.iter().map(|e| e.pose.to_pose()).collect();
+        ids.push(obj);
+        objects.push(super::scene::SceneObject { model: &models[&obj], mask, hypotheses, lead });
+    }
+    let scene_out = super::scene::refine_scene(device, &depth, plane.as_ref(), &objects, usize::MAX, p)?;
+    let mut stats = ImageStats { objects: objs.len(), unrefined: objs.len() - ids.len(), times: scene_out.times, ..Default::default() };
     let mut out = job.estimates.clone();
-    for (obj, refined) in results {
+    for (obj, refined) in ids.iter().zip(&scene_out.objects) {
         let Some(refined) = refined else {
             stats.unrefined += 1;
             continue;
@@ -232,7 +242,7 @@ pub fn refine_image(
         if refined.iter().all(|r| r.steps == 0) {
             stats.unrefined += 1;
         }
-        for (e, r) in out.iter_mut().filter(|e| e.obj_id == obj).zip(refined) {
+        for (e, r) in out.iter_mut().filter(|e| e.obj_id == *obj).zip(refined) {
             e.pose = PoseMm { r: r.pose.r, t: r.pose.t * 1e3 };
             e.score = r.score;
             stats.steps += r.steps;
@@ -244,7 +254,9 @@ pub fn refine_image(
         e.time = stats.seconds;
         e.line = 0;
     }
-    Ok((out, stats))
+    // Drawn after the clock stops: pictures are not the method's time.
+    let picture = explain.then(|| super::explain::scene_picture(&depth, &objects, &scene_out, plane.as_ref(), p)).transpose()?;
+    Ok(ImageResult { estimates: out, stats, picture })
 }
 
 /// Images already complete in a (partial) output file, for resuming: an

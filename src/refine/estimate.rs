@@ -3,8 +3,10 @@
 //! masks; per object instance the hypotheses are its resting poses × yaw
 //! steps, each placed on the plane under the instance's observed points
 //! ([`crate::hypotheses::on_plane`]); all are scored by the visual
-//! alignment (eq. 3) and the best few are refined by RIR (UCB1 over them,
-//! ICP steps kept only where the score improves).
+//! alignment (eq. 3) alone, the best few scored again in the scene (among
+//! the other objects' estimates) and refined by RIR (UCB1 over them, ICP
+//! steps kept only where the score improves) object after object in
+//! support order ([`super::scene`]).
 
 use std::collections::HashMap;
 use std::time::Instant;
@@ -12,13 +14,19 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::dataset::{model_mesh, support_plane, Masks, Model};
-use super::{refine_hypotheses, ObjectView, RefineParams, MIN_OBSERVED_POINTS};
+use super::scene::{refine_scene, SceneObject};
+use super::{ObjectView, RefineParams, MIN_OBSERVED_POINTS};
 use crate::bop::dataset::{PoseMm, Scene, Target};
 use crate::bop::results::Estimate;
 use crate::error::{Error, Result};
 use crate::hypotheses::on_plane::{on_plane_hypotheses, OnPlaneParams, RestingPose};
 use crate::support_plane::PlaneFitParams;
 use crate::visual::Device;
+
+/// Candidates per refined hypothesis that an instance's scoring alone
+/// passes on to the scene, where they are scored again among the other
+/// objects (occlusion can reorder them) and the best `top` refined.
+const CANDIDATES_PER_TOP: usize = 4;
 
 /// Estimation settings.
 #[derive(Clone, Copy, Debug)]
@@ -51,11 +59,14 @@ pub struct EstimateStats {
     pub skipped: usize,
     pub hypotheses: usize,
     pub seconds: f64,
-    /// Of which: plane fit, hypotheses + scoring, refinement (summed over
-    /// the parallel instances, so they may exceed the wall time).
+    /// Of which: plane fit, hypotheses + scoring alone (summed over the
+    /// parallel instances, so it may exceed the wall time), the scene's
+    /// ordering, re-scoring and refinement (wall time).
     pub plane_s: f64,
     pub hypotheses_s: f64,
     pub refine_s: f64,
+    /// The scene's time by stage (in `refine_s`).
+    pub scene: super::RefineTimes,
 }
 
 /// Estimates every target object of one image (`targets` of this image):
@@ -68,7 +79,8 @@ pub fn estimate_image(
     device: &Device,
     masks: &Masks,
     p: &EstimateParams,
-) -> Result<(Vec<Estimate>, EstimateStats)> {
+    explain: bool,
+) -> Result<super::dataset::ImageResult<EstimateStats>> {
     let t0 = Instant::now();
     let depth = super::dataset::depth_image(scene, im_id)?;
     let (w, h) = (depth.intrinsics.width, depth.intrinsics.height);
@@ -84,7 +96,9 @@ pub fn estimate_image(
     let plane = support_plane(&depth, instances.iter().map(|(_, m)| m.as_slice()), &p.plane)
         .map_err(|e| Error::InvalidInput(format!("image {im_id}: support plane: {e}")))?;
     stats.plane_s = tp.elapsed().as_secs_f64();
-    let per: Vec<Option<(Estimate, usize, f64, f64)>> = instances
+    // Per instance (in parallel): its hypotheses scored alone, the best
+    // few kept as candidates for the scene.
+    let per: Vec<Option<(Vec<crate::pose::Pose>, usize, f64)>> = instances
         .par_iter()
         .map(|(obj, mask)| {
             let m = models.get(obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model")))?;
@@ -94,52 +108,55 @@ pub fn estimate_image(
             let th = Instant::now();
             let hyps = on_plane_hypotheses(&m.model.mesh, &m.rests, &plane, &depth, mask, &p.hypotheses)?;
             let mut view = ObjectView::new(device, &m.model.render, &depth, mask, &p.refine)?;
-            if p.refine.method.simulates(p.refine.physics) {
-                // Alone on the plane: the other objects' poses are not known
-                // yet (no multi-object support order).
-                view.sim = super::dataset::physics_world(&plane, &m.model, &[], &p.refine).ok();
-            }
             let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
             let scores = view.score_many(&poses)?;
             let mut order: Vec<usize> = (0..poses.len()).collect();
             order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
-            let best: Vec<_> = order.iter().take(p.top.max(1)).map(|&i| poses[i]).collect();
-            let hyp_s = th.elapsed().as_secs_f64();
-            let tr = Instant::now();
-            // Refinement steps 0: the best hypothesis as it is.
-            let refined = if p.refine.steps == 0 {
-                vec![super::Refined { pose: best[0], score: scores[order[0]], steps: 0, kept: 0 }]
-            } else {
-                refine_hypotheses(&m.model.surface, &mut view, &best, &p.refine)?
-            };
-            let top = refined.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("at least one hypothesis");
-            let e = Estimate {
-                scene_id: scene.id,
-                im_id,
-                obj_id: *obj,
-                score: top.score,
-                pose: PoseMm { r: top.pose.r, t: top.pose.t * 1e3 },
-                time: 0.0,
-                line: 0,
-            };
-            Ok(Some((e, poses.len(), hyp_s, tr.elapsed().as_secs_f64())))
+            let kept = order.iter().take(CANDIDATES_PER_TOP * p.top.max(1)).map(|&i| poses[i]).collect();
+            Ok(Some((kept, poses.len(), th.elapsed().as_secs_f64())))
         })
         .collect::<Result<_>>()?;
+    // The scene: candidates re-scored among the other objects' estimates,
+    // the best `top` refined in support order (steps 0: none refined).
+    let tr = Instant::now();
+    let mut which = Vec::new();
+    let mut objects = Vec::new();
+    for ((obj, mask), r) in instances.iter().zip(per) {
+        let Some((hypotheses, n, hs)) = r else {
+            stats.skipped += 1;
+            continue;
+        };
+        stats.hypotheses += n;
+        stats.hypotheses_s += hs;
+        which.push(*obj);
+        objects.push(SceneObject { model: &models[obj].model, mask: mask.clone(), hypotheses, lead: 0 });
+    }
+    let simulate = p.refine.method.simulates(p.refine.physics);
+    let scene_out = refine_scene(device, &depth, simulate.then_some(&plane), &objects, p.top.max(1), &p.refine)?;
+    stats.refine_s = tr.elapsed().as_secs_f64();
+    stats.scene = scene_out.times;
     let mut out = Vec::new();
-    for r in per {
-        match r {
-            Some((e, n, hs, rs)) => {
-                out.push(e);
-                stats.hypotheses += n;
-                stats.hypotheses_s += hs;
-                stats.refine_s += rs;
-            }
-            None => stats.skipped += 1,
-        }
+    for (obj, refined) in which.iter().zip(&scene_out.objects) {
+        let Some(refined) = refined else {
+            stats.skipped += 1;
+            continue;
+        };
+        let top = refined.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("at least one hypothesis");
+        out.push(Estimate {
+            scene_id: scene.id,
+            im_id,
+            obj_id: *obj,
+            score: top.score,
+            pose: PoseMm { r: top.pose.r, t: top.pose.t * 1e3 },
+            time: 0.0,
+            line: 0,
+        });
     }
     stats.seconds = t0.elapsed().as_secs_f64();
     out.iter_mut().for_each(|e| e.time = stats.seconds);
-    Ok((out, stats))
+    // Drawn after the clock stops: pictures are not the method's time.
+    let picture = explain.then(|| super::explain::scene_picture(&depth, &objects, &scene_out, Some(&plane), &p.refine)).transpose()?;
+    Ok(super::dataset::ImageResult { estimates: out, stats, picture })
 }
 
 /// Loads the objects for estimation: meshes (BOP models are millimetres),

@@ -12,7 +12,9 @@
 pub mod bandit;
 pub mod dataset;
 pub mod estimate;
+pub mod explain;
 pub mod icp;
+pub mod scene;
 
 use glam::DVec3;
 
@@ -68,8 +70,11 @@ impl Method {
 pub struct RefineParams {
     pub method: Method,
     /// Refinement steps per hypothesis (RIR: the budget is this times the
-    /// number of hypotheses, spread by UCB1).
+    /// number of hypotheses, spread by UCB1, unless `budget` says).
     pub steps: usize,
+    /// RIR: refinement steps per object, spread over its hypotheses by UCB1
+    /// (default: `steps` × hypotheses).
+    pub budget: Option<usize>,
     pub icp: IcpParams,
     /// UCB exploration constant (the paper: 0.1).
     pub exploration: f64,
@@ -103,6 +108,7 @@ impl Default for RefineParams {
         RefineParams {
             method: Method::Rir,
             steps: 2,
+            budget: None,
             icp: IcpParams::default(),
             exploration: 0.1,
             gamma: 1.0,
@@ -124,6 +130,9 @@ impl RefineParams {
         if self.steps == 0 || self.steps > 100 {
             return bad(format!("refinement steps per hypothesis must lie in 1..=100, got {}", self.steps));
         }
+        if let Some(b) = self.budget.filter(|b| *b == 0 || *b > 10_000) {
+            return bad(format!("the refinement budget per object must lie in 1..=10000 steps, got {b}"));
+        }
         if self.icp.iterations == 0 || self.icp.iterations > 100 {
             return bad(format!("ICP iterations per step must lie in 1..=100, got {}", self.icp.iterations));
         }
@@ -141,13 +150,48 @@ impl RefineParams {
 }
 
 /// One object as the observation shows it: its observed points (camera
-/// frame, m) and a scorer of poses against its masked depth.
+/// frame, m) and a scorer of poses against its masked depth, alone or among
+/// the other objects of the scene ([`ObjectView::set_occluders`]).
 pub struct ObjectView {
     pub points: Vec<DVec3>,
+    target: ScoreTarget,
+    params: ScoreParams,
     scorer: Scorer,
     /// The object (dynamic, index 0) on the support plane among the other
     /// objects (static), for PIR; `None` without physics.
     pub sim: Option<SimWorld>,
+    /// Where its refinement's time went.
+    pub times: RefineTimes,
+}
+
+/// Seconds spent per stage of refinement.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RefineTimes {
+    /// Building the views: observed points, scoring region, the other
+    /// objects' depth, support order.
+    pub scene: f64,
+    /// Visual-alignment scoring.
+    pub score: f64,
+    /// ICP.
+    pub icp: f64,
+    /// The rigid-body simulation (building worlds and their rounds).
+    pub simulate: f64,
+}
+
+impl std::ops::AddAssign for RefineTimes {
+    fn add_assign(&mut self, o: Self) {
+        self.scene += o.scene;
+        self.score += o.score;
+        self.icp += o.icp;
+        self.simulate += o.simulate;
+    }
+}
+
+impl RefineTimes {
+    /// The stages as JSON (seconds, divided by `per`).
+    pub fn json(&self, per: f64) -> serde_json::Value {
+        serde_json::json!({"scene": self.scene / per, "score": self.score / per, "icp": self.icp / per, "simulate": self.simulate / per})
+    }
 }
 
 impl ObjectView {
@@ -157,21 +201,59 @@ impl ObjectView {
         let points: Vec<DVec3> =
             (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();
         let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
+        let t = std::time::Instant::now();
         let scorer = Scorer::new(device, mesh, &target, p.score, 8)?;
-        Ok(ObjectView { points, scorer, sim: None })
+        let times = RefineTimes { scene: t.elapsed().as_secs_f64(), ..Default::default() };
+        Ok(ObjectView { points, target, params: p.score, scorer, sim: None, times })
+    }
+
+    /// Scores from now on as part of the scene: the other objects
+    /// (`occluders`, at their current poses) are rendered into the scoring
+    /// region and the pixels they hide leave V (the scene-level score of
+    /// [`ScoreTarget::set_occluders`]). The occluders' depth is one small
+    /// image per object and round, rendered by the CPU z-buffer (the render
+    /// kernel's twin); the batched scoring stays on `device`.
+    pub fn set_occluders(&mut self, device: &Device, mesh: &RenderMesh, occluders: &[(&RenderMesh, Pose)]) -> Result<()> {
+        let t = std::time::Instant::now();
+        let depth = scene_depth(&self.target.intrinsics, occluders);
+        self.target.set_occluders(depth)?;
+        self.scorer = Scorer::new(device, mesh, &self.target, self.params, 8)?;
+        self.times.scene += t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// The full score records (eq. 3-5 and pixel counts) of many poses.
+    pub fn records(&mut self, poses: &[Pose]) -> Result<Vec<crate::kernels::score::ScoreRecord>> {
+        let t = std::time::Instant::now();
+        let records = self.scorer.score(poses, &mut |_| {})?.0;
+        self.times.score += t.elapsed().as_secs_f64();
+        Ok(records)
     }
 
     /// The visual-alignment scores (eq. 3) of many poses, in order.
-    pub fn score_many(&self, poses: &[Pose]) -> Result<Vec<f64>> {
-        let (rec, _) = self.scorer.score(poses, &mut |_| {})?;
-        Ok(rec.iter().map(|r| r.score as f64).collect())
+    pub fn score_many(&mut self, poses: &[Pose]) -> Result<Vec<f64>> {
+        Ok(self.records(poses)?.iter().map(|r| r.score as f64).collect())
     }
 
     /// The visual-alignment score (eq. 3) of one pose.
-    pub fn score(&self, pose: &Pose) -> Result<f64> {
-        let (rec, _) = self.scorer.score(std::slice::from_ref(pose), &mut |_| {})?;
-        Ok(rec[0].score as f64)
+    pub fn score(&mut self, pose: &Pose) -> Result<f64> {
+        Ok(self.score_many(std::slice::from_ref(pose))?[0])
     }
+}
+
+/// The nearest surface of several meshes at their poses, per pixel of `k`
+/// (0 where none): the other objects' depth for the scene-level score.
+pub fn scene_depth(k: &crate::camera::Intrinsics, objects: &[(&RenderMesh, Pose)]) -> Vec<f32> {
+    let mut depth = vec![0.0f32; k.pixels()];
+    for (m, pose) in objects {
+        let img = crate::kernels::render::render_cpu(m, pose, k);
+        for (d, o) in depth.iter_mut().zip(&img.depth) {
+            if *o > 0.0 && (*d == 0.0 || *o < *d) {
+                *d = *o;
+            }
+        }
+    }
+    depth
 }
 
 /// Fewest observed points (depth pixels in the mask) an object is refined
@@ -208,7 +290,7 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &
         }
         Method::Rir => {
             let mut ucb = Ucb::new(out.len(), p.exploration, p.gamma);
-            for _ in 0..p.steps * out.len() {
+            for _ in 0..p.budget.unwrap_or(p.steps * out.len()) {
                 let arm = ucb.select();
                 step(model, &mut *view, &mut out[arm], p)?;
                 ucb.update(arm, out[arm].score);
@@ -227,6 +309,7 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &
 /// occluded: see the stacked-cube test.)
 fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
     let mut simulated = None;
+    let t = std::time::Instant::now();
     if let Some(sim) = view.sim.as_mut().filter(|_| p.method.simulates(p.physics)) {
         sim.set_pose(0, &h.pose);
         for _ in 0..p.sim.rounds {
@@ -234,7 +317,10 @@ fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &Refine
         }
         simulated = sim.pose(0);
     }
+    view.times.simulate += t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
     let (refined, _) = icp(model, &view.points, &simulated.unwrap_or(h.pose), &p.icp)?;
+    view.times.icp += t.elapsed().as_secs_f64();
     h.steps += 1;
     let refined_score = view.score(&refined)?;
     if matches!(p.method, Method::Ref | Method::Pir) {
