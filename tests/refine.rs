@@ -142,6 +142,29 @@ fn estimate_reaches_ar_065_on_the_shipped_frames() {
     }
 }
 
+/// `estimate --stable` takes the `stable-poses` database itself or its JSON
+/// export, with the same estimates; a file that is neither is refused.
+#[test]
+fn estimate_takes_the_stable_pose_database_or_its_export() {
+    let d = tempfile::tempdir().unwrap();
+    let (db, json) = (d.path().join("stable.sqlite"), d.path().join("stable.json"));
+    let models: Vec<PathBuf> = ["obj_000001.ply", "obj_000010.ply", "obj_000011.ply"].iter().map(|m| dataset().join("models").join(m)).collect();
+    run(plausible().arg("stable-poses").args(&models).arg("--db").arg(&db).arg("--json").arg(&json).args(["--mesh-units", "mm", "--drops", "60", "--quiet"]));
+    let estimate = |stable: &Path, out: &str| {
+        let out = d.path().join(out);
+        run(plausible().arg("estimate").arg("--dataset").arg(dataset()).arg("--out").arg(&out).arg("--stable").arg(stable).args(["--images", "3", "--steps", "0", "--quiet", "--device", "cpu"]));
+        rows(&out)
+    };
+    let (from_db, from_json) = (estimate(&db, "db.csv"), estimate(&json, "json.csv"));
+    assert_eq!(from_db.len(), 3);
+    assert_eq!(from_db, from_json);
+    let bad = d.path().join("bad.bin");
+    std::fs::write(&bad, [0xffu8, 0xfe, 0, 1]).unwrap();
+    let o = plausible().arg("estimate").arg("--dataset").arg(dataset()).arg("--out").arg(d.path().join("x.csv")).arg("--stable").arg(&bad).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("--stable"), "{err}");
+}
+
 /// `--explain DIR` draws one picture per image (refine and estimate), and a
 /// folder that cannot be made is refused before any work.
 #[test]

@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use glam::DVec3;
 use plausible::camera::Intrinsics;
 use plausible::hypotheses::around_and_random;
@@ -51,6 +51,14 @@ pub struct BenchScoreArgs {
     /// Only the 4k-triangle mesh and N <= 1024 (a quick look).
     #[arg(long)]
     pub quick: bool,
+    /// Benchmark these meshes instead of the shipped ones (repeatable).
+    /// Kept at their real size (`--units`), unlike the shipped meshes,
+    /// which are scaled to a 0.15 m diagonal.
+    #[arg(long)]
+    pub mesh: Vec<std::path::PathBuf>,
+    /// Units of the `--mesh` files: m, mm or auto (above 5 m: mm).
+    #[arg(long, default_value = "auto")]
+    pub units: MeshUnits,
     /// Skip the CPU twin (not recommended: figures are meant side by side).
     #[arg(long)]
     pub no_cpu: bool,
@@ -85,6 +93,7 @@ pub struct ScoreBenchRow {
     /// Compute pass time from GPU timestamp queries (where the adapter has them).
     pub gpu_timestamp_compute_ms: Option<f64>,
     pub timing: &'static str,
+    pub machine: super::machine::Machine,
 }
 
 pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
@@ -139,7 +148,9 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         configs.push((64, RoiSampling::FullFrame));
     }
     let mut rows = Vec::new();
+    let machine = super::machine::Machine::detect(Some(&device));
     if !a.json {
+        println!("machine: {}", machine.line());
         println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
         print!(
             "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
@@ -150,7 +161,18 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         }
         println!();
     }
-    for (name, mesh) in bench_meshes(a.quick)? {
+    let meshes = if a.mesh.is_empty() {
+        bench_meshes(a.quick)?
+    } else {
+        a.mesh
+            .iter()
+            .map(|p| {
+                let name = p.file_stem().map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned());
+                Ok((name, Mesh::load(p, a.units).with_context(|| format!("--mesh {}", p.display()))?.0))
+            })
+            .collect::<Result<Vec<_>>>()?
+    };
+    for (name, mesh) in meshes {
         let rmesh = RenderMesh::new(&mesh)?;
         let (obs, mask) = observe(&rmesh, &truth, &k, SensorNoise::default(), 1);
         // A support plane under the true pose (normal up and towards the
@@ -185,6 +207,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 readback_ms: None,
                 gpu_timestamp_compute_ms: None,
                 timing: "wall clock",
+                machine: machine.clone(),
             };
             if let Device::Gpu(ctx) = &device {
                 measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row)?;

@@ -66,8 +66,7 @@ pub struct EstimateBenchRow {
     pub score_s: f64,
     pub icp_s: f64,
     pub simulate_s: f64,
-    pub cpu_model: String,
-    pub cpu_threads: usize,
+    pub machine: super::machine::Machine,
 }
 
 pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
@@ -157,13 +156,12 @@ pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
         }
         return Ok(());
     }
+    println!("machine: {}", super::machine::Machine::detect(devices.first()).line());
     println!(
-        "{}: {} images with >= {} objects; {}, {} threads; wall clock per image, one run (stages per image; hypotheses summed over threads)",
+        "{}: {} images with >= {} objects; wall clock per image, one run (stages per image; hypotheses summed over threads)",
         root.display(),
         chosen.len(),
-        a.min_objects,
-        rows[0].cpu_model,
-        rows[0].cpu_threads
+        a.min_objects
     );
     println!(
         "{:<9} {:<40} {:>8} {:>9} {:>7} {:>8} {:>7} {:>7} {:>7} {:>9}",
@@ -191,8 +189,7 @@ fn new_row(what: &'static str, device: &Device, images: usize) -> EstimateBenchR
         score_s: 0.0,
         icp_s: 0.0,
         simulate_s: 0.0,
-        cpu_model: super::bench_eval::cpu_model(),
-        cpu_threads: rayon::current_num_threads(),
+        machine: super::machine::Machine::detect(Some(device)),
     }
 }
 

@@ -48,17 +48,7 @@ pub struct EvalBenchRow {
     pub wall_s: f64,
     pub render_s: f64,
     pub ar: Option<f64>,
-    pub cpu_model: String,
-    pub cpu_threads: usize,
-}
-
-/// The CPU's model name (Linux), so figures from different machines are
-/// not compared blindly.
-pub fn cpu_model() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("model name")).and_then(|l| l.split(':').nth(1)).map(|m| m.trim().to_string()))
-        .unwrap_or_else(|| "unknown".into())
+    pub machine: super::machine::Machine,
 }
 
 pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
@@ -102,8 +92,7 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
                 wall_s: wall,
                 render_s: r.time_s.render_s,
                 ar: r.ar.or(r.ar_vsd).or(r.ar_mssd),
-                cpu_model: cpu_model(),
-                cpu_threads: rayon::current_num_threads(),
+                machine: super::machine::Machine::detect(Some(device)),
             });
         }
     }
@@ -113,15 +102,8 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
         }
         return Ok(());
     }
-    println!(
-        "{} ({} estimates, {} images; {}, {} threads; wall clock, median of {})",
-        root.display(),
-        rows[0].estimates,
-        rows[0].images,
-        rows[0].cpu_model,
-        rows[0].cpu_threads,
-        a.repeat
-    );
+    println!("machine: {}", super::machine::Machine::detect(devices.first()).line());
+    println!("{} ({} estimates, {} images; wall clock, median of {})", root.display(), rows[0].estimates, rows[0].images, a.repeat);
     println!("{:<24} {:<44} {:>12} {:>9} {:>9}", "errors", "device", "estimates/s", "wall s", "render s");
     for r in &rows {
         println!("{:<24} {:<44} {:>12.0} {:>9.3} {:>9.3}", r.what, r.device, r.estimates_per_s, r.wall_s, r.render_s);

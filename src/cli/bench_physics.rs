@@ -65,6 +65,7 @@ pub struct PhysicsBenchRow {
     pub refined_fraction: Option<f64>,
     pub cpu_threads: usize,
     pub timing: &'static str,
+    pub machine: super::machine::Machine,
 }
 
 fn median(mut v: Vec<Duration>) -> Duration {
@@ -81,7 +82,9 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
     let repeat = a.repeat.max(1);
     let w = Workload::new(a.n, a.samples, a.seed)?;
     let queries = (a.n * w.body.samples.len()) as f64;
+    let machine = super::machine::Machine::detect(Some(&device));
     if !a.json {
+        println!("machine: {}", machine.line());
         println!(
             "adapter: {adapter} ({backend}); CPU twin on {} threads; N = {} x {} samples; wall clock, median of {repeat}",
             rayon::current_num_threads(),
@@ -108,6 +111,7 @@ pub fn bench_physics(a: BenchPhysicsArgs, verbose: u8) -> Result<()> {
             refined_fraction: None,
             cpu_threads: rayon::current_num_threads(),
             timing: "wall clock, median of repeats after a warm-up",
+            machine: machine.clone(),
         };
         if let Device::Gpu(ctx) = &device {
             measure_gpu(ctx, &w.body, poses, &env, repeat, queries, &mut row)?;

@@ -31,8 +31,9 @@ pub struct EstimateArgs {
     /// Only these images (comma-separated ids).
     #[arg(long, value_delimiter = ',')]
     pub images: Vec<u32>,
-    /// Resting poses: a `stable-poses export` JSON holding the dataset's
-    /// models (default: the quasi-static analysis of each convex hull).
+    /// Resting poses: a `stable-poses` database (SQLite) or its `export`
+    /// JSON holding the dataset's models (default: the quasi-static
+    /// analysis of each convex hull).
     #[arg(long)]
     pub stable: Option<PathBuf>,
     /// Results CSV (BOP format, score = visual-alignment score, time = the
@@ -74,6 +75,21 @@ pub struct EstimateArgs {
     pub dev: super::AutoDeviceArgs,
 }
 
+/// The resting poses of `--stable`: a `stable-poses export` JSON as it is,
+/// or a `stable-poses` SQLite database exported in memory.
+fn read_stable(path: &std::path::Path) -> Result<String> {
+    let mut head = [0u8; 16];
+    let is_sqlite = std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok_and(|_| &head == b"SQLite format 3\0");
+    if is_sqlite {
+        let db = plausible::stable::db::Db::open_existing(path).with_context(|| format!("--stable {}", path.display()))?;
+        let ex = plausible::stable::export::export(&db, None).with_context(|| format!("--stable {}", path.display()))?;
+        return Ok(serde_json::to_string(&ex)?);
+    }
+    std::fs::read_to_string(path).with_context(|| format!("--stable {}: not a stable-poses export JSON or database", path.display()))
+}
+
 pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;
@@ -89,7 +105,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let shard = a.shard.as_deref().map(parse_shard).transpose()?;
     let masks = parse_masks(&a.masks)?;
     plausible::io::check_writable(&a.out)?;
-    let stable = a.stable.as_ref().map(|p| std::fs::read_to_string(p).with_context(|| format!("--stable {}", p.display()))).transpose()?;
+    let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(a.targets.as_deref()).context("--targets")?;
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();

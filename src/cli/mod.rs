@@ -10,6 +10,7 @@ pub mod demo;
 pub mod estimate;
 pub mod eval;
 pub mod hypotheses;
+pub mod machine;
 pub mod plane;
 pub mod refine;
 pub mod score;

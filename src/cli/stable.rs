@@ -561,10 +561,11 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         println!(
             "{}",
             serde_json::to_string_pretty(
-                &serde_json::json!({ "bench": "stable", "results": rows })
+                &serde_json::json!({ "bench": "stable", "machine": super::machine::Machine::detect(None), "results": rows })
             )?
         );
     } else {
+        println!("machine: {}", super::machine::Machine::detect(None).line());
         println!(
             "{:<24} {:>6} {:>6} {:>9} {:>10} {:>11} {:>10} {:>9} {:>8}",
             "mesh",

@@ -197,6 +197,9 @@ impl RefineTimes {
 impl ObjectView {
     /// The object's view in `depth` through `mask` (same size).
     pub fn new(device: &Device, mesh: &RenderMesh, depth: &DepthImage, mask: &[bool], p: &RefineParams) -> Result<ObjectView> {
+        if mask.len() != depth.depth.len() {
+            return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth image {}", mask.len(), depth.depth.len())));
+        }
         let k = depth.intrinsics;
         let points: Vec<DVec3> =
             (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();

@@ -11,7 +11,7 @@ use glam::DVec3;
 
 use super::dataset::{physics_world, Model};
 use super::{refine_hypotheses, ObjectView, RefineParams, Refined, MIN_OBSERVED_POINTS};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::observation::DepthImage;
 use crate::physical::Plane;
 use crate::pose::Pose;
@@ -66,6 +66,9 @@ pub fn refine_scene(
     p: &RefineParams,
 ) -> Result<SceneRefined> {
     let n = objects.len();
+    if let Some((i, o)) = objects.iter().enumerate().find(|(_, o)| !o.hypotheses.is_empty() && o.lead >= o.hypotheses.len()) {
+        return Err(Error::InvalidInput(format!("object {i}: lead hypothesis {} of {}", o.lead, o.hypotheses.len())));
+    }
     let mut views: Vec<Option<ObjectView>> = objects
         .iter()
         .map(|o| {
@@ -76,14 +79,14 @@ pub fn refine_scene(
             ObjectView::new(device, &o.model.render, depth, &o.mask, p).map(Some)
         })
         .collect::<Result<_>>()?;
-    let mut current: Vec<Pose> = objects.iter().map(|o| o.hypotheses[o.lead.min(o.hypotheses.len().saturating_sub(1))]).collect();
+    let mut current: Vec<Pose> = objects.iter().map(|o| o.hypotheses.get(o.lead).copied().unwrap_or(Pose::IDENTITY)).collect();
     let active: Vec<usize> = (0..n).filter(|&i| views[i].is_some()).collect();
     // Visible fraction of each lead estimate: its mask pixels over the
     // pixels it renders (an occluded object renders more than it shows).
     let mut visible = vec![0.0; n];
     for &i in &active {
         let rec = views[i].as_mut().expect("active").records(&[current[i]])?[0];
-        visible[i] = rec.observed as f64 / rec.rendered.max(1) as f64;
+        visible[i] = (rec.observed as f64 / rec.rendered.max(1) as f64).min(1.0);
     }
     let t_order = std::time::Instant::now();
     let placed_in: Vec<(&[DVec3], Pose)> = active.iter().map(|&i| (objects[i].model.surface.points.as_slice(), current[i])).collect();
