@@ -147,6 +147,17 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         configs.push((4096, RoiSampling::Square(128)));
         configs.push((64, RoiSampling::FullFrame));
     }
+    let meshes = if a.mesh.is_empty() {
+        bench_meshes(a.quick)?
+    } else {
+        a.mesh
+            .iter()
+            .map(|p| {
+                let name = p.file_stem().map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned());
+                Ok((name, Mesh::load(p, a.units).with_context(|| format!("--mesh {}", p.display()))?.0))
+            })
+            .collect::<Result<Vec<_>>>()?
+    };
     let mut rows = Vec::new();
     let machine = super::machine::Machine::detect(Some(&device));
     if !a.json {
@@ -161,17 +172,6 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         }
         println!();
     }
-    let meshes = if a.mesh.is_empty() {
-        bench_meshes(a.quick)?
-    } else {
-        a.mesh
-            .iter()
-            .map(|p| {
-                let name = p.file_stem().map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into_owned());
-                Ok((name, Mesh::load(p, a.units).with_context(|| format!("--mesh {}", p.display()))?.0))
-            })
-            .collect::<Result<Vec<_>>>()?
-    };
     for (name, mesh) in meshes {
         let rmesh = RenderMesh::new(&mesh)?;
         let (obs, mask) = observe(&rmesh, &truth, &k, SensorNoise::default(), 1);
