@@ -51,6 +51,11 @@ pub struct EstimateArgs {
     /// Best-scored hypotheses refined per instance (RIR over them).
     #[arg(long, default_value_t = 5)]
     pub top: usize,
+    /// Refinement of the best hypotheses: ref (ICP), pir (ICP after a short
+    /// simulation among the placed objects), sir (PIR steps kept only if
+    /// the score improves) or rir (SIR steps spread by UCB1).
+    #[arg(long, default_value = "rir", value_parser = ["ref", "pir", "sir", "rir"])]
+    pub method: String,
     /// Refinement steps per refined hypothesis (0: no refinement).
     #[arg(long, default_value_t = 2)]
     pub steps: usize,
@@ -95,7 +100,7 @@ fn read_stable(path: &std::path::Path) -> Result<String> {
 pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;
-    params.refine = RefineParams { method: Method::Rir, steps: a.steps.max(1), physics: !a.no_physics, ..Default::default() };
+    params.refine = RefineParams { method: Method::parse(&a.method).context("--method")?, steps: a.steps.max(1), physics: !a.no_physics, ..Default::default() };
     params.refine.validate().context("check --steps")?;
     params.refine.steps = a.steps;
     if a.top == 0 || a.top > 100 {
@@ -127,7 +132,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     prepare_explain(a.explain.as_deref())?;
     let device = a.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
-    eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by RIR; {}", jobs.len(), a.yaw_steps, a.top, masks.describe());
+    eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());
     let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;
     let mut out = ResultsAppender::open(&a.out)?;
     let pb = super::progress(jobs.len() as u64, "images");
@@ -172,7 +177,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     if let Some(p) = &a.summary {
         let v = serde_json::json!({
             "images": jobs.len(), "instances": total.instances, "skipped": total.skipped, "hypotheses": total.hypotheses,
-            "masks": masks.describe(), "resting_poses": source, "yaw_steps": a.yaw_steps, "top": a.top, "steps": a.steps,
+            "masks": masks.describe(), "resting_poses": source, "method": params.refine.method.name(), "physics": params.refine.method.simulates(params.refine.physics), "yaw_steps": a.yaw_steps, "top": a.top, "steps": a.steps,
             "seconds": total.seconds, "seconds_per_image": total.seconds / n,
             "stage_seconds_per_image": {"plane": total.plane_s / n, "hypotheses_and_scoring": total.hypotheses_s / n, "scene_refinement": total.refine_s / n},
             "scene_refinement_stages_per_image": total.scene.json(n),

@@ -69,6 +69,87 @@ pub struct EstimateStats {
     pub scene: super::RefineTimes,
 }
 
+/// One object instance of a frame: its model (with resting poses) and its
+/// mask (the depth image's size).
+pub struct Instance<'a> {
+    pub model: &'a EstimateModel,
+    pub mask: Vec<bool>,
+}
+
+/// A frame's estimates: the scene as refined, and which instance each
+/// scene object is.
+pub struct FrameEstimate<'a> {
+    pub objects: Vec<SceneObject<'a>>,
+    pub instance: Vec<usize>,
+    pub scene: super::scene::SceneRefined,
+}
+
+impl FrameEstimate<'_> {
+    /// Instance `k`'s estimate (its best-scored refined hypothesis), `None`
+    /// when it had too few observed points.
+    pub fn best(&self, k: usize) -> Option<super::Refined> {
+        let i = self.instance.iter().position(|&x| x == k)?;
+        self.scene.objects[i].as_ref()?.iter().copied().max_by(|a, b| a.score.total_cmp(&b.score))
+    }
+}
+
+/// Estimates the poses of object instances in one frame (any depth image,
+/// support plane in the camera frame, metres): per instance (in parallel)
+/// its resting poses × yaws on the plane, scored alone, the best
+/// [`CANDIDATES_PER_TOP`] × `top` passed on; then the scene: candidates
+/// re-scored among the other objects' estimates and the best `top` refined
+/// in support order ([`refine_scene`]; `steps` 0: none refined). Adds its
+/// counts and times to `stats`.
+pub fn estimate_frame<'a>(
+    device: &Device,
+    depth: &crate::observation::DepthImage,
+    plane: &crate::physical::Plane,
+    instances: &'a [Instance<'a>],
+    p: &EstimateParams,
+    stats: &mut EstimateStats,
+) -> Result<FrameEstimate<'a>> {
+    let per: Vec<Option<(Vec<crate::pose::Pose>, usize, f64)>> = instances
+        .par_iter()
+        .map(|inst| {
+            let (m, mask) = (inst.model, &inst.mask);
+            if mask.len() != depth.depth.len() {
+                return Err(Error::InvalidInput(format!("a mask has {} pixels, the depth image {}", mask.len(), depth.depth.len())));
+            }
+            if mask.iter().zip(&depth.depth).filter(|(m, d)| **m && **d > 0.0).count() < MIN_OBSERVED_POINTS {
+                return Ok(None);
+            }
+            let th = Instant::now();
+            let hyps = on_plane_hypotheses(&m.model.mesh, &m.rests, plane, depth, mask, &p.hypotheses)?;
+            let mut view = ObjectView::new(device, &m.model.render, depth, mask, &p.refine)?;
+            let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
+            let scores = view.score_many(&poses)?;
+            let mut order: Vec<usize> = (0..poses.len()).collect();
+            order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+            let kept = order.iter().take(CANDIDATES_PER_TOP * p.top.max(1)).map(|&i| poses[i]).collect();
+            Ok(Some((kept, poses.len(), th.elapsed().as_secs_f64())))
+        })
+        .collect::<Result<_>>()?;
+    let tr = Instant::now();
+    let mut instance = Vec::new();
+    let mut objects = Vec::new();
+    for (k, (inst, r)) in instances.iter().zip(per).enumerate() {
+        let Some((hypotheses, n, hs)) = r else {
+            stats.skipped += 1;
+            continue;
+        };
+        stats.hypotheses += n;
+        stats.hypotheses_s += hs;
+        instance.push(k);
+        objects.push(SceneObject { model: &inst.model.model, mask: inst.mask.clone(), hypotheses, lead: 0 });
+    }
+    let simulate = p.refine.method.simulates(p.refine.physics);
+    let scene = refine_scene(device, depth, simulate.then_some(plane), &objects, p.top.max(1), &p.refine)?;
+    stats.refine_s += tr.elapsed().as_secs_f64();
+    stats.scene += scene.times;
+    stats.skipped += scene.objects.iter().filter(|o| o.is_none()).count();
+    Ok(FrameEstimate { objects, instance, scene })
+}
+
 /// Estimates every target object of one image (`targets` of this image):
 /// one estimate per mask instance, scored by the visual alignment.
 pub fn estimate_image(
@@ -96,52 +177,17 @@ pub fn estimate_image(
     let plane = support_plane(&depth, instances.iter().map(|(_, m)| m.as_slice()), &p.plane)
         .map_err(|e| Error::InvalidInput(format!("image {im_id}: support plane: {e}")))?;
     stats.plane_s = tp.elapsed().as_secs_f64();
-    // Per instance (in parallel): its hypotheses scored alone, the best
-    // few kept as candidates for the scene.
-    let per: Vec<Option<(Vec<crate::pose::Pose>, usize, f64)>> = instances
-        .par_iter()
+    let inst: Vec<Instance> = instances
+        .iter()
         .map(|(obj, mask)| {
-            let m = models.get(obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model")))?;
-            if mask.iter().zip(&depth.depth).filter(|(m, d)| **m && **d > 0.0).count() < MIN_OBSERVED_POINTS {
-                return Ok(None);
-            }
-            let th = Instant::now();
-            let hyps = on_plane_hypotheses(&m.model.mesh, &m.rests, &plane, &depth, mask, &p.hypotheses)?;
-            let mut view = ObjectView::new(device, &m.model.render, &depth, mask, &p.refine)?;
-            let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
-            let scores = view.score_many(&poses)?;
-            let mut order: Vec<usize> = (0..poses.len()).collect();
-            order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
-            let kept = order.iter().take(CANDIDATES_PER_TOP * p.top.max(1)).map(|&i| poses[i]).collect();
-            Ok(Some((kept, poses.len(), th.elapsed().as_secs_f64())))
+            let model = models.get(obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model")))?;
+            Ok(Instance { model, mask: mask.clone() })
         })
         .collect::<Result<_>>()?;
-    // The scene: candidates re-scored among the other objects' estimates,
-    // the best `top` refined in support order (steps 0: none refined).
-    let tr = Instant::now();
-    let mut which = Vec::new();
-    let mut objects = Vec::new();
-    for ((obj, mask), r) in instances.iter().zip(per) {
-        let Some((hypotheses, n, hs)) = r else {
-            stats.skipped += 1;
-            continue;
-        };
-        stats.hypotheses += n;
-        stats.hypotheses_s += hs;
-        which.push(*obj);
-        objects.push(SceneObject { model: &models[obj].model, mask: mask.clone(), hypotheses, lead: 0 });
-    }
-    let simulate = p.refine.method.simulates(p.refine.physics);
-    let scene_out = refine_scene(device, &depth, simulate.then_some(&plane), &objects, p.top.max(1), &p.refine)?;
-    stats.refine_s = tr.elapsed().as_secs_f64();
-    stats.scene = scene_out.times;
+    let frame = estimate_frame(device, &depth, &plane, &inst, p, &mut stats)?;
     let mut out = Vec::new();
-    for (obj, refined) in which.iter().zip(&scene_out.objects) {
-        let Some(refined) = refined else {
-            stats.skipped += 1;
-            continue;
-        };
-        let top = refined.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("at least one hypothesis");
+    for (k, (obj, _)) in instances.iter().enumerate() {
+        let Some(top) = frame.best(k) else { continue };
         out.push(Estimate {
             scene_id: scene.id,
             im_id,
@@ -155,7 +201,7 @@ pub fn estimate_image(
     stats.seconds = t0.elapsed().as_secs_f64();
     out.iter_mut().for_each(|e| e.time = stats.seconds);
     // Drawn after the clock stops: pictures are not the method's time.
-    let picture = explain.then(|| super::explain::scene_picture(&depth, &objects, &scene_out, Some(&plane), &p.refine)).transpose()?;
+    let picture = explain.then(|| super::explain::scene_picture(&depth, &frame.objects, &frame.scene, Some(&plane), &p.refine)).transpose()?;
     Ok(super::dataset::ImageResult { estimates: out, stats, picture })
 }
 
