@@ -529,7 +529,18 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         let secs = t0.elapsed().as_secs_f64();
         let settled = results.iter().filter(|d| d.settled).count();
         let steps: u64 = results.iter().map(|d| d.steps as u64).sum();
+        let t_cluster = Instant::now();
         let clusters = stable::cluster::cluster(&results, ClusterParams::default());
+        let cluster_s = t_cluster.elapsed().as_secs_f64();
+        // Where a drop's time goes: a single-threaded pass over the first
+        // drops again, timed by stage (same results as above).
+        let sample = args.drops.min(200);
+        let (mut stages, mut sample_steps) = (stable::drop::DropTimes::default(), 0u64);
+        for i in 0..sample {
+            let (r, t) = stable::drop::simulate_timed(&prepared.body, &params.sim, &prepared.sha256, params.seed, i);
+            stages += t;
+            sample_steps += r.steps as u64;
+        }
         let (poses, families) = stable::export::split(&clusters);
         let drops_s = args.drops as f64 / secs;
         rows.push(serde_json::json!({
@@ -548,6 +559,15 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
             "seconds_per_1000_drops": 1000.0 / drops_s,
             "settled": settled,
             "settled_fraction": settled as f64 / args.drops as f64,
+            "cluster_seconds": cluster_s,
+            "stages": {
+                "sample_drops": sample,
+                "setup_us_per_drop": 1e6 * stages.setup / sample as f64,
+                "step_us": 1e6 * stages.step / sample_steps.max(1) as f64,
+                "rest_test_us_per_step": 1e6 * stages.rest_test / sample_steps.max(1) as f64,
+                "ms_per_drop": 1e3 * (stages.setup + stages.step + stages.rest_test) / sample as f64,
+                "timing": "one thread, wall clock",
+            },
             "clusters": poses.iter().take(12).map(|c| serde_json::json!({
                 "p": c.probability, "ci95": c.ci95, "gravity_in_model": c.gravity_in_model
             })).collect::<Vec<_>>(),
@@ -567,7 +587,7 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
     } else {
         println!("machine: {}", super::machine::Machine::detect(None).line());
         println!(
-            "{:<24} {:>6} {:>6} {:>9} {:>10} {:>11} {:>10} {:>9} {:>8}",
+            "{:<24} {:>6} {:>6} {:>9} {:>10} {:>11} {:>10} {:>9} {:>8} {:>9} {:>8} {:>8}",
             "mesh",
             "tris",
             "hullpt",
@@ -576,11 +596,14 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
             "steps/drop",
             "s/1000",
             "settled",
-            "clusters"
+            "clusters",
+            "setup us",
+            "step us",
+            "rest us"
         );
         for r in &rows {
             println!(
-                "{:<24} {:>6} {:>6} {:>9.1} {:>10.1} {:>11.1} {:>10.2} {:>8.1}% {:>8}",
+                "{:<24} {:>6} {:>6} {:>9.1} {:>10.1} {:>11.1} {:>10.2} {:>8.1}% {:>8} {:>9.1} {:>8.2} {:>8.2}",
                 r["mesh"].as_str().unwrap_or("?"),
                 r["triangles"],
                 r["collider_points"],
@@ -589,7 +612,10 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
                 r["mean_steps_per_drop"].as_f64().unwrap_or(0.0),
                 r["seconds_per_1000_drops"].as_f64().unwrap_or(0.0),
                 100.0 * r["settled_fraction"].as_f64().unwrap_or(0.0),
-                r["clusters"].as_array().map(|a| a.len()).unwrap_or(0)
+                r["clusters"].as_array().map(|a| a.len()).unwrap_or(0),
+                r["stages"]["setup_us_per_drop"].as_f64().unwrap_or(0.0),
+                r["stages"]["step_us"].as_f64().unwrap_or(0.0),
+                r["stages"]["rest_test_us_per_step"].as_f64().unwrap_or(0.0)
             );
         }
     }

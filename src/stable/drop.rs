@@ -138,6 +138,35 @@ pub fn simulate(
     seed: u64,
     index: u64,
 ) -> DropResult {
+    simulate_timed(body, params, mesh_sha256, seed, index).0
+}
+
+/// Where one drop's time went (seconds): building its world, rapier's
+/// steps, and the rest test (velocity thresholds and the support polygon).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DropTimes {
+    pub setup: f64,
+    pub step: f64,
+    pub rest_test: f64,
+}
+
+impl std::ops::AddAssign for DropTimes {
+    fn add_assign(&mut self, o: Self) {
+        self.setup += o.setup;
+        self.step += o.step;
+        self.rest_test += o.rest_test;
+    }
+}
+
+/// [`simulate`] with its time split by stage (the same result).
+pub fn simulate_timed(
+    body: &DropBody,
+    params: &SimParams,
+    mesh_sha256: &str,
+    seed: u64,
+    index: u64,
+) -> (DropResult, DropTimes) {
+    let t_setup = std::time::Instant::now();
     let mut rng = ChaCha8Rng::from_seed(drop_seed(mesh_sha256, seed, index));
     let q0 = random_rotation(&mut rng);
     let lowest = body
@@ -160,7 +189,8 @@ pub fn simulate(
     let z0 = gap - lowest;
 
     let (mut world, handle) = drop_world(body, params, q0, z0, v0);
-    let (settled, steps) = run_until_settled(&mut world, handle, body, params);
+    let mut times = DropTimes { setup: t_setup.elapsed().as_secs_f64(), ..Default::default() };
+    let (settled, steps) = run_until_settled(&mut world, handle, body, params, &mut times);
     let (rotation, height) = match world.bodies.get(handle) {
         Some(b) => {
             let (q, t) = body_pose(b);
@@ -169,14 +199,15 @@ pub fn simulate(
         None => (q0, f64::NAN),
     };
     let gravity_in_model = (rotation.inverse() * DVec3::NEG_Z).normalize();
-    DropResult {
+    let result = DropResult {
         index,
         settled,
         steps,
         rotation,
         height,
         gravity_in_model,
-    }
+    };
+    (result, times)
 }
 
 /// The world of one drop: the ground half-space and the body released at
@@ -221,7 +252,7 @@ fn drop_world(body: &DropBody, params: &SimParams, q0: DQuat, z0: f64, v0: f64) 
 
 /// Steps until the body has been still for `calm_time` in a statically
 /// stable pose, or the (size-scaled) time cap; returns (settled, steps).
-fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &DropBody, params: &SimParams) -> (bool, u32) {
+fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &DropBody, params: &SimParams, times: &mut DropTimes) -> (bool, u32) {
     let time_scale = (body.diagonal / REFERENCE_DIAG).sqrt().max(1.0);
     let max_steps = (params.max_time * time_scale / params.dt).ceil().max(1.0) as u32;
     let calm_needed = (params.calm_time / params.dt).ceil().max(1.0) as u32;
@@ -230,9 +261,13 @@ fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &D
     let mut calm = 0;
     let mut steps = 0;
     let mut settled = false;
+    let mut clock = std::time::Instant::now();
     while steps < max_steps {
         world.step();
         steps += 1;
+        let now = std::time::Instant::now();
+        times.step += (now - clock).as_secs_f64();
+        clock = now;
         let Some(b) = world.bodies.get(handle) else {
             break;
         };
@@ -252,6 +287,9 @@ fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &D
         } else {
             calm = 0;
         }
+        let now = std::time::Instant::now();
+        times.rest_test += (now - clock).as_secs_f64();
+        clock = now;
     }
     (settled, steps)
 }
