@@ -148,6 +148,9 @@ const CONTACT_BAND: f64 = 0.005;
 /// closer by more than this (m): two objects side by side on the table both
 /// rest on the table.
 const PLANE_PREFERENCE: f64 = 0.002;
+/// Farthest gap (m) across which an object can be found resting on
+/// another (an estimate may float above its support by this much).
+const SUPPORT_REACH: f64 = 0.05;
 /// Points compared per object when looking for supports (a stride over the
 /// surface samples keeps the pairwise search to ~10⁵ distances a pair).
 const SUPPORT_POINTS: usize = 400;
@@ -170,12 +173,22 @@ pub fn support_order(plane: &Plane, objects: &[(&[DVec3], Pose)], visible: &[f64
         })
         .collect();
     let low: Vec<f64> = world.iter().map(|w| w.iter().map(|q| plane.distance(*q)).fold(f64::INFINITY, f64::min)).collect();
+    // Bounding spheres: objects whose spheres are apart cannot support
+    // each other (keeps many-object scenes from the all-pairs search).
+    let spheres: Vec<(DVec3, f64)> = world
+        .iter()
+        .map(|w| {
+            let c = w.iter().sum::<DVec3>() / w.len().max(1) as f64;
+            (c, w.iter().map(|q| q.distance(c)).fold(0.0, f64::max))
+        })
+        .collect();
+    let near = |i: usize, j: usize| spheres[i].0.distance(spheres[j].0) <= spheres[i].1 + spheres[j].1 + SUPPORT_REACH;
     let support: Vec<Support> = (0..n)
         .map(|i| {
             let feet: Vec<DVec3> = world[i].iter().copied().filter(|q| plane.distance(*q) <= low[i] + CONTACT_BAND).collect();
             let plane_gap = low[i].max(0.0);
             let mut best: Option<(f64, usize)> = None;
-            for j in (0..n).filter(|&j| j != i && low[j] < low[i]) {
+            for j in (0..n).filter(|&j| j != i && low[j] < low[i] && near(i, j)) {
                 let gap = feet
                     .iter()
                     .flat_map(|f| world[j].iter().map(move |q| f.distance_squared(*q)))
