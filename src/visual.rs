@@ -39,6 +39,24 @@ impl Scorer {
         Ok(Scorer { inner })
     }
 
+    /// Replaces the observation with `target`'s (the same region and
+    /// observed pixels, other occluders: see
+    /// [`GpuScorer::set_observation`]); nothing is rebuilt.
+    pub fn set_observation(&mut self, target: &ScoreTarget) -> Result<()> {
+        match &mut self.inner {
+            ScorerImpl::Gpu(g) => g.set_observation(target),
+            ScorerImpl::Cpu { target: t, .. } => {
+                if target.intrinsics != t.intrinsics || target.observed_pixels() != t.observed_pixels() {
+                    return Err(crate::error::Error::InvalidInput(
+                        "a scorer's observation can only change its occluders, not its region or observed pixels".into(),
+                    ));
+                }
+                *t = target.clone();
+                Ok(())
+            }
+        }
+    }
+
     /// Scores `poses` (records in input order), calling `done(n)` as
     /// hypotheses finish.
     pub fn score(&self, poses: &[Pose], done: &mut dyn FnMut(usize)) -> Result<(Vec<ScoreRecord>, StageTimes)> {

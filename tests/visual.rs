@@ -331,9 +331,17 @@ fn gpu_scene_level_score_hides_pixels_behind_other_objects_like_the_cpu_twin() {
     assert!(s_scene.rendered < s_alone.rendered && s_scene.observed == s_alone.observed);
     let poses = around_and_random(&true_pose(), 256, 5);
     let cpu = score_cpu(&duck, &scene, &poses, &params);
-    let (gpu, _) = GpuScorer::new(&test_context(), &duck, &scene, params, poses.len()).unwrap().score(&poses).unwrap();
+    let ctx = test_context();
+    let (gpu, _) = GpuScorer::new(&ctx, &duck, &scene, params, poses.len()).unwrap().score(&poses).unwrap();
     for (i, (c, g)) in cpu.iter().zip(&gpu).enumerate() {
         assert!((c.score - g.score).abs() < 1e-3, "hypothesis {i}: cpu {c:?} gpu {g:?}");
         assert!(c.rendered.abs_diff(g.rendered) <= 2 + c.rendered / 100, "hypothesis {i}: cpu {c:?} gpu {g:?}");
     }
+    // A scorer built alone and given the scene's observation afterwards
+    // (one buffer write) scores as one built on it; another region is refused.
+    let reused = GpuScorer::new(&ctx, &duck, &alone, params, poses.len()).unwrap();
+    reused.set_observation(&scene).unwrap();
+    assert_eq!(reused.score(&poses).unwrap().0, gpu);
+    let other = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(64), DEFAULT_ROI_MARGIN).unwrap();
+    assert!(reused.set_observation(&other).is_err());
 }

@@ -270,7 +270,7 @@ impl GpuScorer {
         let observed = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("observed"),
             contents: bytemuck::cast_slice(&obs),
-            usage: wgpu::BufferUsages::STORAGE,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
         });
         let rec_bytes = (bufs.chunk * std::mem::size_of::<ScoreRecord>()) as u64;
         let records = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -324,6 +324,18 @@ impl GpuScorer {
             (set, buf)
         });
         self.timestamps.is_some()
+    }
+
+    /// Replaces the observation with `target`'s, which must be the same
+    /// region with the same observed pixels and may differ only in the
+    /// other objects' depth ([`ScoreTarget::set_occluders`]): one buffer
+    /// write, the mesh and pipeline stay.
+    pub fn set_observation(&self, target: &ScoreTarget) -> Result<()> {
+        if target.intrinsics != self.target_intrinsics || target.observed_pixels() as u32 != self.n_obs {
+            return Err(Error::InvalidInput("a scorer's observation can only change its occluders, not its region or observed pixels".into()));
+        }
+        self.ctx.queue.write_buffer(&self.observed, 0, bytemuck::cast_slice(&target.packed()));
+        Ok(())
     }
 
     /// Hypotheses per dispatch.

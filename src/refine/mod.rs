@@ -155,7 +155,6 @@ impl RefineParams {
 pub struct ObjectView {
     pub points: Vec<DVec3>,
     target: ScoreTarget,
-    params: ScoreParams,
     scorer: Scorer,
     /// The object (dynamic, index 0) on the support plane among the other
     /// objects (static), for PIR; `None` without physics.
@@ -200,14 +199,14 @@ impl ObjectView {
         if mask.len() != depth.depth.len() {
             return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth image {}", mask.len(), depth.depth.len())));
         }
+        let t = std::time::Instant::now();
         let k = depth.intrinsics;
         let points: Vec<DVec3> =
             (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();
         let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
-        let t = std::time::Instant::now();
         let scorer = Scorer::new(device, mesh, &target, p.score, 8)?;
         let times = RefineTimes { scene: t.elapsed().as_secs_f64(), ..Default::default() };
-        Ok(ObjectView { points, target, params: p.score, scorer, sim: None, times })
+        Ok(ObjectView { points, target, scorer, sim: None, times })
     }
 
     /// Scores from now on as part of the scene: the other objects
@@ -215,12 +214,13 @@ impl ObjectView {
     /// region and the pixels they hide leave V (the scene-level score of
     /// [`ScoreTarget::set_occluders`]). The occluders' depth is one small
     /// image per object and round, rendered by the CPU z-buffer (the render
-    /// kernel's twin); the batched scoring stays on `device`.
-    pub fn set_occluders(&mut self, device: &Device, mesh: &RenderMesh, occluders: &[(&RenderMesh, Pose)]) -> Result<()> {
+    /// kernel's twin); the scorer keeps its mesh and pipeline and takes the
+    /// new observation in one buffer write.
+    pub fn set_occluders(&mut self, occluders: &[(&RenderMesh, Pose)]) -> Result<()> {
         let t = std::time::Instant::now();
         let depth = scene_depth(&self.target.intrinsics, occluders);
         self.target.set_occluders(depth)?;
-        self.scorer = Scorer::new(device, mesh, &self.target, self.params, 8)?;
+        self.scorer.set_observation(&self.target)?;
         self.times.scene += t.elapsed().as_secs_f64();
         Ok(())
     }

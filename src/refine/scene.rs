@@ -114,7 +114,7 @@ pub fn refine_scene(
         let view = views[i].as_mut().expect("ordered objects have a view");
         let others: Vec<(&crate::kernels::RenderMesh, Pose)> =
             active.iter().filter(|&&j| j != i).map(|&j| (&objects[j].model.render, current[j])).collect();
-        view.set_occluders(device, &o.model.render, &others)?;
+        view.set_occluders(&others)?;
         if let Some(pl) = plane.filter(|_| p.method.simulates(p.physics)) {
             let t = std::time::Instant::now();
             let below: Vec<(&Model, Pose)> = placed.iter().map(|&j| (objects[j].model, current[j])).collect();
