@@ -249,8 +249,8 @@ fn a_cube_stacked_on_a_slab_comes_out_resting_on_it() {
         let cube = Model::new(cube_mesh.clone(), &p).unwrap();
         let slab = Model::new(slab_mesh.clone(), &p).unwrap();
         let objects = [
-            SceneObject { model: &cube, mask: mask.clone(), hypotheses: vec![start], lead: 0 },
-            SceneObject { model: &slab, mask: slab_mask.clone(), hypotheses: vec![slab_pose], lead: 0 },
+            SceneObject { model: &cube, mask: &mask, hypotheses: vec![start], lead: 0 },
+            SceneObject { model: &slab, mask: &slab_mask, hypotheses: vec![slab_pose], lead: 0 },
         ];
         let out = refine_scene(&plausible::visual::Device::Cpu, &obs, Some(&plane), &objects, 5, &p).unwrap();
         assert_eq!(out.support, vec![Support::Object(1), Support::Plane], "the cube rests on the slab, the slab on the plane");

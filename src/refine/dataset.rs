@@ -223,8 +223,8 @@ pub fn refine_image(
     // Each object's estimates are its hypotheses; its best-scored one
     // stands for it among the others until it is refined.
     let (mut ids, mut objects) = (Vec::new(), Vec::new());
-    for (&obj, mask) in objs.iter().zip(object_masks) {
-        let Some(mask) = mask.filter(|m| m.iter().any(|&v| v)) else { continue };
+    for (&obj, mask) in objs.iter().zip(&object_masks) {
+        let Some(mask) = mask.as_deref().filter(|m| m.iter().any(|&v| v)) else { continue };
         let mine: Vec<&Estimate> = job.estimates.iter().filter(|e| e.obj_id == obj).collect();
         let lead = (0..mine.len()).max_by(|&a, &b| mine[a].score.total_cmp(&mine[b].score).then(b.cmp(&a))).unwrap_or(0);
         let hypotheses = mine.iter().map(|e| e.pose.to_pose()).collect();

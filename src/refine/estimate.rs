@@ -73,7 +73,7 @@ pub struct EstimateStats {
 /// mask (the depth image's size).
 pub struct Instance<'a> {
     pub model: &'a EstimateModel,
-    pub mask: Vec<bool>,
+    pub mask: &'a [bool],
 }
 
 /// A frame's estimates: the scene as refined, and which instance each
@@ -111,7 +111,7 @@ pub fn estimate_frame<'a>(
     let per: Vec<Option<(Vec<crate::pose::Pose>, usize, f64)>> = instances
         .par_iter()
         .map(|inst| {
-            let (m, mask) = (inst.model, &inst.mask);
+            let (m, mask) = (inst.model, inst.mask);
             if mask.len() != depth.depth.len() {
                 return Err(Error::InvalidInput(format!("a mask has {} pixels, the depth image {}", mask.len(), depth.depth.len())));
             }
@@ -140,7 +140,7 @@ pub fn estimate_frame<'a>(
         stats.hypotheses += n;
         stats.hypotheses_s += hs;
         instance.push(k);
-        objects.push(SceneObject { model: &inst.model.model, mask: inst.mask.clone(), hypotheses, lead: 0 });
+        objects.push(SceneObject { model: &inst.model.model, mask: inst.mask, hypotheses, lead: 0 });
     }
     let simulate = p.refine.method.simulates(p.refine.physics);
     let scene = refine_scene(device, depth, simulate.then_some(plane), &objects, p.top.max(1), &p.refine)?;
@@ -181,7 +181,7 @@ pub fn estimate_image(
         .iter()
         .map(|(obj, mask)| {
             let model = models.get(obj).ok_or_else(|| Error::InvalidInput(format!("object {obj} has no model")))?;
-            Ok(Instance { model, mask: mask.clone() })
+            Ok(Instance { model, mask })
         })
         .collect::<Result<_>>()?;
     let frame = estimate_frame(device, &depth, &plane, &inst, p, &mut stats)?;

@@ -131,7 +131,7 @@ pub fn scene_picture(
         .zip(&refined.objects)
         .filter_map(|(o, r)| {
             let best = r.as_ref()?.iter().max_by(|a, b| a.score.total_cmp(&b.score))?;
-            Some(Explained { model: o.model, mask: &o.mask, before: *o.hypotheses.get(o.lead)?, after: best.pose })
+            Some(Explained { model: o.model, mask: o.mask, before: *o.hypotheses.get(o.lead)?, after: best.pose })
         })
         .collect();
     refinement_picture(depth, &explained, plane, &p.score, p.res)

@@ -22,7 +22,7 @@ use crate::visual::Device;
 pub struct SceneObject<'a> {
     pub model: &'a Model,
     /// Its pixels in the frame (the depth image's size).
-    pub mask: Vec<bool>,
+    pub mask: &'a [bool],
     pub hypotheses: Vec<Pose>,
     /// The hypothesis that stands for the object among the others until it
     /// is refined (e.g. the estimator's best-scored one).
@@ -76,7 +76,7 @@ pub fn refine_scene(
             if observed < MIN_OBSERVED_POINTS || o.hypotheses.is_empty() {
                 return Ok(None);
             }
-            ObjectView::new(device, &o.model.render, depth, &o.mask, p).map(Some)
+            ObjectView::new(device, &o.model.render, depth, o.mask, p).map(Some)
         })
         .collect::<Result<_>>()?;
     let mut current: Vec<Pose> = objects.iter().map(|o| o.hypotheses.get(o.lead).copied().unwrap_or(Pose::IDENTITY)).collect();
