@@ -10,7 +10,7 @@ use plausible::bop::Dataset;
 use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
 use plausible::refine::{Method, RefineParams};
 
-use super::refine::{parse_masks, parse_shard, prepare_explain, save_picture, shard_of, skip_done, ResultsAppender};
+use super::refine::{shard_of, skip_done, ResultsAppender};
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
@@ -41,10 +41,6 @@ pub struct EstimateArgs {
     /// skipped (a killed run resumes).
     #[arg(long)]
     pub out: PathBuf,
-    /// Masks: `oracle` (the dataset's mask_visib/, one estimate per
-    /// instance) or a folder with SSSSSS/IIIIII_OOOOOO.png.
-    #[arg(long, default_value = "oracle")]
-    pub masks: String,
     /// Yaw steps per resting pose (15° apart by default).
     #[arg(long, default_value_t = 24)]
     pub yaw_steps: usize,
@@ -62,22 +58,8 @@ pub struct EstimateArgs {
     /// Refine without the simulation between ICP steps (SIR without PIR).
     #[arg(long)]
     pub no_physics: bool,
-    /// Only images i (0-based, in scene/image order) with i mod n = k - 1.
-    #[arg(long)]
-    pub shard: Option<String>,
-    /// Write a JSON summary (timings per stage) here.
-    #[arg(long)]
-    pub summary: Option<PathBuf>,
-    /// Write a picture per image to this folder (SSSSSS_IIIIII.png): each
-    /// instance's alignment of its best hypothesis before and after
-    /// refinement, its verdict, and the scene's physical views.
-    #[arg(long)]
-    pub explain: Option<PathBuf>,
-    /// No progress bar.
-    #[arg(long)]
-    pub quiet: bool,
     #[command(flatten)]
-    pub dev: super::AutoDeviceArgs,
+    pub run: super::refine::ImageRunArgs,
 }
 
 /// The resting poses of `--stable`: a `stable-poses export` JSON as it is,
@@ -109,8 +91,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     if a.yaw_steps == 0 || a.yaw_steps > 360 {
         bail!("--yaw-steps {}: between 1 and 360", a.yaw_steps);
     }
-    let shard = a.shard.as_deref().map(parse_shard).transpose()?;
-    let masks = parse_masks(&a.masks)?;
+    let (shard, masks) = a.run.shard_and_masks()?;
     plausible::io::check_writable(&a.out)?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
@@ -129,25 +110,22 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();
-    prepare_explain(a.explain.as_deref())?;
-    let device = a.dev.open(verbose)?;
+    a.run.prepare_explain()?;
+    let device = a.run.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());
     let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;
     let mut out = ResultsAppender::open(&a.out)?;
-    let pb = super::progress(jobs.len() as u64, "images");
-    if a.quiet {
-        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
+    let pb = a.run.progress(jobs.len());
     let mut scenes = HashMap::new();
     let mut total = EstimateStats::default();
     for ((scene_id, im_id), ts) in &jobs {
         if !scenes.contains_key(scene_id) {
             scenes.insert(*scene_id, ds.scene(*scene_id).with_context(|| format!("scene {scene_id}"))?);
         }
-        let r = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params, a.explain.is_some())
+        let r = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {scene_id} image {im_id}"))?;
-        save_picture(a.explain.as_deref(), *scene_id, *im_id, r.picture.as_ref())?;
+        a.run.save_picture(*scene_id, *im_id, r.picture.as_ref())?;
         out.append(&r.estimates)?;
         let s = r.stats;
         total.instances += s.instances;
@@ -174,7 +152,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         total.refine_s / n
     );
     println!("wrote {}", a.out.display());
-    if let Some(p) = &a.summary {
+    if let Some(p) = &a.run.summary {
         let v = serde_json::json!({
             "images": jobs.len(), "instances": total.instances, "skipped": total.skipped, "hypotheses": total.hypotheses,
             "masks": masks.describe(), "resting_poses": source, "method": params.refine.method.name(), "physics": params.refine.method.simulates(params.refine.physics), "yaw_steps": a.yaw_steps, "top": a.top, "steps": a.steps,

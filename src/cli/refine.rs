@@ -54,8 +54,17 @@ pub struct RefineArgs {
     /// the rest of the scene does).
     #[arg(long, default_value_t = 1.0)]
     pub discount: f64,
-    /// Masks: `oracle` (the dataset's mask_visib/) or a folder with
-    /// SSSSSS/IIIIII_OOOOOO.png (scene, image, object id).
+#[command(flatten)]
+    pub run: ImageRunArgs,
+}
+
+/// What `refine` and `estimate` share: the masks, which images, where the
+/// summary and pictures go, the progress bar and the device.
+#[derive(clap::Args, Debug)]
+pub struct ImageRunArgs {
+    /// Masks: `oracle` (the dataset's mask_visib/, one mask per ground-truth
+    /// instance) or a folder with SSSSSS/IIIIII_OOOOOO.png (scene, image,
+    /// object id).
     #[arg(long, default_value = "oracle")]
     pub masks: String,
     /// Only images i (0-based, in scene/image order) with i mod n = k - 1:
@@ -63,12 +72,12 @@ pub struct RefineArgs {
     /// after its header line).
     #[arg(long)]
     pub shard: Option<String>,
-    /// Write a JSON summary (timings per stage, steps) here.
+    /// Write a JSON summary (counts, timings per stage) here.
     #[arg(long)]
     pub summary: Option<PathBuf>,
     /// Write a picture per image to this folder (SSSSSS_IIIIII.png): each
-    /// object's alignment before and after, its verdict, and the scene's
-    /// physical views.
+    /// object's alignment before and after refinement, its verdict, and the
+    /// scene's physical views.
     #[arg(long)]
     pub explain: Option<PathBuf>,
     /// No progress bar.
@@ -76,6 +85,40 @@ pub struct RefineArgs {
     pub quiet: bool,
     #[command(flatten)]
     pub dev: super::AutoDeviceArgs,
+}
+
+impl ImageRunArgs {
+    /// The parsed `--shard` and `--masks`.
+    pub fn shard_and_masks(&self) -> Result<(Option<(usize, usize)>, Masks)> {
+        Ok((self.shard.as_deref().map(parse_shard).transpose()?, parse_masks(&self.masks)?))
+    }
+
+    /// Makes the `--explain` folder (before any work, so a bad path fails fast).
+    pub fn prepare_explain(&self) -> Result<()> {
+        if let Some(d) = &self.explain {
+            std::fs::create_dir_all(d).with_context(|| format!("--explain {}: cannot create the folder", d.display()))?;
+            plausible::io::check_writable(&d.join(".plausible-write-test")).with_context(|| format!("--explain {}", d.display()))?;
+        }
+        Ok(())
+    }
+
+    /// A progress bar over `n` images (hidden with `--quiet`).
+    pub fn progress(&self, n: usize) -> indicatif::ProgressBar {
+        let pb = super::progress(n as u64, "images");
+        if self.quiet {
+            pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        pb
+    }
+
+    /// Writes an image's picture as `SSSSSS_IIIIII.png` in the `--explain` folder.
+    pub fn save_picture(&self, scene_id: u32, im_id: u32, picture: Option<&image::RgbImage>) -> Result<()> {
+        if let (Some(d), Some(pic)) = (&self.explain, picture) {
+            let path = d.join(format!("{scene_id:06}_{im_id:06}.png"));
+            pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        Ok(())
+    }
 }
 
 /// `oracle` or a folder of masks.
@@ -125,23 +168,6 @@ impl ResultsAppender {
     }
 }
 
-/// Makes the `--explain` folder (before any work, so a bad path fails fast).
-pub fn prepare_explain(dir: Option<&std::path::Path>) -> Result<()> {
-    if let Some(d) = dir {
-        std::fs::create_dir_all(d).with_context(|| format!("--explain {}: cannot create the folder", d.display()))?;
-        plausible::io::check_writable(&d.join(".plausible-write-test")).with_context(|| format!("--explain {}", d.display()))?;
-    }
-    Ok(())
-}
-
-/// Writes an image's picture as `SSSSSS_IIIIII.png` in the `--explain` folder.
-pub fn save_picture(dir: Option<&std::path::Path>, scene_id: u32, im_id: u32, picture: Option<&image::RgbImage>) -> Result<()> {
-    if let (Some(d), Some(pic)) = (dir, picture) {
-        let path = d.join(format!("{scene_id:06}_{im_id:06}.png"));
-        pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
-    }
-    Ok(())
-}
 
 /// `k/n` with 1 ≤ k ≤ n.
 pub fn parse_shard(s: &str) -> Result<(usize, usize)> {
@@ -189,8 +215,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if a.budget.is_some() && params.method != Method::Rir {
         bail!("--budget is for --method rir (the other methods take --steps per hypothesis)");
     }
-    let shard = a.shard.as_deref().map(parse_shard).transpose()?;
-    let masks = parse_masks(&a.masks)?;
+    let (shard, masks) = a.run.shard_and_masks()?;
     plausible::io::check_writable(&a.out)?;
     if a.out.canonicalize().ok().is_some_and(|o| a.init.canonicalize().ok() == Some(o)) {
         bail!("--out is the --init file: write the refined results elsewhere");
@@ -205,15 +230,12 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
         bail!("--init: object {o} is not in the dataset's models_info.json");
     }
-    prepare_explain(a.explain.as_deref())?;
-    let device = a.dev.open(verbose)?;
+    a.run.prepare_explain()?;
+    let device = a.run.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
     let mut file = ResultsAppender::open(&a.out)?;
-    let pb = super::progress(jobs.len() as u64, "images");
-    if a.quiet {
-        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
+    let pb = a.run.progress(jobs.len());
     let mut scenes = std::collections::HashMap::new();
     let mut total = ImageStats::default();
     for job in &jobs {
@@ -221,9 +243,9 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
             scenes.insert(job.scene_id, ds.scene(job.scene_id).with_context(|| format!("scene {}", job.scene_id))?);
         }
         let scene = &scenes[&job.scene_id];
-        let r = refine_image(scene, job, &models, &device, &masks, &params, a.explain.is_some())
+        let r = refine_image(scene, job, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
-        save_picture(a.explain.as_deref(), job.scene_id, job.im_id, r.picture.as_ref())?;
+        a.run.save_picture(job.scene_id, job.im_id, r.picture.as_ref())?;
         file.append(&r.estimates)?;
         let s = r.stats;
         total.objects += s.objects;
@@ -246,7 +268,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         per_image
     );
     println!("wrote {}", a.out.display());
-    if let Some(p) = &a.summary {
+    if let Some(p) = &a.run.summary {
         let v = serde_json::json!({
             "method": params.method.name(), "physics": params.method.simulates(params.physics), "steps": params.steps, "icp_iterations": params.icp.iterations,
             "masks": masks.describe(), "images": jobs.len(), "objects": total.objects, "unrefined": total.unrefined,
