@@ -111,10 +111,7 @@ pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = chosen.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).chain(jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id))).collect();
     objs.sort_unstable();
     objs.dedup();
-    let mut devices = vec![super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?];
-    if !a.no_cpu && !matches!(devices[0], Device::Cpu) {
-        devices.push(Device::Cpu);
-    }
+    let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;
     let refine_p = RefineParams { physics: !a.no_physics, ..Default::default() };
     let est_p = EstimateParams { refine: refine_p, ..Default::default() };
     let models = load_models(&ds, &objs, &refine_p).context("loading the models")?;

@@ -51,6 +51,16 @@ pub struct EvalBenchRow {
     pub machine: super::machine::Machine,
 }
 
+/// The device measured and, unless `no_cpu` or it is the twin already,
+/// the CPU twin beside it, in that order.
+pub fn side_by_side(device: &str, adapter: Option<&str>, no_cpu: bool, verbose: u8) -> Result<Vec<Device>> {
+    let mut devices = vec![super::open_device(device, adapter, verbose, true)?];
+    if !no_cpu && !matches!(devices[0], Device::Cpu) {
+        devices.push(Device::Cpu);
+    }
+    Ok(devices)
+}
+
 pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     if a.repeat == 0 || a.repeat > 1000 {
         anyhow::bail!("--repeat must be between 1 and 1000");
@@ -60,10 +70,7 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     let ds = Dataset::open(&root, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(None)?;
     let results = read_results(&results_path).context("--results")?;
-    let mut devices = vec![super::open_device(&a.device, a.adapter.as_deref(), verbose, true)?];
-    if !a.no_cpu && !matches!(devices[0], Device::Cpu) {
-        devices.push(Device::Cpu);
-    }
+    let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;
     let sets: [(&str, Vec<ErrorType>); 3] = [
         ("vsd", vec![ErrorType::Vsd]),
         ("mssd+mspd", vec![ErrorType::Mssd, ErrorType::Mspd]),
