@@ -138,7 +138,7 @@ pub fn simulate(
     seed: u64,
     index: u64,
 ) -> DropResult {
-    simulate_timed(body, params, mesh_sha256, seed, index).0
+    run_drop(body, params, mesh_sha256, seed, index, None)
 }
 
 /// Where one drop's time went (seconds): building its world, rapier's
@@ -158,7 +158,8 @@ impl std::ops::AddAssign for DropTimes {
     }
 }
 
-/// [`simulate`] with its time split by stage (the same result).
+/// [`simulate`] with its time split by stage (the same result). The
+/// clock is read twice per step, so only benchmarks ask for it.
 pub fn simulate_timed(
     body: &DropBody,
     params: &SimParams,
@@ -166,7 +167,14 @@ pub fn simulate_timed(
     seed: u64,
     index: u64,
 ) -> (DropResult, DropTimes) {
-    let t_setup = std::time::Instant::now();
+    let mut times = DropTimes::default();
+    let r = run_drop(body, params, mesh_sha256, seed, index, Some(&mut times));
+    (r, times)
+}
+
+/// One drop, its stages timed into `times` when given.
+fn run_drop(body: &DropBody, params: &SimParams, mesh_sha256: &str, seed: u64, index: u64, mut times: Option<&mut DropTimes>) -> DropResult {
+    let t_setup = times.is_some().then(std::time::Instant::now);
     let mut rng = ChaCha8Rng::from_seed(drop_seed(mesh_sha256, seed, index));
     let q0 = random_rotation(&mut rng);
     let lowest = body
@@ -189,8 +197,10 @@ pub fn simulate_timed(
     let z0 = gap - lowest;
 
     let (mut world, handle) = drop_world(body, params, q0, z0, v0);
-    let mut times = DropTimes { setup: t_setup.elapsed().as_secs_f64(), ..Default::default() };
-    let (settled, steps) = run_until_settled(&mut world, handle, body, params, &mut times);
+    if let (Some(t), Some(start)) = (times.as_deref_mut(), t_setup) {
+        t.setup += start.elapsed().as_secs_f64();
+    }
+    let (settled, steps) = run_until_settled(&mut world, handle, body, params, times);
     let (rotation, height) = match world.bodies.get(handle) {
         Some(b) => {
             let (q, t) = body_pose(b);
@@ -199,15 +209,14 @@ pub fn simulate_timed(
         None => (q0, f64::NAN),
     };
     let gravity_in_model = (rotation.inverse() * DVec3::NEG_Z).normalize();
-    let result = DropResult {
+    DropResult {
         index,
         settled,
         steps,
         rotation,
         height,
         gravity_in_model,
-    };
-    (result, times)
+    }
 }
 
 /// The world of one drop: the ground half-space and the body released at
@@ -252,7 +261,7 @@ fn drop_world(body: &DropBody, params: &SimParams, q0: DQuat, z0: f64, v0: f64) 
 
 /// Steps until the body has been still for `calm_time` in a statically
 /// stable pose, or the (size-scaled) time cap; returns (settled, steps).
-fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &DropBody, params: &SimParams, times: &mut DropTimes) -> (bool, u32) {
+fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &DropBody, params: &SimParams, mut times: Option<&mut DropTimes>) -> (bool, u32) {
     let time_scale = (body.diagonal / REFERENCE_DIAG).sqrt().max(1.0);
     let max_steps = (params.max_time * time_scale / params.dt).ceil().max(1.0) as u32;
     let calm_needed = (params.calm_time / params.dt).ceil().max(1.0) as u32;
@@ -261,13 +270,23 @@ fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &D
     let mut calm = 0;
     let mut steps = 0;
     let mut settled = false;
-    let mut clock = std::time::Instant::now();
+    // Seconds since the last lap, when timing.
+    let mut clock = times.is_some().then(std::time::Instant::now);
+    let mut lap = || {
+        clock.as_mut().map_or(0.0, |c| {
+            let now = std::time::Instant::now();
+            let dt = (now - *c).as_secs_f64();
+            *c = now;
+            dt
+        })
+    };
     while steps < max_steps {
         world.step();
         steps += 1;
-        let now = std::time::Instant::now();
-        times.step += (now - clock).as_secs_f64();
-        clock = now;
+        let dt = lap();
+        if let Some(t) = times.as_deref_mut() {
+            t.step += dt;
+        }
         let Some(b) = world.bodies.get(handle) else {
             break;
         };
@@ -287,9 +306,10 @@ fn run_until_settled(world: &mut PhysicsWorld, handle: RigidBodyHandle, body: &D
         } else {
             calm = 0;
         }
-        let now = std::time::Instant::now();
-        times.rest_test += (now - clock).as_secs_f64();
-        clock = now;
+        let dt = lap();
+        if let Some(t) = times.as_deref_mut() {
+            t.rest_test += dt;
+        }
     }
     (settled, steps)
 }
