@@ -104,6 +104,7 @@ fn refine_refuses_bad_flags_before_any_work() {
         (vec!["--exploration", "nan"], "exploration"),
         (vec!["--shard", "4/3"], "--shard"),
         (vec!["--masks", "/nonexistent"], "--masks"),
+        (vec!["--summary", "/nonexistent/s.json"], "--summary"),
     ] {
         let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(d.path().join("o.csv")).args(&extra).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);

@@ -110,7 +110,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();
-    a.run.prepare_explain()?;
+    a.run.prepare_outputs()?;
     let device = a.run.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());

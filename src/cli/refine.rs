@@ -93,8 +93,12 @@ impl ImageRunArgs {
         Ok((self.shard.as_deref().map(parse_shard).transpose()?, parse_masks(&self.masks)?))
     }
 
-    /// Makes the `--explain` folder (before any work, so a bad path fails fast).
-    pub fn prepare_explain(&self) -> Result<()> {
+    /// Checks that `--summary` can be written and makes the `--explain`
+    /// folder, before any work, so a bad path fails fast.
+    pub fn prepare_outputs(&self) -> Result<()> {
+        if let Some(p) = &self.summary {
+            plausible::io::check_writable(p).context("--summary")?;
+        }
         if let Some(d) = &self.explain {
             std::fs::create_dir_all(d).with_context(|| format!("--explain {}: cannot create the folder", d.display()))?;
             plausible::io::check_writable(&d.join(".plausible-write-test")).with_context(|| format!("--explain {}", d.display()))?;
@@ -230,7 +234,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
         bail!("--init: object {o} is not in the dataset's models_info.json");
     }
-    a.run.prepare_explain()?;
+    a.run.prepare_outputs()?;
     let device = a.run.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
