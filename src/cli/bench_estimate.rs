@@ -9,8 +9,8 @@ use std::time::Instant;
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::dataset::Target;
 use plausible::bop::{read_results, Dataset};
-use plausible::refine::dataset::{image_jobs, load_models, refine_image, Masks};
-use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams};
+use plausible::refine::dataset::{image_jobs, load_models, refine_image, ImageStats, Masks};
+use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
 use plausible::refine::{RefineParams, RefineTimes};
 use plausible::visual::Device;
 use serde::Serialize;
@@ -122,29 +122,22 @@ pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
         // Refine: RIR on the given estimates.
         let mut r_row = new_row("refine", device, jobs.len());
         let t = Instant::now();
-        let mut times = RefineTimes::default();
-        let mut objects = 0;
+        let mut total = ImageStats::default();
         for job in &jobs {
-            let r = refine_image(&scenes[&job.scene_id], job, &models, device, &masks, &refine_p, false)?;
-            times += r.stats.times;
-            objects += r.stats.objects;
+            total += refine_image(&scenes[&job.scene_id], job, &models, device, &masks, &refine_p, false)?.stats;
         }
-        finish(&mut r_row, t.elapsed().as_secs_f64(), objects, &times);
+        finish(&mut r_row, t.elapsed().as_secs_f64(), total.objects, &total.times);
         rows.push(r_row);
         // Estimate: hypotheses from resting poses, scene refinement.
         let mut e_row = new_row("estimate", device, chosen.len());
         let t = Instant::now();
-        let (mut times, mut objects, mut plane, mut hyps) = (RefineTimes::default(), 0, 0.0, 0.0);
+        let mut total = EstimateStats::default();
         for ((scene_id, im_id), ts) in &chosen {
-            let r = estimate_image(&scenes[scene_id], *im_id, ts, &est_models, device, &masks, &est_p, false)?;
-            times += r.stats.scene;
-            objects += r.stats.instances;
-            plane += r.stats.plane_s;
-            hyps += r.stats.hypotheses_s;
+            total += estimate_image(&scenes[scene_id], *im_id, ts, &est_models, device, &masks, &est_p, false)?.stats;
         }
-        finish(&mut e_row, t.elapsed().as_secs_f64(), objects, &times);
-        e_row.plane_s = plane / chosen.len() as f64;
-        e_row.hypotheses_s = hyps / chosen.len() as f64;
+        finish(&mut e_row, t.elapsed().as_secs_f64(), total.instances, &total.scene);
+        e_row.plane_s = total.plane_s / chosen.len() as f64;
+        e_row.hypotheses_s = total.hypotheses_s / chosen.len() as f64;
         rows.push(e_row);
     }
     if a.json {

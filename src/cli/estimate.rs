@@ -127,15 +127,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
             .with_context(|| format!("scene {scene_id} image {im_id}"))?;
         a.run.save_picture(*scene_id, *im_id, r.picture.as_ref())?;
         out.append(&r.estimates)?;
-        let s = r.stats;
-        total.instances += s.instances;
-        total.skipped += s.skipped;
-        total.hypotheses += s.hypotheses;
-        total.seconds += s.seconds;
-        total.plane_s += s.plane_s;
-        total.hypotheses_s += s.hypotheses_s;
-        total.refine_s += s.refine_s;
-        total.scene += s.scene;
+        total += r.stats;
         pb.inc(1);
     }
     pb.finish_and_clear();

@@ -251,13 +251,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
             .with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
         a.run.save_picture(job.scene_id, job.im_id, r.picture.as_ref())?;
         file.append(&r.estimates)?;
-        let s = r.stats;
-        total.objects += s.objects;
-        total.unrefined += s.unrefined;
-        total.steps += s.steps;
-        total.kept += s.kept;
-        total.seconds += s.seconds;
-        total.times += s.times;
+        total += r.stats;
         pb.inc(1);
     }
     pb.finish_and_clear();

@@ -172,6 +172,18 @@ pub struct ImageStats {
     pub times: super::RefineTimes,
 }
 
+impl std::ops::AddAssign for ImageStats {
+    /// Totals over images.
+    fn add_assign(&mut self, o: Self) {
+        self.objects += o.objects;
+        self.unrefined += o.unrefined;
+        self.steps += o.steps;
+        self.kept += o.kept;
+        self.seconds += o.seconds;
+        self.times += o.times;
+    }
+}
+
 /// An image's depth in metres with its intrinsics.
 pub fn depth_image(scene: &Scene, im_id: u32) -> Result<DepthImage> {
     let mm = scene.read_depth(im_id)?;

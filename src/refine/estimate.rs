@@ -69,6 +69,20 @@ pub struct EstimateStats {
     pub scene: super::RefineTimes,
 }
 
+impl std::ops::AddAssign for EstimateStats {
+    /// Totals over images.
+    fn add_assign(&mut self, o: Self) {
+        self.instances += o.instances;
+        self.skipped += o.skipped;
+        self.hypotheses += o.hypotheses;
+        self.seconds += o.seconds;
+        self.plane_s += o.plane_s;
+        self.hypotheses_s += o.hypotheses_s;
+        self.refine_s += o.refine_s;
+        self.scene += o.scene;
+    }
+}
+
 /// One object instance of a frame: its model (with resting poses) and its
 /// mask (the depth image's size).
 pub struct Instance<'a> {
