@@ -140,7 +140,35 @@ impl Default for EvalOptions {
     }
 }
 
+/// The BOP toolkit's name of the dataset in `dir`: `name` when given (one
+/// the toolkit does not know is an error), else the folder's own name when
+/// the toolkit knows it, else `None`.
+pub fn toolkit_dataset_name(dir: &std::path::Path, name: Option<&str>) -> Result<Option<String>> {
+    if let Some(n) = name {
+        if bop_symmetric_obj_ids(n).is_none() {
+            return Err(Error::InvalidInput(format!(
+                "dataset name '{n}' is not a BOP dataset the toolkit knows (lm, lmo, tless, tudl, tyol, ruapc, icmi, icbin, itodd, hb, ycbv, hope, ...)"
+            )));
+        }
+        return Ok(Some(n.to_string()));
+    }
+    let folder = dir.canonicalize().ok().and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).unwrap_or_default();
+    Ok(bop_symmetric_obj_ids(&folder).map(|_| folder))
+}
+
 impl EvalOptions {
+    /// The BOP'19 protocol for the toolkit's dataset `name` (see
+    /// [`toolkit_dataset_name`]): the objects `ad` scores with ADI and VSD
+    /// δ; without a name, the objects with symmetries in models_info.json
+    /// and δ = 15 mm.
+    pub fn for_dataset(name: Option<&str>) -> EvalOptions {
+        EvalOptions {
+            symmetric_obj_ids: name.and_then(bop_symmetric_obj_ids),
+            vsd_delta_mm: name.map_or(vsd::DELTA_MM, bop_vsd_delta_mm),
+            ..Default::default()
+        }
+    }
+
     fn has(&self, e: ErrorType) -> bool {
         self.errors.contains(&e)
     }

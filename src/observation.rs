@@ -18,6 +18,51 @@ pub struct DepthImage {
     pub depth: Vec<f32>,
 }
 
+impl DepthImage {
+    /// A depth image from values in metres (0 or NaN = no measurement; a
+    /// library caller's arrays), checked like a depth file: the size against
+    /// `intrinsics`, the intrinsics against the size, no negative or
+    /// infinite value, at least one measurement, nothing beyond 100 m.
+    pub fn from_metres(intrinsics: Intrinsics, mut depth: Vec<f32>) -> Result<DepthImage> {
+        let bad = |reason: String| Error::InvalidInput(format!("depth: {reason}"));
+        let (w, h) = (intrinsics.width, intrinsics.height);
+        if w == 0 || h == 0 || w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+            return Err(bad(format!("{w}x{h} pixels: each side must lie in 1..={MAX_IMAGE_SIDE}")));
+        }
+        if depth.len() != intrinsics.pixels() {
+            return Err(bad(format!("{} values for a {w}x{h} image", depth.len())));
+        }
+        intrinsics.check_against_image().map_err(|r| Error::BadCamera { what: "K".into(), reason: r })?;
+        for (i, d) in depth.iter_mut().enumerate() {
+            if d.is_nan() {
+                *d = 0.0;
+            } else if *d < 0.0 || !d.is_finite() {
+                return Err(bad(format!("pixel ({}, {}) is {d}: depth must be 0 (none) or a positive finite distance", i % w as usize, i / w as usize)));
+            }
+        }
+        let dmax = depth.iter().cloned().fold(0.0f32, f32::max);
+        if dmax == 0.0 {
+            return Err(bad("no valid (non-zero) pixel".into()));
+        }
+        if dmax > 100.0 {
+            return Err(bad(format!("largest depth is {dmax:.0} m: are the values in millimetres? (give units=\"mm\")")));
+        }
+        Ok(DepthImage { intrinsics, depth })
+    }
+}
+
+/// Checks a mask given as data (not a file) against its depth image: the
+/// same size, and at least one object pixel.
+pub fn check_mask(mask: &[bool], width: u32, height: u32) -> Result<()> {
+    if mask.len() != width as usize * height as usize {
+        return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth image {width}x{height}", mask.len())));
+    }
+    if !mask.iter().any(|&m| m) {
+        return Err(Error::InvalidInput("the mask is empty (no object pixel): nothing to score".into()));
+    }
+    Ok(())
+}
+
 /// Camera entry in BOP `scene_camera.json` form.
 #[derive(Clone, Debug, Deserialize)]
 pub struct BopCamera {

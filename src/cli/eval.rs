@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::{read_results, write_results, Dataset, TargetSource};
-use plausible::eval::{bop_symmetric_obj_ids, bop_vsd_delta_mm, evaluate, gt_as_results, ErrorType, EvalOptions, EvalReport};
+use plausible::eval::{evaluate, gt_as_results, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport};
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -59,28 +59,17 @@ pub struct EvalArgs {
 }
 
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
-    let folder = a.dataset.canonicalize().ok().and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).unwrap_or_default();
-    let name = match &a.dataset_name {
-        Some(n) => {
-            if bop_symmetric_obj_ids(n).is_none() {
-                bail!("--dataset-name '{n}' is not a BOP dataset the toolkit knows (lm, lmo, tless, tudl, tyol, ruapc, icmi, icbin, itodd, hb, ycbv, hope, ...)");
-            }
-            Some(n.clone())
-        }
-        None => bop_symmetric_obj_ids(&folder).map(|_| folder.clone()),
-    };
+    let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;
     let opts = EvalOptions {
         errors: a.errors.clone(),
         add_threshold: a.add_threshold,
         batch_images: a.batch_images,
-        symmetric_obj_ids: name.as_deref().and_then(bop_symmetric_obj_ids),
-        vsd_delta_mm: name.as_deref().map_or(EvalOptions::default().vsd_delta_mm, bop_vsd_delta_mm),
-        ..Default::default()
+        ..EvalOptions::for_dataset(name.as_deref())
     };
     opts.validate().context("check --errors, --add-threshold and --batch-images")?;
     match &name {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
-        None => eprintln!("note: '{folder}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)"),
+        None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
     for p in [&a.out, &a.errors_out, &a.gt_as_results].into_iter().flatten() {
         plausible::io::check_writable(p)?;

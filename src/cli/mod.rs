@@ -19,7 +19,7 @@ pub mod stable;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, Result};
-use plausible::gpu::{Context, GpuOptions};
+use plausible::gpu::DeviceChoice;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{read_camera, read_depth_png, read_mask_png, DepthImage};
 use plausible::visual::Device;
@@ -138,36 +138,18 @@ impl DeviceArgs {
     }
 }
 
-/// Opens `gpu`, `cpu` or `auto`: a hardware adapter when there is one, the
-/// CPU twin when the only adapter is a software rasterizer (lavapipe runs
-/// the same kernels on the same cores, measurably slower than the twin).
+/// Opens `gpu`, `cpu` or `auto` ([`plausible::gpu::DeviceChoice`]), telling
+/// the user about fallbacks, and with `-v` which adapter runs.
 pub fn open_device(device: &str, adapter: Option<&str>, verbose: u8, fallback: bool) -> Result<Device> {
-    if device == "cpu" {
-        return Ok(Device::Cpu);
+    let choice: DeviceChoice = device.parse()?;
+    let opened = Device::open(choice, adapter, fallback)?;
+    if let Some(note) = &opened.note {
+        eprintln!("note: {note}");
     }
-    match Context::new(&GpuOptions { adapter: adapter.map(str::to_string), limits: None }) {
-        Ok(ctx) if device == "auto" && ctx.is_software() => {
-            eprintln!(
-                "note: the only adapter is {} (software): using the CPU twin, which is faster there (--device gpu to use the adapter)",
-                ctx.info.name
-            );
-            Ok(Device::Cpu)
-        }
-        Ok(ctx) => {
-            if verbose > 0 {
-                eprintln!("adapter: {} (backend {:?}, {:?})", ctx.info.name, ctx.info.backend, ctx.info.device_type);
-            }
-            if ctx.info.backend == wgpu::Backend::Gl {
-                eprintln!("note: running on the OpenGL backend; a Vulkan driver is faster and more robust");
-            }
-            Ok(Device::Gpu(Box::new(ctx)))
-        }
-        Err(e) if fallback || device == "auto" => {
-            eprintln!("note: {e}\nnote: falling back to the CPU twin");
-            Ok(Device::Cpu)
-        }
-        Err(e) => Err(e.into()),
+    if let (Device::Gpu(ctx), true) = (&opened.device, verbose > 0) {
+        eprintln!("adapter: {} (backend {:?}, {:?})", ctx.info.name, ctx.info.backend, ctx.info.device_type);
     }
+    Ok(opened.device)
 }
 
 /// Finds a shipped asset whether the binary runs from the repository root

@@ -75,6 +75,68 @@ impl Device {
     }
 }
 
+/// Which device to run on, as users name it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// A hardware GPU when there is one; the CPU twin when the only adapter
+    /// is a software rasterizer (lavapipe runs the same kernels on the same
+    /// cores, measurably slower than the twin) or there is none.
+    Auto,
+    /// Any wgpu adapter, lavapipe included.
+    Gpu,
+    /// The CPU twins.
+    Cpu,
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" => Ok(DeviceChoice::Auto),
+            "gpu" => Ok(DeviceChoice::Gpu),
+            "cpu" => Ok(DeviceChoice::Cpu),
+            _ => Err(Error::InvalidInput(format!("unknown device '{s}' (expected auto, gpu or cpu)"))),
+        }
+    }
+}
+
+/// A device opened by [`Device::open`], with what the caller should tell
+/// its user about the choice (a fallback, a software adapter passed over).
+#[derive(Debug)]
+pub struct Opened {
+    pub device: Device,
+    pub note: Option<String>,
+}
+
+impl Device {
+    /// Opens `choice` on the first adapter whose name contains `adapter`.
+    /// With `fallback`, a missing adapter gives the CPU twin and a note
+    /// instead of an error (`Auto` always falls back).
+    pub fn open(choice: DeviceChoice, adapter: Option<&str>, fallback: bool) -> Result<Opened> {
+        if choice == DeviceChoice::Cpu {
+            return Ok(Opened { device: Device::Cpu, note: None });
+        }
+        match Context::new(&GpuOptions { adapter: adapter.map(str::to_string), limits: None }) {
+            Ok(ctx) if choice == DeviceChoice::Auto && ctx.is_software() => Ok(Opened {
+                device: Device::Cpu,
+                note: Some(format!(
+                    "the only adapter is {} (software): using the CPU twin, which is faster there (device gpu uses the adapter)",
+                    ctx.info.name
+                )),
+            }),
+            Ok(ctx) => {
+                let note = (ctx.info.backend == wgpu::Backend::Gl)
+                    .then(|| "running on the OpenGL backend; a Vulkan driver is faster and more robust".to_string());
+                Ok(Opened { device: Device::Gpu(Box::new(ctx)), note })
+            }
+            Err(e) if fallback || choice == DeviceChoice::Auto => {
+                Ok(Opened { device: Device::Cpu, note: Some(format!("{e}; falling back to the CPU twin")) })
+            }
+            Err(e) => Err(e),
+        }
+    }
+}
+
 /// A device and queue on a chosen adapter.
 #[derive(Clone)]
 pub struct Context {

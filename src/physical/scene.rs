@@ -162,27 +162,40 @@ pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
     };
     let point = vec3("point", &raw.point).map_err(bad)? * scale;
     let normal = vec3("normal", &raw.normal).map_err(bad)?;
-    let len = normal.length();
-    if len <= 1e-12 {
-        return Err(bad("normal has zero length".into()));
-    }
-    let normal = normal / len;
-    let dist = normal.dot(point).abs();
-    if dist < 0.01 {
-        let hint = if scale == 1e-3 && dist > 1e-5 {
-            format!(
-                "; the point is {:.1} mm from the camera: is it in metres? (add \"units\": \"m\")",
-                point.length() * 1e3
-            )
+    Plane::in_camera(point, normal).map_err(|reason| {
+        let dist = point.length();
+        let hint = if scale == 1e-3 && reason.contains("camera centre") && dist > 1e-5 {
+            format!("; the point is {:.1} mm from the camera: is it in metres? (add \"units\": \"m\")", dist * 1e3)
         } else {
             String::new()
         };
-        return Err(bad(format!(
-            "the plane passes {:.1} mm from the camera centre; a support plane seen by the camera lies well in front of it{hint}",
-            dist * 1e3
-        )));
+        bad(format!("{reason}{hint}"))
+    })
+}
+
+impl Plane {
+    /// A support plane seen by the camera: point (metres) and normal in the
+    /// camera frame, the normal made unit and turned towards the camera.
+    /// Refused: a zero normal, or a plane through the camera centre (within
+    /// 1 cm; a support plane lies well in front of the camera).
+    pub fn in_camera(point: DVec3, normal: DVec3) -> std::result::Result<Plane, String> {
+        if !(point.is_finite() && normal.is_finite()) {
+            return Err("point and normal must be finite".into());
+        }
+        let len = normal.length();
+        if len <= 1e-12 {
+            return Err("normal has zero length".into());
+        }
+        let normal = normal / len;
+        let dist = normal.dot(point).abs();
+        if dist < 0.01 {
+            return Err(format!(
+                "the plane passes {:.1} mm from the camera centre; a support plane seen by the camera lies well in front of it",
+                dist * 1e3
+            ));
+        }
+        Ok(Plane { point, normal }.facing_camera())
     }
-    Ok(Plane { point, normal }.facing_camera())
 }
 
 #[derive(Deserialize)]

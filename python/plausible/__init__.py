@@ -1,0 +1,484 @@
+"""plausible: visual and physical plausibility of 6D object poses.
+
+numpy in, numpy out, no files needed. Thousands of pose hypotheses are
+scored at once on any GPU (Mesa's lavapipe included) or with the CPU twin::
+
+    import numpy as np
+    import plausible
+
+    scorer = plausible.Scorer("duck.obj", K, depth, mask, units="m")
+    rec = scorer.score(R, t)                 # R (N, 3, 3), t (N, 3)
+    best = rec[np.argsort(rec["rank"])][:10]
+
+Conventions: OpenCV camera, poses map model to camera, lengths in the
+``units`` given (``"m"`` or ``"mm"``: BOP data is in millimetres), depth 0
+or NaN where there is no measurement. Bad input raises ``ValueError`` with
+the library's message; the GIL is released while kernels run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+# On a headless server Mesa's device-select Vulkan layer looks for a Wayland
+# display and prints "XDG_RUNTIME_DIR is invalid" whenever a device opens;
+# without a display session it has nothing to select by. Switched off as the
+# CLI does, before the native module opens any device.
+if not any(k in os.environ for k in ("XDG_RUNTIME_DIR", "NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT")):
+    os.environ["NODEVICE_SELECT"] = "1"
+
+from . import _native  # noqa: E402
+from ._native import Mesh, device_info  # noqa: E402
+
+__version__ = _native.__version__
+__all__ = [
+    "Mesh",
+    "Scorer",
+    "SCORE_DTYPE",
+    "PHYSICS_DTYPE",
+    "check",
+    "device_info",
+    "eval",
+    "fit_plane",
+    "hypotheses",
+    "load_mesh",
+    "read_frame",
+    "stable_poses",
+]
+
+#: Fields of :meth:`Scorer.score`'s records (visual terms, eq. 3-5).
+SCORE_DTYPE = np.dtype(
+    [
+        ("score", "f4"),
+        ("a_d", "f4"),
+        ("a_n", "f4"),
+        ("valid", "u4"),
+        ("rendered", "u4"),
+        ("observed", "u4"),
+        ("rank", "u4"),
+    ]
+)
+
+#: Fields added with a support plane (physical terms, eq. 6-13); distances
+#: in the scorer's units, NaN margin where the object is not supported.
+PHYSICS_DTYPE = np.dtype(
+    SCORE_DTYPE.descr
+    + [
+        ("verdict", "U12"),
+        ("intersecting", "u4"),
+        ("contact", "u4"),
+        ("supported", "u4"),
+        ("min_distance", "f8"),
+        ("stability_margin", "f8"),
+        ("feasible", "?"),
+        ("stable", "?"),
+    ]
+)
+
+MeshLike = Union[Mesh, str, os.PathLike, Tuple[Any, Any], Any]
+PlaneLike = Union[Mapping[str, Any], str, os.PathLike, Tuple[Any, Any]]
+
+
+def _scale(units: str) -> float:
+    """Metres per unit."""
+    if units == "m":
+        return 1.0
+    if units == "mm":
+        return 1e-3
+    raise ValueError(f'units {units!r}: expected "m" or "mm"')
+
+
+def load_mesh(path: Union[str, os.PathLike], units: str = "auto") -> Mesh:
+    """Loads .obj, .ply, .stl, .gltf or .glb; ``units`` "m", "mm" or "auto"."""
+    return Mesh.load(os.fspath(path), units)
+
+
+def read_frame(
+    camera: Union[str, os.PathLike],
+    depth: Union[str, os.PathLike],
+    mask: Optional[Union[str, os.PathLike]] = None,
+    frame: Optional[Union[str, int]] = None,
+) -> Tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
+    """Reads a BOP frame from files: ``camera`` (a scene_camera.json entry,
+    a whole scene_camera.json with ``frame``, or a dataset camera.json), the
+    16-bit ``depth`` PNG and optionally an 8-bit ``mask`` PNG. Returns K (3,
+    3), depth (H, W) in metres and the mask (H, W) booleans or None, checked
+    against each other; pass them on with ``units="m"``."""
+    return _native.read_frame(
+        os.fspath(camera), os.fspath(depth), None if mask is None else os.fspath(mask), None if frame is None else str(frame)
+    )
+
+
+def _mesh(mesh: MeshLike, units: str, mesh_units: str) -> Mesh:
+    """A :class:`Mesh` from a Mesh, a path, (vertices, faces) arrays or any
+    object with ``.vertices`` and ``.faces`` (a trimesh.Trimesh)."""
+    if isinstance(mesh, Mesh):
+        return mesh
+    if isinstance(mesh, (str, os.PathLike)):
+        return load_mesh(mesh, mesh_units)
+    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
+        vertices, faces = mesh.vertices, mesh.faces
+    elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+        vertices, faces = mesh
+    else:
+        raise ValueError("mesh: give a plausible.Mesh, a file path, (vertices, faces) arrays or a trimesh.Trimesh")
+    v = _array(vertices, np.float64, "vertices", (None, 3))
+    f = np.asarray(faces)
+    if f.dtype.kind not in "iu":
+        raise ValueError(f"faces: expected integer vertex indices, got dtype {f.dtype}")
+    f = _array(f, np.int64, "faces", (None, 3))
+    return Mesh(v, f, units)
+
+
+def _array(a: Any, dtype: Any, what: str, shape: Sequence[Optional[int]]) -> np.ndarray:
+    """``a`` as a C-contiguous array of ``dtype`` with ``shape`` (None = any)."""
+    try:
+        arr = np.ascontiguousarray(np.asarray(a), dtype=dtype)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what}: cannot be read as {np.dtype(dtype).name} numbers ({e})") from None
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{what}: expected shape {want}, got {arr.shape}")
+    return arr
+
+
+def _camera(K: Any) -> np.ndarray:
+    """The row-major 3x3 camera matrix, from (3, 3), 9 numbers or (fx, fy, cx, cy)."""
+    k = np.asarray(K, dtype=np.float64).reshape(-1)
+    if k.size == 4:
+        fx, fy, cx, cy = k
+        k = np.array([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
+    if k.size != 9:
+        raise ValueError(f"K: expected a 3x3 matrix, 9 numbers or (fx, fy, cx, cy), got {np.shape(K)}")
+    return np.ascontiguousarray(k)
+
+
+def _depth(depth: Any, scale: float) -> np.ndarray:
+    """Depth (H, W) in metres, float32."""
+    d = np.asarray(depth)
+    if d.ndim == 3 and d.shape[2] == 1:
+        d = d[:, :, 0]
+    if d.ndim != 2:
+        raise ValueError(f"depth: expected an (H, W) image, got shape {d.shape}")
+    if d.dtype.kind not in "fiu":
+        raise ValueError(f"depth: expected numbers, got dtype {d.dtype}")
+    return np.ascontiguousarray(d.astype(np.float64) * scale, dtype=np.float32)
+
+
+def _mask(mask: Any) -> Optional[np.ndarray]:
+    """Mask (H, W) as booleans (non-zero = object)."""
+    if mask is None:
+        return None
+    m = np.asarray(mask)
+    if m.ndim == 3 and m.shape[2] == 1:
+        m = m[:, :, 0]
+    if m.ndim != 2:
+        raise ValueError(f"mask: expected an (H, W) image, got shape {m.shape}")
+    return np.ascontiguousarray(m != 0)
+
+
+def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
+    """Rotations (N, 3, 3) and translations (N, 3) in metres, from R and t,
+    or from 4x4 matrices (N, 4, 4) given as R alone."""
+    if t is None:
+        T = np.asarray(R, dtype=np.float64)
+        if T.ndim == 2:
+            T = T[None]
+        if T.ndim != 3 or T.shape[1:] != (4, 4):
+            raise ValueError(f"poses: give R (N, 3, 3) and t (N, 3), or 4x4 matrices (N, 4, 4); got shape {T.shape}")
+        R, t = T[:, :3, :3], T[:, :3, 3]
+    r = np.asarray(R, dtype=np.float64)
+    tt = np.asarray(t, dtype=np.float64)
+    if r.ndim == 2:
+        r = r[None]
+    if tt.ndim == 1:
+        tt = tt[None]
+    r = _array(r, np.float64, "R", (None, 3, 3))
+    tt = _array(tt, np.float64, "t", (r.shape[0], 3))
+    return r, np.ascontiguousarray(tt * scale)
+
+
+def _plane(plane: PlaneLike, scale: float) -> Tuple[np.ndarray, np.ndarray]:
+    """(point in metres, normal) of a support plane given as a dict
+    (``fit_plane``'s, or the plane JSON's with its "units", default mm), a
+    path to a plane JSON, or a (point, normal) pair in the caller's units."""
+    if isinstance(plane, (str, os.PathLike)):
+        with open(plane, encoding="utf-8") as f:
+            try:
+                plane = json.load(f)
+            except json.JSONDecodeError as e:
+                raise ValueError(f"{os.fspath(plane)}: not a plane JSON ({e})") from None
+    if isinstance(plane, Mapping):
+        if "point" not in plane or "normal" not in plane:
+            raise ValueError('plane: expected {"point": [x, y, z], "normal": [nx, ny, nz], "units": "mm"|"m"}')
+        units = plane.get("units", "mm")
+        point, normal, scale = plane["point"], plane["normal"], _scale(units)
+    elif isinstance(plane, (tuple, list)) and len(plane) == 2:
+        point, normal = plane
+    else:
+        raise ValueError("plane: give a dict with point and normal, a plane JSON path, or (point, normal)")
+    p = _array(point, np.float64, "plane point", (3,)) * scale
+    n = _array(normal, np.float64, "plane normal", (3,))
+    return np.ascontiguousarray(p), n
+
+
+def _records(cols: Dict[str, Any], dtype: np.dtype, scale: float) -> np.ndarray:
+    """The native columns as one structured array; distances in the caller's units."""
+    n = len(cols["score"])
+    out = np.zeros(n, dtype=dtype)
+    for name in dtype.names:
+        out[name] = cols[name]
+    if "min_distance" in dtype.names:
+        out["min_distance"] /= scale
+        out["stability_margin"] /= scale
+    return out
+
+
+class Scorer:
+    """Scores pose hypotheses of one mesh against one depth observation.
+
+    Built once, called many times: the GPU pipeline, the mesh and the
+    observation stay loaded between calls to :meth:`score`.
+
+    Args:
+        mesh: a :class:`Mesh`, a mesh file path, (vertices, faces) arrays
+            in ``units``, or a trimesh.Trimesh.
+        K: camera matrix (3, 3), or (fx, fy, cx, cy), pixels.
+        depth: (H, W) depth in ``units``; 0 or NaN = no measurement.
+        mask: (H, W) object mask (non-zero = object), or None for the frame.
+        units: "m" or "mm" for the depth, translations, array vertices and
+            reported distances (BOP data is in mm).
+        res: the region around the mask is resampled to res x res pixels
+            (0 = native pixels).
+        tau: depth tolerance of eq. 4, metres.
+        alpha: normal tolerance of eq. 5.
+        margin: growth of the mask's box on each side (fraction).
+        device: "auto" (a hardware GPU, else the faster CPU twin), "gpu"
+            (any adapter, lavapipe included) or "cpu".
+        adapter: pick the first adapter whose name contains this.
+        mesh_units: units of a mesh file: "m", "mm" or "auto".
+    """
+
+    def __init__(
+        self,
+        mesh: MeshLike,
+        K: Any,
+        depth: Any,
+        mask: Any = None,
+        *,
+        units: str = "m",
+        res: int = 128,
+        tau: float = 0.02,
+        alpha: float = 0.7,
+        margin: float = 0.25,
+        device: str = "auto",
+        adapter: Optional[str] = None,
+        mesh_units: str = "auto",
+    ) -> None:
+        self._scale = _scale(units)
+        self.units = units
+        self.mesh = _mesh(mesh, units, mesh_units)
+        if not isinstance(res, (int, np.integer)) or res < 0 or res > 4096:
+            raise ValueError(f"res {res!r}: the region's side in pixels must lie in 0..=4096 (0 = native pixels)")
+        self._native = _native.Scorer(
+            self.mesh,
+            _camera(K),
+            _depth(depth, self._scale),
+            _mask(mask),
+            res=int(res),
+            tau=float(tau),
+            alpha=float(alpha),
+            margin=float(margin),
+            device=device,
+            adapter=adapter,
+        )
+
+    @property
+    def device(self) -> str:
+        """Where the kernels run, e.g. "CPU twin (2 threads)"."""
+        return self._native.device
+
+    def score(
+        self,
+        R: Any,
+        t: Any = None,
+        *,
+        plane: Optional[PlaneLike] = None,
+        physics: Optional[bool] = None,
+        samples: int = 1024,
+        seed: int = 0,
+        epsilon: Optional[float] = None,
+        orthonormalize: bool = False,
+    ) -> np.ndarray:
+        """Scores poses: R (N, 3, 3) and t (N, 3) in ``units``, or 4x4
+        matrices (N, 4, 4) as R alone. Returns a structured array in input
+        order (:data:`SCORE_DTYPE`; rank 1 = best). With ``plane`` (and
+        ``physics``, its default then) also the physical terms on that
+        support plane (:data:`PHYSICS_DTYPE`), ranked physically plausible
+        first as ``plausible score --physics`` does. ``samples``, ``seed``
+        and ``epsilon`` (metres) set the physical sampling."""
+        r, tt = _poses(R, t, self._scale)
+        if physics is None:
+            physics = plane is not None
+        if physics and plane is None:
+            raise ValueError("physics=True needs the support plane: pass plane=... (plausible.fit_plane fits one)")
+        if not physics:
+            cols = self._native.score(r, tt, orthonormalize=orthonormalize)
+            return _records(cols, SCORE_DTYPE, self._scale)
+        if epsilon is not None and not (0.0 < float(epsilon) < 0.05):
+            raise ValueError(f"epsilon {epsilon}: the contact tolerance is in metres and must lie in (0, 0.05)")
+        if not (0 < int(samples) <= 1_000_000):
+            raise ValueError(f"samples {samples}: between 1 and 1,000,000 surface samples")
+        p, n = _plane(plane, self._scale)
+        cols = self._native.score(
+            r, tt, (p, n), samples=int(samples), seed=int(seed), epsilon=epsilon, orthonormalize=orthonormalize
+        )
+        return _records(cols, PHYSICS_DTYPE, self._scale)
+
+    def __repr__(self) -> str:
+        return repr(self._native)
+
+
+def fit_plane(
+    K: Any,
+    depth: Any,
+    mask: Any = None,
+    *,
+    units: str = "m",
+    inlier: float = 0.005,
+    iterations: int = 500,
+    seed: int = 0,
+    mask_margin: int = 10,
+) -> Dict[str, Any]:
+    """Fits the support plane to the depth outside the (grown) mask by
+    RANSAC. Returns {"point", "normal", "units", "inliers", "candidates",
+    "rms"} in ``units``; pass it as ``plane=`` to :meth:`Scorer.score`.
+    ``inlier`` is in metres."""
+    s = _scale(units)
+    fit = _native.fit_plane(
+        _camera(K), _depth(depth, s), _mask(mask), inlier=float(inlier), iterations=int(iterations), seed=int(seed), mask_margin=int(mask_margin)
+    )
+    fit["point"] = fit["point"] / s
+    fit["rms"] = fit["rms"] / s
+    fit["units"] = units
+    return fit
+
+
+def check(scene: Union[Mapping[str, Any], str, os.PathLike], *, simulate: bool = False, **options: Any) -> List[Dict[str, Any]]:
+    """Physical plausibility of a scene (the ``plausible check`` JSON, as a
+    dict or a path; mesh paths in a dict are relative to the working
+    folder): per object its verdict (plausible, floating, intersecting,
+    unstable), contact counts, minimum distance and stability margin
+    (metres), friction equilibrium, and with ``simulate`` the displacement
+    under rapier. Options: samples, seed, epsilon, sdf_resolution, friction."""
+    if isinstance(scene, (str, os.PathLike)):
+        path = Path(scene)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: file not found") from None
+        return _native.check(text, str(path.parent), str(path), simulate=simulate, **options)
+    if not isinstance(scene, Mapping):
+        raise ValueError("scene: give a dict in the plausible check format or a path to its JSON")
+    return _native.check(json.dumps(scene), os.getcwd(), "<scene dict>", simulate=simulate, **options)
+
+
+def stable_poses(mesh: MeshLike, *, drops: int = 1000, seed: int = 0, collider: str = "hull", threads: Optional[int] = None, units: str = "m", mesh_units: str = "auto") -> List[Dict[str, Any]]:
+    """Stable resting poses of ``mesh`` from seeded rapier drop tests,
+    clustered modulo yaw. Returns one dict per resting pose or family, most
+    probable first: kind ("pose", "circle" for a rolling family, "scattered"),
+    probability, ci95 (Wilson 95 % interval), count, and for poses the
+    rotation R_model_to_plane (3, 3) (gravity along -z of the plane frame),
+    height of the model origin above the plane (metres) and representative
+    drops. Same seed, same result."""
+    m = _mesh(mesh, units, mesh_units)
+    out = _native.stable_poses(m, drops=int(drops), seed=int(seed), collider=collider, threads=threads)
+    poses = [dict(c, kind="pose", R_model_to_plane=np.asarray(c["R_model_to_plane"]).reshape(3, 3)) for c in out["clusters"]]
+    families = [dict(f) for f in out["families"]]
+    result = sorted(poses + families, key=lambda c: -c["probability"])
+    for c in result:
+        c["sha256"] = out["sha256"]
+        c["settled"] = out["settled"]
+    return result
+
+
+def _export_text(stable: Any, mesh: Mesh) -> Optional[str]:
+    """A stable-pose export's JSON text from :func:`stable_poses`' list, an
+    export dict, or a path to an export."""
+    if stable is None:
+        return None
+    if isinstance(stable, (str, os.PathLike)):
+        return Path(stable).read_text(encoding="utf-8")
+    if isinstance(stable, Mapping):
+        return json.dumps(stable)
+    clusters, families = [], []
+    for c in stable:
+        if c.get("kind", "pose") == "pose":
+            clusters.append({"probability": float(c["probability"]), "R_model_to_plane": np.asarray(c["R_model_to_plane"], dtype=float).reshape(9).tolist()})
+        else:
+            families.append({"kind": c["kind"], "axis": c.get("axis"), "probability": float(c["probability"])})
+    return json.dumps({"format": "plausible-stable-poses/1", "meshes": [{"mesh": "", "sha256": mesh.sha256, "clusters": clusters, "families": families}]})
+
+
+def hypotheses(
+    mesh: MeshLike,
+    K: Any,
+    depth: Any,
+    mask: Any,
+    plane: PlaneLike,
+    *,
+    stable: Any = None,
+    units: str = "m",
+    mesh_units: str = "auto",
+    yaw_steps: int = 36,
+    grid_radius: int = 0,
+    grid_step: float = 0.01,
+    min_probability: float = 0.0,
+) -> Dict[str, np.ndarray]:
+    """Pose hypotheses of an object on its support plane: resting poses
+    (``stable``: :func:`stable_poses`' list, a stable-pose export or its
+    path; default: the quasi-static analysis of the convex hull) x
+    ``yaw_steps`` yaws x in-plane offsets (``grid_radius`` steps of
+    ``grid_step`` metres) around the observed object. Returns arrays R (N,
+    3, 3), t (N, 3) in ``units``, rest, rest_probability, yaw (radians),
+    offset (N, 2) metres; ready for :meth:`Scorer.score`."""
+    s = _scale(units)
+    m = _mesh(mesh, units, mesh_units)
+    p, n = _plane(plane, s)
+    out = _native.hypotheses(
+        m, _camera(K), _depth(depth, s), _mask(mask), p, n,
+        stable_export=_export_text(stable, m), yaw_steps=int(yaw_steps), grid_radius=int(grid_radius),
+        grid_step=float(grid_step), min_probability=float(min_probability),
+    )
+    out["t"] = out["t"] / s
+    return out
+
+
+def eval(  # noqa: A001 - the CLI's verb
+    dataset: Union[str, os.PathLike],
+    results: Union[str, os.PathLike],
+    *,
+    targets: Optional[Union[str, os.PathLike]] = None,
+    split: str = "test",
+    errors: Optional[Sequence[str]] = None,
+    add_threshold: float = 0.1,
+    dataset_name: Optional[str] = None,
+    device: str = "auto",
+    adapter: Optional[str] = None,
+    records: bool = False,
+) -> Dict[str, Any]:
+    """BOP'19 evaluation of a results CSV on a BOP dataset folder, as the BOP
+    toolkit computes it (``plausible eval``): a dict with ar, ar_vsd,
+    ar_mssd, ar_mspd, per_object, ... and with ``records`` every
+    (estimate, instance) pair's errors. ``errors``: e.g. ["vsd", "mssd",
+    "mspd", "ad"]."""
+    return _native.evaluate(
+        os.fspath(dataset), os.fspath(results), targets=None if targets is None else os.fspath(targets), split=split,
+        errors=None if errors is None else list(errors), add_threshold=float(add_threshold), dataset_name=dataset_name,
+        device=device, adapter=adapter, records=records,
+    )

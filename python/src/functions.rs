@@ -1,0 +1,291 @@
+//! The module's functions: plane fitting, scene checks, stable poses,
+//! hypotheses on the plane and BOP evaluation. Each takes arrays or paths
+//! and returns numpy arrays or plain Python objects (dicts, lists).
+
+use std::path::PathBuf;
+
+use numpy::{PyReadonlyArray1, PyReadonlyArray2};
+use plausible::gpu::{Device, DeviceChoice};
+use plausible::physical::check::{check_scene, CheckOptions};
+use plausible::physical::simulate::{displacement, SimSettings};
+use plausible::physical::{Plane, Scene};
+use plausible::support_plane::{fit_support_plane, PlaneFitParams};
+use numpy::prelude::*;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::convert::{self, json_to_py};
+use crate::mesh::Mesh;
+use crate::{to_py, value_error};
+
+/// Fits the support plane to the depth outside the (grown) mask by RANSAC.
+#[pyfunction]
+#[pyo3(signature = (k, depth, mask = None, *, inlier = 0.005, iterations = 500, seed = 0, mask_margin = 10))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit_plane<'py>(
+    py: Python<'py>,
+    k: PyReadonlyArray1<f64>,
+    depth: PyReadonlyArray2<f32>,
+    mask: Option<PyReadonlyArray2<bool>>,
+    inlier: f64,
+    iterations: usize,
+    seed: u64,
+    mask_margin: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    if !(inlier.is_finite() && inlier > 0.0 && inlier < 1.0) {
+        return Err(value_error(format!("inlier {inlier}: the inlier distance is in metres and must lie in (0, 1)")));
+    }
+    if iterations == 0 {
+        return Err(value_error("iterations must be at least 1"));
+    }
+    let obs = convert::depth_image(k, depth)?;
+    let mask = convert::mask(mask, &obs)?;
+    let params = PlaneFitParams { inlier_m: inlier, iterations, seed, mask_margin_px: mask_margin, ..Default::default() };
+    let fit = py.detach(|| fit_support_plane(&obs, mask.as_deref(), &params)).map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("point", fit.plane.point.to_array().to_vec().into_pyarray(py))?;
+    d.set_item("normal", fit.plane.normal.to_array().to_vec().into_pyarray(py))?;
+    d.set_item("inliers", fit.inliers)?;
+    d.set_item("candidates", fit.candidates)?;
+    d.set_item("rms", fit.rms)?;
+    Ok(d)
+}
+
+/// Physical plausibility of a scene (the `plausible check` JSON as text;
+/// mesh paths relative to `base`): one dict per object.
+#[pyfunction]
+#[pyo3(signature = (scene_json, base, name, *, samples = plausible::physical::samples::DEFAULT_SAMPLES, seed = plausible::physical::samples::DEFAULT_SEED, epsilon = None, sdf_resolution = plausible::physical::sdf::DEFAULT_RESOLUTION, friction = plausible::physical::friction::DEFAULT_FRICTION, simulate = false))]
+#[allow(clippy::too_many_arguments)]
+pub fn check<'py>(
+    py: Python<'py>,
+    scene_json: &str,
+    base: PathBuf,
+    name: PathBuf,
+    samples: usize,
+    seed: u64,
+    epsilon: Option<f64>,
+    sdf_resolution: usize,
+    friction: f64,
+    simulate: bool,
+) -> PyResult<Bound<'py, PyAny>> {
+    let opts = CheckOptions { samples, seed, epsilon, sdf_resolution, friction };
+    let (checks, sims) = py
+        .detach(|| -> plausible::Result<_> {
+            let scene = Scene::from_json(scene_json, &base, &name)?;
+            let checks = check_scene(&scene, &opts)?;
+            let sims = if simulate { displacement(&scene, &SimSettings::default())? } else { vec![None; checks.len()] };
+            Ok((checks, sims))
+        })
+        .map_err(to_py)?;
+    let objects: Vec<serde_json::Value> = checks
+        .iter()
+        .zip(&sims)
+        .map(|(o, sim)| {
+            let e = &o.evaluation;
+            serde_json::json!({
+                "name": o.name, "static": o.is_static, "verdict": e.verdict.as_str(),
+                "intersecting": e.intersecting, "contact": e.contact, "supported": e.supported,
+                "min_distance": e.min_distance, "stability_margin": e.stability_margin,
+                "feasible": e.feasible, "stable": e.stable,
+                "friction_equilibrium": o.friction_equilibrium, "methods_disagree": o.methods_disagree(),
+                "epsilon": o.epsilon, "mass_kg": o.mass_kg, "centre_of_mass": o.com_world.to_array(),
+                "displacement": sim.as_ref().and_then(|v| v.last()).map(|l| serde_json::json!({
+                    "translation": l.translation, "rotation_deg": l.rotation_deg })),
+            })
+        })
+        .collect();
+    json_to_py(py, &serde_json::Value::Array(objects))
+}
+
+/// Stable resting poses of `mesh` from `drops` seeded drop tests (rapier),
+/// clustered modulo yaw: the discrete poses and the rolling or scattered
+/// families, each with its probability and Wilson 95 % interval.
+#[pyfunction]
+#[pyo3(signature = (mesh, *, drops = 1000, seed = 0, collider = "hull", threads = None))]
+pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, collider: &str, threads: Option<usize>) -> PyResult<Bound<'py, PyAny>> {
+    use plausible::stable::{self, ColliderKind, RunParams};
+    if drops == 0 || drops > 10_000_000 {
+        return Err(value_error(format!("drops {drops}: between 1 and 10,000,000")));
+    }
+    let collider = match collider {
+        "hull" => ColliderKind::Hull,
+        "decomposition" => ColliderKind::Decomposition,
+        c => return Err(value_error(format!("collider '{c}': expected \"hull\" or \"decomposition\""))),
+    };
+    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let params = RunParams { drops, seed, collider, ..Default::default() };
+    let m = mesh.inner.clone();
+    let (prepared, results) = py
+        .detach(|| -> plausible::Result<_> {
+            let name = m.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "<arrays>".into());
+            let prepared = stable::prepare(m, &name, &params)?;
+            let indices: Vec<u64> = (0..drops).collect();
+            let mut results = Vec::with_capacity(drops as usize);
+            stable::run_drops(&prepared, &params, &indices, threads, |r| {
+                results.push(r);
+                Ok(())
+            })?;
+            results.sort_by_key(|r| r.index);
+            Ok((prepared, results))
+        })
+        .map_err(to_py)?;
+    let clusters = stable::cluster::cluster(&results, Default::default());
+    let (poses, families) = stable::export::split(&clusters);
+    let settled = results.iter().filter(|r| r.settled).count();
+    let v = serde_json::json!({
+        "sha256": prepared.sha256, "drops": drops, "settled": settled, "seed": seed,
+        "clusters": poses, "families": families, "warnings": prepared.warnings,
+    });
+    json_to_py(py, &v)
+}
+
+/// Pose hypotheses on the support plane: resting poses (from a stable-pose
+/// export's JSON text, or the quasi-static analysis of the convex hull) x
+/// yaw steps x in-plane offsets around the observed object.
+#[pyfunction]
+#[pyo3(signature = (mesh, k, depth, mask, plane_point, plane_normal, *, stable_export = None, yaw_steps = 36, grid_radius = 0, grid_step = 0.01, min_probability = 0.0))]
+#[allow(clippy::too_many_arguments)]
+pub fn hypotheses<'py>(
+    py: Python<'py>,
+    mesh: &Mesh,
+    k: PyReadonlyArray1<f64>,
+    depth: PyReadonlyArray2<f32>,
+    mask: PyReadonlyArray2<bool>,
+    plane_point: PyReadonlyArray1<f64>,
+    plane_normal: PyReadonlyArray1<f64>,
+    stable_export: Option<&str>,
+    yaw_steps: usize,
+    grid_radius: usize,
+    grid_step: f64,
+    min_probability: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
+    if !(0.0..1.0).contains(&min_probability) {
+        return Err(value_error(format!("min_probability {min_probability}: must lie in [0, 1)")));
+    }
+    let obs = convert::depth_image(k, depth)?;
+    let mask = convert::mask(Some(mask), &obs)?.expect("given");
+    let plane = Plane::in_camera(convert::vec3(&plane_point, "plane point")?, convert::vec3(&plane_normal, "plane normal")?)
+        .map_err(|r| value_error(format!("plane: {r}")))?;
+    let m = &mesh.inner;
+    let params = OnPlaneParams { yaw_steps, grid_radius, grid_step, min_probability, ..Default::default() };
+    let (rests, hyps) = py
+        .detach(|| -> plausible::Result<_> {
+            let rests = match stable_export {
+                Some(text) => resting_poses_from_export(text, &plausible::stable::mesh_sha256(m), "")?.0,
+                None => analytic_resting_poses(m)?,
+            };
+            let hyps = on_plane_hypotheses(m, &rests, &plane, &obs, &mask, &params)?;
+            Ok((rests, hyps))
+        })
+        .map_err(to_py)?;
+    let n = hyps.len();
+    let d = PyDict::new(py);
+    let r: Vec<f64> = hyps.iter().flat_map(|h| h.pose.r_row_major()).collect();
+    let t: Vec<f64> = hyps.iter().flat_map(|h| h.pose.t.to_array()).collect();
+    d.set_item("R", r.into_pyarray(py).reshape([n, 3, 3])?)?;
+    d.set_item("t", t.into_pyarray(py).reshape([n, 3])?)?;
+    d.set_item("rest", hyps.iter().map(|h| h.rest as u32).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item("rest_probability", hyps.iter().map(|h| rests[h.rest].probability).collect::<Vec<_>>().into_pyarray(py))?;
+    d.set_item("yaw", hyps.iter().map(|h| h.yaw).collect::<Vec<_>>().into_pyarray(py))?;
+    let offsets: Vec<f64> = hyps.iter().flat_map(|h| h.offset.to_array()).collect();
+    d.set_item("offset", offsets.into_pyarray(py).reshape([n, 2])?)?;
+    Ok(d)
+}
+
+/// BOP'19 evaluation of a results CSV on a BOP dataset, as the BOP toolkit
+/// computes it: the report (AR, VSD/MSSD/MSPD recalls per object, ...) as
+/// a dict, and with `records=True` also every (estimate, instance) pair's
+/// errors.
+#[pyfunction]
+#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false))]
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate<'py>(
+    py: Python<'py>,
+    dataset: PathBuf,
+    results: PathBuf,
+    targets: Option<PathBuf>,
+    split: &str,
+    errors: Option<Vec<String>>,
+    add_threshold: f64,
+    dataset_name: Option<&str>,
+    device: &str,
+    adapter: Option<&str>,
+    records: bool,
+) -> PyResult<Bound<'py, PyAny>> {
+    use plausible::eval::{evaluate, toolkit_dataset_name, ErrorType, EvalOptions};
+    let name = toolkit_dataset_name(&dataset, dataset_name).map_err(to_py)?;
+    let mut opts = EvalOptions { add_threshold, ..EvalOptions::for_dataset(name.as_deref()) };
+    if let Some(errs) = errors {
+        opts.errors = errs.iter().map(|e| e.parse::<ErrorType>()).collect::<Result<_, _>>().map_err(value_error)?;
+    }
+    opts.validate().map_err(to_py)?;
+    let choice: DeviceChoice = device.parse().map_err(to_py)?;
+    let (report, recs) = py
+        .detach(|| -> plausible::Result<_> {
+            let ds = plausible::bop::Dataset::open(&dataset, split)?;
+            let (targets, _) = ds.targets(targets.as_deref())?;
+            if targets.is_empty() {
+                return Err(plausible::Error::InvalidInput("no targets to evaluate".into()));
+            }
+            let results = plausible::bop::read_results(&results)?;
+            let device = Device::open(choice, adapter, false)?.device;
+            evaluate(&ds, &results, &targets, &device, &opts, &mut |_| {})
+        })
+        .map_err(to_py)?;
+    let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;
+    if records {
+        v["records"] = serde_json::to_value(&recs).map_err(|e| value_error(e.to_string()))?;
+    }
+    json_to_py(py, &v)
+}
+
+/// The devices this machine offers: the adapter `gpu` would use (or why
+/// there is none) and what `auto` picks.
+#[pyfunction]
+#[pyo3(signature = (adapter = None))]
+pub fn device_info(py: Python<'_>, adapter: Option<&str>) -> PyResult<(String, String)> {
+    py.detach(|| {
+        let gpu = match Device::open(DeviceChoice::Gpu, adapter, false) {
+            Ok(o) => o.device.describe(),
+            Err(e) => e.to_string(),
+        };
+        let auto = Device::open(DeviceChoice::Auto, adapter, true).map(|o| o.device.describe()).unwrap_or_else(|e| e.to_string());
+        Ok((gpu, auto))
+    })
+}
+
+
+/// Reads a BOP frame: the camera (a scene_camera.json entry, a whole
+/// scene_camera.json with `frame`, or a dataset camera.json), the 16-bit
+/// depth PNG (to metres) and optionally an 8-bit mask PNG; all checked
+/// against each other as `plausible score` checks them.
+#[pyfunction]
+#[pyo3(signature = (camera, depth, mask = None, frame = None))]
+#[allow(clippy::type_complexity)]
+pub fn read_frame<'py>(
+    py: Python<'py>,
+    camera: PathBuf,
+    depth: PathBuf,
+    mask: Option<PathBuf>,
+    frame: Option<&str>,
+) -> PyResult<(Bound<'py, numpy::PyArray2<f64>>, Bound<'py, numpy::PyArray2<f32>>, Option<Bound<'py, numpy::PyArray2<bool>>>)> {
+    use plausible::observation::{read_camera, read_depth_png, read_mask_png};
+    let (obs, m) = py
+        .detach(|| -> plausible::Result<_> {
+            let cam = read_camera(&camera, frame)?;
+            let obs = read_depth_png(&depth, &cam)?;
+            let m = match &mask {
+                Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
+                None => None,
+            };
+            Ok((obs, m))
+        })
+        .map_err(to_py)?;
+    let i = &obs.intrinsics;
+    let (w, h) = (i.width as usize, i.height as usize);
+    let k = vec![i.fx, 0.0, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0].into_pyarray(py).reshape([3, 3])?;
+    let d = obs.depth.into_pyarray(py).reshape([h, w])?;
+    let m = m.map(|m| m.into_pyarray(py).reshape([h, w])).transpose()?;
+    Ok((k, d, m))
+}

@@ -1,0 +1,48 @@
+//! Python bindings of `plausible` (`plausible._native`): numpy in, numpy
+//! out, no files needed. The Python package in `python/plausible` wraps
+//! this module: it coerces arguments (meshes from trimesh, 4x4 poses, any
+//! numeric dtype, units) and builds structured arrays, so this side takes
+//! strictly typed arrays in metres.
+
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+
+mod convert;
+mod functions;
+mod mesh;
+mod scorer;
+
+/// The library's error as the Python exception a user expects, with the
+/// same message: bad input is `ValueError`, a missing file
+/// `FileNotFoundError`, other I/O `OSError`, no or failing GPU
+/// `RuntimeError`.
+pub(crate) fn to_py(e: plausible::Error) -> PyErr {
+    use plausible::Error as E;
+    let msg = e.to_string();
+    match e {
+        E::NotFound { .. } => PyFileNotFoundError::new_err(msg),
+        E::Io { .. } | E::Database { .. } => PyOSError::new_err(msg),
+        E::NoAdapter { .. } | E::Gpu(_) => PyRuntimeError::new_err(msg),
+        _ => PyValueError::new_err(msg),
+    }
+}
+
+/// A `ValueError` with `msg`.
+pub(crate) fn value_error(msg: impl Into<String>) -> PyErr {
+    PyValueError::new_err(msg.into())
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<mesh::Mesh>()?;
+    m.add_class::<scorer::Scorer>()?;
+    m.add_function(wrap_pyfunction!(functions::fit_plane, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::check, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::stable_poses, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::hypotheses, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::evaluate, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::device_info, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::read_frame, m)?)?;
+    Ok(())
+}

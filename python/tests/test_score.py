@@ -1,0 +1,178 @@
+"""`plausible.Scorer`: parity with `plausible score` on the demo's inputs,
+dtypes and shapes, reuse across calls, and bad input as ValueError."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import plausible as pl
+from conftest import gpu_required, run
+
+VISUAL = ["score", "a_d", "a_n", "valid", "rendered", "observed", "rank"]
+PHYSICAL = ["verdict", "intersecting", "contact", "supported", "min_distance", "feasible", "stable"]
+
+
+def frame(demo: Path):
+    return pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+
+
+def poses(demo: Path):
+    p = json.loads((demo / "poses.json").read_text())
+    R = np.array([q["cam_R_m2c"] for q in p], dtype=float).reshape(-1, 3, 3)
+    t = np.array([q["cam_t_m2c"] for q in p], dtype=float) * 1e-3
+    return R, t
+
+
+def cli_records(demo: Path, tmp_path: Path, device: str, physics: bool):
+    out = tmp_path / f"cli_{device}_{physics}.json"
+    args = ["score", "--mesh", str(demo / "duck_0.15m.obj"), "--camera", str(demo / "camera.json"), "--depth", str(demo / "depth.png"),
+            "--mask", str(demo / "mask.png"), "--poses", str(demo / "poses.json"), "--device", device, "--quiet", "--out", str(out)]
+    if physics:
+        args += ["--plane", str(demo / "plane.json"), "--physics"]
+    run(*args)
+    return json.loads(out.read_text())
+
+
+def assert_same(rec, ref, fields, exact=True):
+    assert len(rec) == len(ref)
+    for name in fields:
+        ours = rec[name]
+        theirs = np.array([r[name] for r in ref], dtype=ours.dtype)
+        if exact or ours.dtype.kind not in "f":
+            mism = np.flatnonzero(ours != theirs)
+            assert mism.size == 0, f"{name}: {mism.size} records differ, first {mism[:5]}: {ours[mism[:3]]} vs {theirs[mism[:3]]}"
+        else:
+            np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-5, err_msg=name)
+
+
+@pytest.mark.parametrize("physics", [False, True])
+def test_cpu_scores_match_the_cli_exactly(demo, tmp_path, physics):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    assert len(R) == 4096
+    scorer = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu")
+    rec = scorer.score(R, t, plane=demo / "plane.json") if physics else scorer.score(R, t)
+    assert_same(rec, cli_records(demo, tmp_path, "cpu", physics), VISUAL + (PHYSICAL if physics else []))
+
+
+def gpu_scorer(*args, **kw):
+    try:
+        return pl.Scorer(*args, device="gpu", **kw)
+    except RuntimeError as e:
+        if gpu_required():
+            raise
+        pytest.skip(f"no GPU adapter: {e}")
+
+
+def test_gpu_scores_match_the_cli(demo, tmp_path):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    scorer = gpu_scorer(demo / "duck_0.15m.obj", K, depth, mask)
+    assert "CPU" not in scorer.device
+    rec = scorer.score(R, t)
+    ref = cli_records(demo, tmp_path, "gpu", False)
+    # Same kernel, same batches: the counts agree exactly, the means to f32 rounding.
+    assert_same(rec, ref, ["valid", "rendered", "observed"])
+    assert_same(rec, ref, ["score", "a_d", "a_n"], exact=False)
+
+
+def test_gpu_and_cpu_twin_agree(demo):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    gpu = gpu_scorer(demo / "duck_0.15m.obj", K, depth, mask).score(R[:512], t[:512])
+    cpu = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu").score(R[:512], t[:512])
+    np.testing.assert_allclose(gpu["score"], cpu["score"], atol=2e-3)
+
+
+def test_records_are_a_structured_array_in_input_order(demo):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    scorer = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu")
+    rec = scorer.score(R[:64], t[:64])
+    assert rec.dtype == pl.SCORE_DTYPE and rec.shape == (64,)
+    assert sorted(rec["rank"]) == list(range(1, 65))
+    assert rec["rank"][0] == 1  # the demo's first hypothesis is the true pose
+    # 4x4 matrices, one pose, millimetres and reuse give the same records.
+    T = np.tile(np.eye(4), (64, 1, 1))
+    T[:, :3, :3], T[:, :3, 3] = R[:64], t[:64]
+    np.testing.assert_array_equal(scorer.score(T)["score"], rec["score"])
+    one = scorer.score(R[5], t[5])
+    assert one.shape == (1,) and one["score"][0] == rec["score"][5]
+    mm = pl.Scorer(demo / "duck_0.15m.obj", K, depth * 1000, mask, units="mm", device="cpu")
+    np.testing.assert_allclose(mm.score(R[:64], t[:64] * 1000)["score"], rec["score"], atol=1e-6)
+    chunks = np.concatenate([scorer.score(R[i:i + 16], t[i:i + 16])["score"] for i in range(0, 64, 16)])
+    np.testing.assert_array_equal(chunks, rec["score"])
+    phys = scorer.score(R[:8], t[:8], plane=demo / "plane.json")
+    assert phys.dtype == pl.PHYSICS_DTYPE
+    assert phys["verdict"][0] == "plausible"
+
+
+def test_meshes_from_arrays_and_trimesh_like_objects(demo):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    m = pl.load_mesh(demo / "duck_0.15m.obj")
+    assert m.vertices.shape[1] == 3 and m.faces.shape == (len(m), 3)
+
+    class TrimeshLike:
+        vertices, faces = m.vertices, m.faces.astype(np.int64)
+
+    a = pl.Scorer(m, K, depth, mask, device="cpu").score(R[:32], t[:32])
+    b = pl.Scorer((m.vertices, m.faces), K, depth, mask, device="cpu").score(R[:32], t[:32])
+    c = pl.Scorer(TrimeshLike(), K, depth, mask, device="cpu").score(R[:32], t[:32])
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a, c)
+
+
+def test_bad_input_raises_value_error(demo):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    mesh = demo / "duck_0.15m.obj"
+    s = pl.Scorer(mesh, K, depth, mask, device="cpu")
+    bad_R = R[:2].copy()
+    bad_R[1] *= 2
+    nan_t = t[:2].copy()
+    nan_t[0, 1] = np.nan
+    behind = t[:2].copy()
+    behind[:, 2] = -1
+    cases = {
+        "R shape": lambda: s.score(R[:3, :2], t[:3]),
+        "N mismatch": lambda: s.score(R[:3], t[:2]),
+        "scaled rotation": lambda: s.score(bad_R, t[:2]),
+        "NaN": lambda: s.score(R[:2], nan_t),
+        "behind the camera": lambda: s.score(R[:2], behind),
+        "physics without plane": lambda: s.score(R[:2], t[:2], physics=True),
+        "plane through the camera": lambda: s.score(R[:2], t[:2], plane=([0, 0, 0], [0, 0, 1])),
+        "zero normal": lambda: s.score(R[:2], t[:2], plane=([0, 0, 1], [0, 0, 0])),
+        "epsilon": lambda: s.score(R[:2], t[:2], plane=demo / "plane.json", epsilon=float("nan")),
+        "tau": lambda: pl.Scorer(mesh, K, depth, mask, tau=-1, device="cpu"),
+        "tau nan": lambda: pl.Scorer(mesh, K, depth, mask, tau=float("nan"), device="cpu"),
+        "units": lambda: pl.Scorer(mesh, K, depth, mask, units="cm", device="cpu"),
+        "res": lambda: pl.Scorer(mesh, K, depth, mask, res=100000, device="cpu"),
+        "device": lambda: pl.Scorer(mesh, K, depth, mask, device="tpu"),
+        "mask size": lambda: pl.Scorer(mesh, K, depth, mask[:-1], device="cpu"),
+        "empty mask": lambda: pl.Scorer(mesh, K, depth, np.zeros_like(mask), device="cpu"),
+        "negative depth": lambda: pl.Scorer(mesh, K, -depth, mask, device="cpu"),
+        "depth in mm as m": lambda: pl.Scorer(mesh, K, depth * 1000, mask, device="cpu"),
+        "K": lambda: pl.Scorer(mesh, np.eye(2), depth, mask, device="cpu"),
+        "K negative focal": lambda: pl.Scorer(mesh, -K, depth, mask, device="cpu"),
+        "depth 1-D": lambda: pl.Scorer(mesh, K, depth.ravel(), mask, device="cpu"),
+        "faces out of range": lambda: pl.Scorer((np.eye(3), [[0, 1, 7]]), K, depth, mask, device="cpu"),
+        "faces negative": lambda: pl.Scorer((np.eye(3), [[0, 1, -1]]), K, depth, mask, device="cpu"),
+        "faces float": lambda: pl.Scorer((np.eye(3), [[0.0, 1.0, 2.0]]), K, depth, mask, device="cpu"),
+        "vertices NaN": lambda: pl.Scorer((np.full((3, 3), np.nan), [[0, 1, 2]]), K, depth, mask, device="cpu"),
+        "mesh type": lambda: pl.Scorer(42, K, depth, mask, device="cpu"),
+    }
+    for what, call in cases.items():
+        with pytest.raises(ValueError) as e:
+            call()
+        assert str(e.value), what
+    with pytest.raises(FileNotFoundError):
+        pl.Scorer(demo / "no-such-mesh.obj", K, depth, mask, device="cpu")
+    msg = None
+    try:
+        s.score(bad_R * 0.5 + R[:2] * 0.5 + 1e-4, t[:2])
+    except ValueError as e:
+        msg = str(e)
+    assert msg is None or "--" not in msg, msg
