@@ -48,6 +48,8 @@ __all__ = [
     "hypotheses",
     "load_mesh",
     "read_frame",
+    "refine",
+    "estimate",
     "stable_poses",
 ]
 
@@ -482,3 +484,133 @@ def eval(  # noqa: A001 - the CLI's verb
         errors=None if errors is None else list(errors), add_threshold=float(add_threshold), dataset_name=dataset_name,
         device=device, adapter=adapter, records=records,
     )
+
+
+def _frame_objects(objects: Sequence[Mapping[str, Any]], units: str, mesh_units: str, depth_shape: Tuple[int, ...]) -> Tuple[List[Mesh], List[np.ndarray]]:
+    """Each object's mesh and mask (H, W) from the dicts of refine/estimate."""
+    if isinstance(objects, Mapping) or not len(objects):
+        raise ValueError('objects: give a list of dicts, one per object: {"mesh": ..., "mask": ..., ...}')
+    meshes, masks = [], []
+    for i, o in enumerate(objects):
+        if not isinstance(o, Mapping) or "mesh" not in o or "mask" not in o:
+            raise ValueError(f'object {i}: expected a dict with "mesh" and "mask"')
+        meshes.append(_mesh(o["mesh"], units, mesh_units))
+        m = _mask(o["mask"])
+        if m.shape != depth_shape:
+            raise ValueError(f"object {i}: mask shape {m.shape}, but the depth image is {depth_shape}")
+        masks.append(m)
+    return meshes, masks
+
+
+def _scene_out(out: Dict[str, Any], scale: float) -> Dict[str, Any]:
+    """Translations and the plane point back in the caller's units."""
+    for o in out["objects"]:
+        if o is not None:
+            o["t"] = o["t"] / scale
+    for b in out.get("best", []):
+        if b is not None:
+            b["t"] = b["t"] / scale
+    if out.get("plane") is not None:
+        point, normal = out["plane"]
+        out["plane"] = {"point": np.asarray(point) / scale, "normal": np.asarray(normal), "units": "m" if scale == 1.0 else "mm"}
+    return out
+
+
+def refine(
+    K: Any,
+    depth: Any,
+    objects: Sequence[Mapping[str, Any]],
+    *,
+    plane: Optional[PlaneLike] = None,
+    method: str = "rir",
+    steps: int = 2,
+    budget: Optional[int] = None,
+    physics: bool = True,
+    res: int = 128,
+    seed: int = 0,
+    units: str = "m",
+    mesh_units: str = "auto",
+    device: str = "auto",
+    adapter: Optional[str] = None,
+) -> Dict[str, Any]:
+    """Refines pose hypotheses of a frame's objects against the depth, as
+    ``plausible refine`` does per image: REF (robust point-to-plane ICP),
+    PIR (with rapier on the support plane), SIR (steps kept only where the
+    visual score improves) or RIR (UCB1 over an object's hypotheses), each
+    object among the others' current estimates, in support order.
+
+    ``objects``: one dict per object with "mesh", "mask" (H, W), its
+    hypotheses "R" (N, 3, 3) and "t" (N, 3) (or "poses" (N, 4, 4)) in
+    ``units``, and optionally "scores" (N,) of the estimator (the best one
+    stands for the object among the others until it is refined). The plane
+    is fitted outside the masks when the method simulates and none is
+    given. Returns {"objects": per object {"R", "t", "score", "steps",
+    "kept"} in input order (None: too few observed points), "order",
+    "support" (None = the plane, else an object index), "plane"}."""
+    s = _scale(units)
+    d = _depth(depth, s)
+    meshes, masks = _frame_objects(objects, units, mesh_units, d.shape)
+    rs, ts, leads = [], [], []
+    for i, o in enumerate(objects):
+        if "poses" in o:
+            r, t = _poses(o["poses"], None, s)
+        elif "R" in o and "t" in o:
+            r, t = _poses(o["R"], o["t"], s)
+        else:
+            raise ValueError(f'object {i}: give its hypotheses as "R" and "t", or "poses" (N, 4, 4)')
+        scores = o.get("scores")
+        if scores is not None:
+            sc = _array(scores, np.float64, f"object {i} scores", (len(r),))
+            lead = int(np.argmax(sc))
+        else:
+            lead = 0
+        rs.append(r)
+        ts.append(t)
+        leads.append(lead)
+    pl = None if plane is None else _plane(plane, s)
+    out = _native.refine(
+        _camera(K), d, meshes, masks, rs, ts, leads, plane=pl, method=method, steps=int(steps), budget=budget,
+        physics=bool(physics), res=int(res), seed=int(seed), device=device, adapter=adapter,
+    )
+    return _scene_out(out, s)
+
+
+def estimate(
+    K: Any,
+    depth: Any,
+    objects: Sequence[Mapping[str, Any]],
+    *,
+    plane: Optional[PlaneLike] = None,
+    method: str = "rir",
+    steps: int = 2,
+    top: int = 5,
+    yaw_steps: int = 36,
+    physics: bool = True,
+    res: int = 128,
+    seed: int = 0,
+    units: str = "m",
+    mesh_units: str = "auto",
+    device: str = "auto",
+    adapter: Optional[str] = None,
+) -> Dict[str, Any]:
+    """Estimates the poses of a frame's objects from their masks, as
+    ``plausible estimate`` does per image: resting poses x ``yaw_steps``
+    yaws on the support plane (fitted outside the masks unless given),
+    scored, the best ``top`` of each refined by ``method`` among the other
+    objects in support order.
+
+    ``objects``: one dict per object with "mesh", "mask" (H, W) and
+    optionally "stable" (:func:`stable_poses`' list, an export or its path;
+    default: the quasi-static analysis of the hull). Returns {"best": per
+    object {"R", "t", "score"} or None, "objects": every refined hypothesis
+    as :func:`refine` gives them, "order", "support", "plane"}."""
+    s = _scale(units)
+    d = _depth(depth, s)
+    meshes, masks = _frame_objects(objects, units, mesh_units, d.shape)
+    stable = [_export_text(o.get("stable"), m) for o, m in zip(objects, meshes)]
+    pl = None if plane is None else _plane(plane, s)
+    out = _native.estimate(
+        _camera(K), d, meshes, masks, stable, plane=pl, method=method, steps=int(steps), top=int(top),
+        yaw_steps=int(yaw_steps), physics=bool(physics), res=int(res), seed=int(seed), device=device, adapter=adapter,
+    )
+    return _scene_out(out, s)

@@ -114,3 +114,40 @@ def device_info(adapter: Optional[str] = None) -> Tuple[str, str]: ...
 def read_frame(
     camera: _Path, depth: _Path, mask: Optional[_Path] = None, frame: Optional[str] = None
 ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float32], Optional[npt.NDArray[np.bool_]]]: ...
+def refine(
+    k: npt.NDArray[np.float64],
+    depth: npt.NDArray[np.float32],
+    meshes: List[Mesh],
+    masks_in: List[npt.NDArray[np.bool_]],
+    rs: List[npt.NDArray[np.float64]],
+    ts: List[npt.NDArray[np.float64]],
+    leads: List[int],
+    *,
+    plane: Optional[Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = None,
+    method: str = "rir",
+    steps: int = 2,
+    budget: Optional[int] = None,
+    physics: bool = True,
+    res: int = 128,
+    seed: int = 0,
+    device: str = "auto",
+    adapter: Optional[str] = None,
+) -> Dict[str, Any]: ...
+def estimate(
+    k: npt.NDArray[np.float64],
+    depth: npt.NDArray[np.float32],
+    meshes: List[Mesh],
+    masks_in: List[npt.NDArray[np.bool_]],
+    stable: List[Optional[str]],
+    *,
+    plane: Optional[Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = None,
+    method: str = "rir",
+    steps: int = 2,
+    top: int = 5,
+    yaw_steps: int = 36,
+    physics: bool = True,
+    res: int = 128,
+    seed: int = 0,
+    device: str = "auto",
+    adapter: Optional[str] = None,
+) -> Dict[str, Any]: ...

@@ -8,6 +8,7 @@ use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueEr
 use pyo3::prelude::*;
 
 mod convert;
+mod frame;
 mod functions;
 mod mesh;
 mod scorer;
@@ -44,5 +45,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(functions::evaluate, m)?)?;
     m.add_function(wrap_pyfunction!(functions::device_info, m)?)?;
     m.add_function(wrap_pyfunction!(functions::read_frame, m)?)?;
+    m.add_function(wrap_pyfunction!(frame::refine, m)?)?;
+    m.add_function(wrap_pyfunction!(frame::estimate, m)?)?;
     Ok(())
 }

@@ -94,3 +94,63 @@ def test_eval_matches_the_bop_toolkit_on_the_shipped_subset():
         pl.eval(ds, ds / "perturbed.csv", errors=["nope"])
     with pytest.raises(ValueError):
         pl.eval(ds, ds / "perturbed.csv", dataset_name="not-a-dataset")
+
+
+def rotation(axis, angle):
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def demo_truth(demo):
+    p = json.loads((demo / "poses.json").read_text())[0]  # the demo's first hypothesis is the true pose
+    return np.array(p["cam_R_m2c"], float).reshape(3, 3), np.array(p["cam_t_m2c"], float) * 1e-3
+
+
+@pytest.mark.parametrize("method", ["ref", "pir", "sir", "rir"])
+def test_refine_brings_perturbed_poses_back(demo, method):
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    R0, t0 = demo_truth(demo)
+    rng = np.random.default_rng(7)
+    R = np.stack([rotation(rng.normal(size=3), np.deg2rad(4)) @ R0 for _ in range(3)])
+    t = t0 + rng.normal(size=(3, 3)) * 0.004
+    out = pl.refine(K, depth * 1000, [{"mesh": demo / "duck_0.15m.obj", "mask": mask, "R": R, "t": t * 1000, "scores": [0.1, 0.9, 0.5]}],
+                    method=method, units="mm", device="cpu")
+    o = out["objects"][0]
+    assert o["R"].shape == (3, 3, 3) and o["t"].shape == (3, 3) and o["score"].shape == (3,)
+    err_mm = np.linalg.norm(o["t"] - t0 * 1000, axis=1)
+    assert err_mm.min() < 1.0, err_mm
+    assert out["support"] == [None] and out["order"] == [0]
+    if method != "ref":
+        assert out["plane"] is not None and out["plane"]["units"] == "mm"
+
+
+def test_estimate_finds_the_duck_on_the_table(demo):
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    R0, t0 = demo_truth(demo)
+    out = pl.estimate(K, depth, [{"mesh": demo / "duck_0.15m.obj", "mask": mask}], device="cpu")
+    best = out["best"][0]
+    assert np.linalg.norm(best["t"] - t0) < 0.005
+    angle = np.degrees(np.arccos(np.clip((np.trace(best["R"].T @ R0) - 1) / 2, -1, 1)))
+    assert angle < 5, angle
+    assert best["score"] > 0.8
+
+
+def test_refine_and_estimate_refuse_bad_input(demo):
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    R0, t0 = demo_truth(demo)
+    mesh = demo / "duck_0.15m.obj"
+    ok = {"mesh": mesh, "mask": mask, "R": R0[None], "t": t0[None]}
+    cases = {
+        "method": lambda: pl.refine(K, depth, [ok], method="nope"),
+        "no objects": lambda: pl.refine(K, depth, []),
+        "no hypotheses": lambda: pl.refine(K, depth, [{"mesh": mesh, "mask": mask}]),
+        "mask size": lambda: pl.refine(K, depth, [dict(ok, mask=mask[1:])]),
+        "scores length": lambda: pl.refine(K, depth, [dict(ok, scores=[1, 2])]),
+        "budget with ref": lambda: pl.refine(K, depth, [ok], method="ref", budget=4),
+        "top": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask}], top=0),
+        "yaw steps": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask}], yaw_steps=100000),
+    }
+    for what, call in cases.items():
+        with pytest.raises(ValueError):
+            call()
