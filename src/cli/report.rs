@@ -82,7 +82,8 @@ fn build(title: &str, inputs: &[Input]) -> String {
             _ => None,
         })
         .collect();
-    let (score_pics, rest): (Vec<&Picture>, Vec<&Picture>) = pictures.iter().partition(|p| p.hypothesis_index().is_some() || p.is_alignment());
+    let (score_pics, rest): (Vec<&Picture>, Vec<&Picture>) =
+        pictures.iter().partition(|p| p.hypothesis_index().is_some() || p.is_alignment());
     let has_score = inputs.iter().any(|i| matches!(i.kind, Kind::Score(_)));
     let has_check = inputs.iter().any(|i| matches!(i.kind, Kind::Check(_)));
     let mut body = String::new();

@@ -38,7 +38,8 @@ pub fn prepare(mesh_path: &str, sha256: &str, export_file: &Path) -> Drawable {
     let Some((mesh, matched)) = load_matching(&path, sha256) else {
         return Drawable::Missing(format!("mesh {} could not be loaded", path.display()));
     };
-    let note = (!matched).then(|| format!("{} differs from the mesh of the run (hash mismatch): poses drawn on the current file", path.display()));
+    let note =
+        (!matched).then(|| format!("{} differs from the mesh of the run (hash mismatch): poses drawn on the current file", path.display()));
     match Body::new(&mesh, SAMPLES, 0, None) {
         Ok(body) => Drawable::Ready { body: Box::new(body), note },
         Err(e) => Drawable::Missing(format!("mesh {}: {e}", path.display())),

@@ -110,10 +110,13 @@ impl Cell {
     }
 }
 
+/// One table row: its id (for links), whether it is highlighted, its cells.
+pub type Row = (Option<String>, bool, Vec<Cell>);
+
 /// A table whose headers sort it when clicked (the inline script marks it
 /// `data-sortable="ready"` once wired up). `row_ids` gives each row an id
 /// (for links from pictures); `marked` rows are highlighted.
-pub fn sortable_table(id: &str, headers: &[(&str, &str)], rows: &[(Option<String>, bool, Vec<Cell>)]) -> String {
+pub fn sortable_table(id: &str, headers: &[(&str, &str)], rows: &[Row]) -> String {
     let mut h = format!(r#"<table class="sortable" id="{}"><thead><tr>"#, esc(id));
     for (name, title) in headers {
         let _ = write!(h, r#"<th title="{}">{}</th>"#, esc(title), esc(name));
@@ -208,7 +211,9 @@ mod tests {
 
     #[test]
     fn base64_matches_rfc4648_vectors() {
-        for (raw, enc) in [("", ""), ("f", "Zg=="), ("fo", "Zm8="), ("foo", "Zm9v"), ("foob", "Zm9vYg=="), ("fooba", "Zm9vYmE="), ("foobar", "Zm9vYmFy")] {
+        for (raw, enc) in
+            [("", ""), ("f", "Zg=="), ("fo", "Zm8="), ("foo", "Zm9v"), ("foob", "Zm9vYg=="), ("fooba", "Zm9vYmE="), ("foobar", "Zm9vYmFy")]
+        {
             assert_eq!(base64(raw.as_bytes()), enc);
         }
     }

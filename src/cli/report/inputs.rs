@@ -275,8 +275,7 @@ fn png(bytes: &[u8]) -> Result<Kind> {
 
 /// A JSON list: the records of `plausible score --out X.json`.
 fn score_json(text: &str) -> Result<Kind> {
-    let rows: Vec<ScoreRow> =
-        serde_json::from_str(text).context("a JSON list, but not the records of `plausible score --out X.json`")?;
+    let rows: Vec<ScoreRow> = serde_json::from_str(text).context("a JSON list, but not the records of `plausible score --out X.json`")?;
     if rows.is_empty() {
         bail!("a score file with no records");
     }
@@ -290,7 +289,10 @@ fn object_json(text: &str) -> Result<Kind> {
     let Some(obj) = v.as_object() else { bail!("not a JSON object") };
     if let Some(format) = obj.get("format").and_then(|f| f.as_str()).filter(|f| f.starts_with("plausible-stable-poses/")) {
         if format != plausible::stable::export::FORMAT {
-            bail!("a stable-pose export of format '{format}', which this version does not read (it reads {})", plausible::stable::export::FORMAT);
+            bail!(
+                "a stable-pose export of format '{format}', which this version does not read (it reads {})",
+                plausible::stable::export::FORMAT
+            );
         }
         let e: StableExport = serde_json::from_value(v).context("a stable-pose export with missing or malformed fields")?;
         return Ok(Kind::Stable(e));

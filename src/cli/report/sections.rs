@@ -6,9 +6,9 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::gallery::{self, Drawable};
-use super::html::{esc, num, pct, png_img, sortable_table, verdict_badge, Cell};
+use super::html::{esc, num, pct, png_img, sortable_table, verdict_badge, Cell, Row};
 use super::inputs::{CheckReport, EvalReport, ScoreRow, StableCluster, StableExport, StableMesh};
-use super::svg::{bar_chart, error_colour, recall_chart, Series};
+use super::svg::{bar_chart, error_colour, recall_chart, BarGroup, Series};
 
 /// Rows of the score table (the best by rank, plus every explained one).
 pub const TOP_ROWS: usize = 200;
@@ -46,7 +46,11 @@ impl Picture<'_> {
         let id_attr = id.map(|i| format!(r#" id="{}""#, esc(i))).unwrap_or_default();
         format!(
             r#"<figure{id_attr}>{}<figcaption>{}</figcaption></figure>"#,
-            png_img(self.bytes, &self.name, class).replacen("<img ", &format!(r#"<img width="{}" height="{}" "#, self.width, self.height), 1),
+            png_img(self.bytes, &self.name, class).replacen(
+                "<img ",
+                &format!(r#"<img width="{}" height="{}" "#, self.width, self.height),
+                1
+            ),
             caption
         )
     }
@@ -69,11 +73,14 @@ pub fn score(file: &Path, rows: &[ScoreRow], pictures: &[&Picture], sec: usize) 
     let shown: Vec<&ScoreRow> =
         order.iter().enumerate().filter(|(i, r)| *i < TOP_ROWS || by_index.contains_key(&r.index)).map(|(_, r)| *r).collect();
     let mut h = heading("Scored hypotheses", file);
-    let _ = write!(h, r#"<p class="note">{} hypotheses{}; the table shows the best {} by rank{} (click a header to sort).</p>"#,
+    let _ = write!(
+        h,
+        r#"<p class="note">{} hypotheses{}; the table shows the best {} by rank{} (click a header to sort).</p>"#,
         rows.len(),
         if physics { format!(", ranked physics first: {}", verdict_counts(rows)) } else { ", ranked by visual score".into() },
         shown.len().min(TOP_ROWS),
-        if shown.len() > TOP_ROWS.min(rows.len()) { " and the explained ones beyond them (outlined)" } else { "" });
+        if shown.len() > TOP_ROWS.min(rows.len()) { " and the explained ones beyond them (outlined)" } else { "" }
+    );
     h += &score_table(&format!("scores-{sec}"), &shown, physics, &by_index, sec == 0);
     h += &score_pictures(rows, pictures, &by_index);
     h
@@ -113,8 +120,11 @@ fn score_table(id: &str, shown: &[&ScoreRow], physics: bool, pics: &BTreeMap<u64
         ]);
     }
     headers.push(("picture", "explanation picture"));
-    let rows: Vec<(Option<String>, bool, Vec<Cell>)> =
-        shown.iter().enumerate().map(|(i, r)| (anchors.then(|| format!("row-{}", r.index)), i >= TOP_ROWS, score_cells(r, physics, pics))).collect();
+    let rows: Vec<Row> = shown
+        .iter()
+        .enumerate()
+        .map(|(i, r)| (anchors.then(|| format!("row-{}", r.index)), i >= TOP_ROWS, score_cells(r, physics, pics)))
+        .collect();
     format!(r#"<div class="scroll">{}</div>"#, sortable_table(id, &headers, &rows))
 }
 
@@ -194,7 +204,7 @@ pub fn check(file: &Path, c: &CheckReport, pictures: &[&Picture]) -> String {
         ("ε mm", "contact tolerance"),
         ("mass kg", "mass"),
     ];
-    let rows: Vec<(Option<String>, bool, Vec<Cell>)> = c.objects.iter().take(MAX_TABLE_ROWS).map(|o| (None, false, check_cells(o))).collect();
+    let rows: Vec<Row> = c.objects.iter().take(MAX_TABLE_ROWS).map(|o| (None, false, check_cells(o))).collect();
     h += &sortable_table("check", &headers, &rows);
     if c.objects.len() > MAX_TABLE_ROWS {
         let _ = write!(h, r#"<p class="note">(the first {MAX_TABLE_ROWS} of {} objects)</p>"#, c.objects.len());
@@ -269,8 +279,12 @@ fn stable_mesh(file: &Path, m: &StableMesh, i: usize) -> String {
     );
     let drawable = if m.clusters.is_empty() { Drawable::Missing(String::new()) } else { gallery::prepare(&m.mesh, &m.sha256, file) };
     match &drawable {
-        Drawable::Ready { note: Some(n), .. } => { let _ = write!(h, r#"<p class="note">note: {}</p>"#, esc(n)); }
-        Drawable::Missing(why) if !why.is_empty() => { let _ = write!(h, r#"<p class="note">no pictures: {}; the poses are listed as text.</p>"#, esc(why)); }
+        Drawable::Ready { note: Some(n), .. } => {
+            let _ = write!(h, r#"<p class="note">note: {}</p>"#, esc(n));
+        }
+        Drawable::Missing(why) if !why.is_empty() => {
+            let _ = write!(h, r#"<p class="note">no pictures: {}; the poses are listed as text.</p>"#, esc(why));
+        }
         _ => {}
     }
     h.push_str(r#"<div class="gallery">"#);
@@ -298,7 +312,11 @@ fn cluster_card(k: usize, c: &StableCluster, settled: u64, drawable: &Drawable) 
         Some(bytes) => png_img(&bytes, &format!("cluster {} from the side", k + 1), "pose"),
         None => format!(
             r#"<div class="textpose">resting pose {}<br>gravity in the model frame<br>({:.3}, {:.3}, {:.3})<br>origin {:.1} mm above the plane</div>"#,
-            k + 1, g[0], g[1], g[2], c.height * 1e3
+            k + 1,
+            g[0],
+            g[1],
+            g[2],
+            c.height * 1e3
         ),
     };
     format!(
@@ -309,7 +327,9 @@ fn cluster_card(k: usize, c: &StableCluster, settled: u64, drawable: &Drawable) 
         pct(Some(c.ci95[1])),
         c.count,
         settled,
-        g[0], g[1], g[2]
+        g[0],
+        g[1],
+        g[2]
     )
 }
 
@@ -317,22 +337,34 @@ fn cluster_table(id: &str, clusters: &[StableCluster]) -> String {
     if clusters.is_empty() {
         return r#"<p class="note">no discrete resting poses.</p>"#.into();
     }
-    let headers = [("#", "cluster"), ("p", "probability"), ("CI low", "95 % CI lower bound"), ("CI high", "95 % CI upper bound"), ("count", "drops"), ("gravity in model", "unit gravity direction in the model frame"), ("height mm", "origin above the plane")];
-    let rows: Vec<(Option<String>, bool, Vec<Cell>)> = clusters
+    let headers = [
+        ("#", "cluster"),
+        ("p", "probability"),
+        ("CI low", "95 % CI lower bound"),
+        ("CI high", "95 % CI upper bound"),
+        ("count", "drops"),
+        ("gravity in model", "unit gravity direction in the model frame"),
+        ("height mm", "origin above the plane"),
+    ];
+    let rows: Vec<Row> = clusters
         .iter()
         .take(MAX_TABLE_ROWS)
         .enumerate()
         .map(|(k, c)| {
             let g = c.gravity_in_model;
-            (None, false, vec![
-                Cell::int(Some(k as u64 + 1)),
-                Cell::num(Some(c.probability), 4),
-                Cell::num(Some(c.ci95[0]), 4),
-                Cell::num(Some(c.ci95[1]), 4),
-                Cell::int(Some(c.count)),
-                Cell::text(&format!("({:.3}, {:.3}, {:.3})", g[0], g[1], g[2])),
-                Cell::num(Some(c.height * 1e3), 1),
-            ])
+            (
+                None,
+                false,
+                vec![
+                    Cell::int(Some(k as u64 + 1)),
+                    Cell::num(Some(c.probability), 4),
+                    Cell::num(Some(c.ci95[0]), 4),
+                    Cell::num(Some(c.ci95[1]), 4),
+                    Cell::int(Some(c.count)),
+                    Cell::text(&format!("({:.3}, {:.3}, {:.3})", g[0], g[1], g[2])),
+                    Cell::num(Some(c.height * 1e3), 1),
+                ],
+            )
         })
         .collect();
     sortable_table(id, &headers, &rows)
@@ -342,14 +374,32 @@ fn families_table(id: &str, m: &StableMesh) -> String {
     if m.families.is_empty() {
         return String::new();
     }
-    let headers = [("kind", "circle: rolls about an axis; scattered: ball-like"), ("axis", "rolling axis (model frame)"), ("p", "probability"), ("CI low", "95 % CI"), ("CI high", "95 % CI"), ("count", "drops")];
-    let rows: Vec<(Option<String>, bool, Vec<Cell>)> = m
+    let headers = [
+        ("kind", "circle: rolls about an axis; scattered: ball-like"),
+        ("axis", "rolling axis (model frame)"),
+        ("p", "probability"),
+        ("CI low", "95 % CI"),
+        ("CI high", "95 % CI"),
+        ("count", "drops"),
+    ];
+    let rows: Vec<Row> = m
         .families
         .iter()
         .take(MAX_TABLE_ROWS)
         .map(|f| {
             let axis = f.axis.map_or("–".into(), |a| format!("({:.3}, {:.3}, {:.3})", a[0], a[1], a[2]));
-            (None, false, vec![Cell::text(&f.kind), Cell::text(&axis), Cell::num(Some(f.probability), 4), Cell::num(Some(f.ci95[0]), 4), Cell::num(Some(f.ci95[1]), 4), Cell::int(Some(f.count))])
+            (
+                None,
+                false,
+                vec![
+                    Cell::text(&f.kind),
+                    Cell::text(&axis),
+                    Cell::num(Some(f.probability), 4),
+                    Cell::num(Some(f.ci95[0]), 4),
+                    Cell::num(Some(f.ci95[1]), 4),
+                    Cell::int(Some(f.count)),
+                ],
+            )
         })
         .collect();
     format!("<p class=\"note\">families (rolling or ball-like rest, no single pose):</p>{}", sortable_table(id, &headers, &rows))
@@ -359,14 +409,26 @@ fn analytic_table(id: &str, m: &StableMesh) -> String {
     if m.analytic.is_empty() {
         return String::new();
     }
-    let headers = [("p", "quasi-static probability"), ("gravity in model", "unit gravity direction in the model frame"), ("margin mm", "stability margin")];
-    let rows: Vec<(Option<String>, bool, Vec<Cell>)> = m
+    let headers = [
+        ("p", "quasi-static probability"),
+        ("gravity in model", "unit gravity direction in the model frame"),
+        ("margin mm", "stability margin"),
+    ];
+    let rows: Vec<Row> = m
         .analytic
         .iter()
         .take(MAX_TABLE_ROWS)
         .map(|a| {
             let g = a.gravity_in_model;
-            (None, false, vec![Cell::num(Some(a.probability), 4), Cell::text(&format!("({:.3}, {:.3}, {:.3})", g[0], g[1], g[2])), Cell::num(Some(a.margin * 1e3), 1)])
+            (
+                None,
+                false,
+                vec![
+                    Cell::num(Some(a.probability), 4),
+                    Cell::text(&format!("({:.3}, {:.3}, {:.3})", g[0], g[1], g[2])),
+                    Cell::num(Some(a.margin * 1e3), 1),
+                ],
+            )
         })
         .collect();
     format!("<p class=\"note\">analytic cross-check (convex hull facets):</p>{}", sortable_table(id, &headers, &rows))
@@ -468,7 +530,7 @@ fn per_object(e: &EvalReport) -> String {
     let mut errors: Vec<&String> = e.per_object.values().flat_map(|o| o.by_error.keys()).collect();
     errors.sort_by_key(|k| (error_order(k), *k));
     errors.dedup();
-    let groups: Vec<(String, Vec<(String, Option<f64>)>)> = objects
+    let groups: Vec<BarGroup> = objects
         .iter()
         .take(MAX_BARS_OBJECTS)
         .map(|(obj, s)| {
@@ -478,10 +540,11 @@ fn per_object(e: &EvalReport) -> String {
         })
         .collect();
     let mut h = format!(r#"<h3>Per object</h3><div class="charts">{}</div>"#, bar_chart("AR and its parts per object", &groups));
-    let mut headers: Vec<(String, String)> = vec![("object".into(), "obj_id".into()), ("targets".into(), "targets".into()), ("AR".into(), "average recall".into())];
+    let mut headers: Vec<(String, String)> =
+        vec![("object".into(), "obj_id".into()), ("targets".into(), "targets".into()), ("AR".into(), "average recall".into())];
     headers.extend(errors.iter().map(|k| (k.to_uppercase(), format!("{} recall", k.to_uppercase()))));
     let headers: Vec<(&str, &str)> = headers.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
-    let rows: Vec<(Option<String>, bool, Vec<Cell>)> = objects
+    let rows: Vec<Row> = objects
         .iter()
         .take(MAX_TABLE_ROWS)
         .map(|(obj, s)| {

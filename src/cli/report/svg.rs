@@ -56,7 +56,13 @@ fn recall_axis(s: &mut String, w: f64, h: f64) {
 pub fn recall_chart(title: &str, x_label: &str, series: &[Series]) -> String {
     let xs = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).filter(|x| x.is_finite());
     let (lo, hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
-    let (lo, hi) = if lo.is_finite() && hi > lo { (lo, hi) } else if lo.is_finite() { (lo - 1.0, lo + 1.0) } else { (0.0, 1.0) };
+    let (lo, hi) = if lo.is_finite() && hi > lo {
+        (lo, hi)
+    } else if lo.is_finite() {
+        (lo - 1.0, lo + 1.0)
+    } else {
+        (0.0, 1.0)
+    };
     let px = |x: f64| LEFT + (x - lo) / (hi - lo) * (W - LEFT - RIGHT);
     let py = |y: f64| TOP + (1.0 - y.clamp(0.0, 1.0)) * (H - TOP - BOTTOM);
     let mut s = format!(r#"<svg class="chart" width="{W}" height="{H}" viewBox="0 0 {W} {H}">"#);
@@ -65,7 +71,13 @@ pub fn recall_chart(title: &str, x_label: &str, series: &[Series]) -> String {
     for x in [lo, (lo + hi) / 2.0, hi] {
         let _ = write!(s, r#"<text x="{:.1}" y="{:.1}" font-size="11" text-anchor="middle">{}</text>"#, px(x), H - BOTTOM + 14.0, short(x));
     }
-    let _ = write!(s, r#"<text x="{:.1}" y="{:.1}" font-size="11" text-anchor="middle">{}</text>"#, (LEFT + W - RIGHT) / 2.0, H - 8.0, esc(x_label));
+    let _ = write!(
+        s,
+        r#"<text x="{:.1}" y="{:.1}" font-size="11" text-anchor="middle">{}</text>"#,
+        (LEFT + W - RIGHT) / 2.0,
+        H - 8.0,
+        esc(x_label)
+    );
     for ser in series.iter().filter(|s| s.thin).chain(series.iter().filter(|s| !s.thin)) {
         let pts: Vec<String> =
             ser.points.iter().filter(|p| p.0.is_finite() && p.1.is_finite()).map(|&(x, y)| format!("{:.1},{:.1}", px(x), py(y))).collect();
@@ -88,9 +100,12 @@ pub fn recall_chart(title: &str, x_label: &str, series: &[Series]) -> String {
     s
 }
 
+/// One group of bars: its label and (error name, value) per bar.
+pub type BarGroup = (String, Vec<(String, Option<f64>)>);
+
 /// Grouped bars: one group per label, one bar per (name, value) in it,
 /// values 0-1, with a legend of the names.
-pub fn bar_chart(title: &str, groups: &[(String, Vec<(String, Option<f64>)>)]) -> String {
+pub fn bar_chart(title: &str, groups: &[BarGroup]) -> String {
     let per_group = groups.iter().map(|g| g.1.len()).max().unwrap_or(1).max(1) as f64;
     let bar = 12.0;
     let group_w = per_group * bar + 14.0;
@@ -116,7 +131,13 @@ pub fn bar_chart(title: &str, groups: &[(String, Vec<(String, Option<f64>)>)]) -
                 esc(&name.to_uppercase())
             );
         }
-        let _ = write!(s, r#"<text x="{:.1}" y="{:.1}" font-size="11" text-anchor="middle">{}</text>"#, x0 + per_group * bar / 2.0, py(0.0) + 14.0, esc(label));
+        let _ = write!(
+            s,
+            r#"<text x="{:.1}" y="{:.1}" font-size="11" text-anchor="middle">{}</text>"#,
+            x0 + per_group * bar / 2.0,
+            py(0.0) + 14.0,
+            esc(label)
+        );
     }
     let names: Vec<&String> = groups.first().map(|g| g.1.iter().map(|b| &b.0).collect()).unwrap_or_default();
     for (i, name) in names.iter().enumerate() {
@@ -139,5 +160,9 @@ pub fn bar_chart(title: &str, groups: &[(String, Vec<(String, Option<f64>)>)]) -
 fn short(x: f64) -> String {
     let s = format!("{x:.3}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s.is_empty() || s == "-" { "0".into() } else { s.to_string() }
+    if s.is_empty() || s == "-" {
+        "0".into()
+    } else {
+        s.to_string()
+    }
 }
