@@ -41,6 +41,8 @@ enum Command {
     Estimate(cli::estimate::EstimateArgs),
     /// Refine another method's BOP results against the depth (ICP; SIR, RIR verified by the visual score), resumable.
     Refine(cli::refine::RefineArgs),
+    /// One self-contained HTML report from the JSON outputs of score, check, stable-poses export and eval, with their pictures.
+    Report(cli::report::ReportArgs),
 }
 
 fn main() {
@@ -100,6 +102,7 @@ fn main() {
         Command::Eval(a) => cli::eval::run(a, cli.verbose),
         Command::Estimate(a) => cli::estimate::run(a, cli.verbose),
         Command::Refine(a) => cli::refine::run(a, cli.verbose),
+        Command::Report(a) => cli::report::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

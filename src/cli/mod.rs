@@ -13,6 +13,7 @@ pub mod hypotheses;
 pub mod machine;
 pub mod plane;
 pub mod refine;
+pub mod report;
 pub mod score;
 pub mod stable;
 
