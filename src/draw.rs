@@ -138,6 +138,19 @@ pub fn stack(parts: &[&RgbImage], gap: u32) -> RgbImage {
     img
 }
 
+/// The parts side by side, top-aligned, `gap` pixels apart, on white.
+pub fn beside(parts: &[&RgbImage], gap: u32) -> RgbImage {
+    let height = parts.iter().map(|p| p.height()).max().unwrap_or(1).max(1);
+    let width = parts.iter().map(|p| p.width()).sum::<u32>() + gap * parts.len().saturating_sub(1) as u32;
+    let mut img = RgbImage::from_pixel(width.max(1), height, PAPER);
+    let mut x = 0;
+    for p in parts {
+        image::imageops::replace(&mut img, *p, x as i64, 0);
+        x += p.width() + gap;
+    }
+    img
+}
+
 /// `img` under a [`title_band`] as wide as it.
 pub fn with_title(img: &RgbImage, title: &str, background: Rgb<u8>) -> RgbImage {
     stack(&[&title_band(img.width(), title, background), img], 0)
@@ -169,7 +182,7 @@ pub fn colour_bar(width: u32, label: &str, map: &dyn Fn(f32) -> Rgb<u8>, lo: f64
     let end = |v: f64| format!("{} {unit}", short_number(v)).trim_end().to_string();
     let (lo_s, hi_s) = (end(lo), end(hi));
     let x0 = (PAD + label_w + 12 + text_width(TEXT_PX, &lo_s) / 2) as i64;
-    let x1 = width as i64 - (PAD + text_width(TEXT_PX, &hi_s) / 2) as i64;
+    let x1 = width as i64 - (2 * PAD + text_width(TEXT_PX, &hi_s) / 2) as i64;
     let len = x1 - x0;
     if len < 8 {
         return img;
