@@ -108,10 +108,31 @@ pub fn ink_on(bg: Rgb<u8>) -> Rgb<u8> {
     }
 }
 
-/// A band `width` wide in `background` with `title` on one line.
+/// `text` broken at spaces into lines at most `width` pixels wide at size
+/// `px` (a word longer than that stays whole on its line, to be clipped).
+pub fn wrap(px: f32, text: &str, width: u32) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split(' ') {
+        match lines.last_mut() {
+            Some(l) if text_width(px, &format!("{l} {word}")) <= width => {
+                l.push(' ');
+                l.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
+/// A band `width` wide in `background` with `title`, on as many lines as
+/// it needs.
 pub fn title_band(width: u32, title: &str, background: Rgb<u8>) -> RgbImage {
-    let mut band = RgbImage::from_pixel(width.max(1), line_height(TITLE_PX) + 2 * PAD, background);
-    draw_text(&mut band, 2 * PAD as i64, PAD as i64, TITLE_PX, ink_on(background), title);
+    let lines = wrap(TITLE_PX, title, width.saturating_sub(4 * PAD));
+    let lh = line_height(TITLE_PX);
+    let mut band = RgbImage::from_pixel(width.max(1), lines.len() as u32 * lh + 2 * PAD, background);
+    for (i, l) in lines.iter().enumerate() {
+        draw_text(&mut band, 2 * PAD as i64, (PAD + i as u32 * lh) as i64, TITLE_PX, ink_on(background), l);
+    }
     band
 }
 
@@ -265,8 +286,9 @@ pub fn key(width: u32, items: &[(Mark, &str)]) -> RgbImage {
     img
 }
 
-/// Lines of plain text `width` wide (each line as given, clipped).
+/// Lines of plain text `width` wide, each wrapped at spaces to fit.
 pub fn text_lines(width: u32, lines: &[&str]) -> RgbImage {
+    let lines: Vec<String> = lines.iter().flat_map(|l| wrap(TEXT_PX, l, width.saturating_sub(2 * PAD))).collect();
     let lh = line_height(TEXT_PX);
     let mut img = RgbImage::from_pixel(width.max(1), lines.len() as u32 * (lh + 2) + PAD, PAPER);
     for (i, l) in lines.iter().enumerate() {
@@ -352,6 +374,17 @@ mod tests {
         let t = with_title(&RgbImage::new(30, 20), "a title far longer than thirty pixels", Rgb([40, 160, 70]));
         assert_eq!(t.width(), 30);
         assert_eq!(t.get_pixel(1, 1).0, [40, 160, 70]);
+    }
+
+    #[test]
+    fn long_titles_and_notes_wrap_to_the_width() {
+        let text = "hypothesis 17 (rank 1 of 4096): score 0.912 (a_d 0.950, a_n 0.870), plausible";
+        let lines = wrap(TITLE_PX, text, 200);
+        assert!(lines.len() > 1 && lines.iter().all(|l| text_width(TITLE_PX, l) <= 200), "{lines:?}");
+        assert_eq!(lines.join(" "), text);
+        assert_eq!(wrap(TITLE_PX, text, 5000), [text]);
+        assert!(title_band(200, text, INK).height() > title_band(2000, text, INK).height());
+        assert!(text_lines(200, &[text]).height() > text_lines(2000, &[text]).height());
     }
 
     #[test]
