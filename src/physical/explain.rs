@@ -12,12 +12,12 @@ use glam::{DVec2, DVec3};
 use image::{Rgb, RgbImage};
 
 use super::check::ObjectCheck;
-use super::Verdict;
-use crate::draw::{self, Mark};
-use crate::explain::verdict_colour;
 use super::contacts::{Detail, SampleClass};
 use super::scene::{Plane, Scene};
 use super::support::support_basis;
+use super::Verdict;
+use crate::draw::{self, Mark};
+use crate::explain::verdict_colour;
 
 const SIZE: u32 = 512;
 
@@ -123,7 +123,10 @@ pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
                 (Mark::Fill(Rgb([195, 195, 195])), format!("{} {}: static", k + 1, c.name))
             } else {
                 let margin = c.evaluation.stability_margin.map_or(String::new(), |m| format!(", margin {:.1} mm", m * 1e3));
-                (Mark::Fill(verdict_colour(c.evaluation.verdict)), format!("{} {}: {}{margin}", k + 1, c.name, c.evaluation.verdict.as_str()))
+                (
+                    Mark::Fill(verdict_colour(c.evaluation.verdict)),
+                    format!("{} {}: {}{margin}", k + 1, c.name, c.evaluation.verdict.as_str()),
+                )
             }
         })
         .collect();
