@@ -18,6 +18,7 @@ pub mod stable;
 pub use error::{Error, Result};
 pub mod bop;
 pub mod camera;
+pub mod draw;
 pub mod eval;
 pub mod explain;
 pub mod gpu;

@@ -232,7 +232,18 @@ fn write_outputs(
     write_inputs(out, scene, poses, est_poses)?;
     super::score::write_records(&out.join("scores.json"), &s.records, Some(&s.evals), &s.rank)?;
     let render = render_cpu(&scene.rmesh, &poses[s.best], &target.intrinsics);
-    let pic = plausible::explain::alignment_panels(target, &render, &params, 3);
+    let r = &s.records[s.best];
+    let title = format!(
+        "demo: best hypothesis {} of {}: score {:.3} (a_d {:.3}, a_n {:.3}), {}",
+        s.best,
+        poses.len(),
+        r.score,
+        r.mean_ad,
+        r.mean_an,
+        s.evals[s.best].verdict.as_str()
+    );
+    let panels = plausible::explain::alignment_panels(target, &render, &params, 3);
+    let pic = plausible::draw::with_title(&panels, &title, plausible::explain::verdict_colour(s.evals[s.best].verdict));
     let pic_path = out.join("alignment.png");
     pic.save(&pic_path)?;
     println!(
@@ -243,7 +254,7 @@ fn write_outputs(
     let implausible = (0..poses.len()).filter(|&i| s.evals[i].verdict != Verdict::Plausible).min_by_key(|&i| s.visual_rank[i]);
     let mut ids = vec![s.best];
     ids.extend(implausible);
-    super::score::write_explanations(&out.join("explain"), &ids, poses, &scene.rmesh, target, &params, Some(physics))?;
+    super::score::write_explanations(&out.join("explain"), &ids, poses, &s.records, &s.rank, &scene.rmesh, target, &params, Some(physics))?;
     if let Some(i) = implausible {
         let e = &s.evals[i];
         let why = match e.verdict {

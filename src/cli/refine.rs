@@ -119,7 +119,9 @@ impl ImageRunArgs {
     pub fn save_picture(&self, scene_id: u32, im_id: u32, picture: Option<&image::RgbImage>) -> Result<()> {
         if let (Some(d), Some(pic)) = (&self.explain, picture) {
             let path = d.join(format!("{scene_id:06}_{im_id:06}.png"));
-            pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+            let title = format!("scene {scene_id}, image {im_id}: each object's alignment before | after refinement, and the physics after");
+            plausible::draw::with_title(pic, &title, image::Rgb([225, 225, 225]))
+                .save(&path).with_context(|| format!("cannot write {}", path.display()))?;
         }
         Ok(())
     }

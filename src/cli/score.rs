@@ -154,7 +154,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         }
         if let Some(dir) = &a.explain {
             let ids = explain_ids(&a.explain_ids, &rank)?;
-            write_explanations(dir, &ids, &poses, &rmesh, &target, &params, Some(physics))?;
+            write_explanations(dir, &ids, &poses, &records, &rank, &rmesh, &target, &params, Some(physics))?;
         }
         return Ok(());
     }
@@ -170,7 +170,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     }
     if let Some(dir) = &a.explain {
         let ids = explain_ids(&a.explain_ids, &rank)?;
-        write_explanations(dir, &ids, &poses, &rmesh, &target, &params, None)?;
+        write_explanations(dir, &ids, &poses, &records, &rank, &rmesh, &target, &params, None)?;
     }
     Ok(())
 }
@@ -192,6 +192,8 @@ pub fn write_explanations(
     dir: &std::path::Path,
     ids: &[usize],
     poses: &[plausible::pose::Pose],
+    records: &[ScoreRecord],
+    rank: &[usize],
     rmesh: &RenderMesh,
     target: &ScoreTarget,
     params: &ScoreParams,
@@ -202,7 +204,19 @@ pub fn write_explanations(
         let render = plausible::kernels::raster::render_cpu(rmesh, &poses[i], &target.intrinsics);
         // The band shows the verdict of the views drawn below it.
         let views = physics.map(|p| p.explain(&poses[i]));
-        let pic = plausible::explain::hypothesis_picture(target, &render, params, views.as_ref().map(|(v, e)| (v, e.verdict)));
+        let r = &records[i];
+        let mut title = format!(
+            "hypothesis {i} (rank {} of {}): score {:.3} (a_d {:.3}, a_n {:.3})",
+            rank[i],
+            records.len(),
+            r.score,
+            r.mean_ad,
+            r.mean_an
+        );
+        if let Some((_, e)) = &views {
+            title += &format!(", {}", e.verdict.as_str());
+        }
+        let pic = plausible::explain::hypothesis_picture(target, &render, params, views.as_ref().map(|(v, e)| (v, e.verdict)), &title);
         let path = dir.join(format!("hypothesis_{i}.png"));
         pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
         println!("wrote {}", path.display());

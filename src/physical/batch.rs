@@ -127,13 +127,13 @@ impl PlanePhysics {
         evaluate_detailed(&self.body, &self.to_plane.compose(cam_pose), &self.env)
     }
 
-    /// Top and side views of one hypothesis on the plane (1024 × 512; see
-    /// [`super::explain`] for the colours), with the CPU twin's evaluation
+    /// Top and side views of one hypothesis on the plane (1024 wide, with
+    /// captions and the key of the colours, see [`super::explain`]), with the CPU twin's evaluation
     /// they show (which can differ from the GPU's for samples within
     /// rounding of ±ε).
     pub fn explain(&self, cam_pose: &Pose) -> (image::RgbImage, Evaluation) {
         let (e, detail) = self.evaluate_detailed(cam_pose);
-        let drawn = Drawn { detail: &detail, is_static: false, stable: e.stable };
+        let drawn = Drawn { detail: &detail, is_static: false, stable: e.stable, label: None };
         (draw_views(&self.env.planes, self.env.gravity, &[drawn]), e)
     }
 

@@ -5,7 +5,8 @@
 //! supported cyan, free light grey. In the top view each dynamic object's
 //! support polygon is outlined (dark blue) and its projected centre of mass
 //! is a cross: black when the object is stable, red when it is not. In the
-//! side view the support planes are dark lines.
+//! side view the support planes are dark lines. Captions, scale bars and a
+//! key of these marks are drawn in ([`crate::draw`]).
 
 use glam::{DVec2, DVec3};
 use image::{Rgb, RgbImage};
@@ -14,8 +15,16 @@ use super::check::ObjectCheck;
 use super::contacts::{Detail, SampleClass};
 use super::scene::{Plane, Scene};
 use super::support::support_basis;
+use super::Verdict;
+use crate::draw::{self, Mark};
+use crate::explain::verdict_colour;
 
 const SIZE: u32 = 512;
+
+const PLANE: Rgb<u8> = Rgb([60, 60, 60]);
+const POLYGON: Rgb<u8> = Rgb([20, 40, 160]);
+const COM_STABLE: Rgb<u8> = Rgb([0, 0, 0]);
+const COM_UNSTABLE: Rgb<u8> = Rgb([220, 0, 0]);
 
 fn class_colour(c: SampleClass) -> Rgb<u8> {
     match c {
@@ -66,24 +75,132 @@ fn line(img: &mut RgbImage, a: (i64, i64), b: (i64, i64), c: Rgb<u8>) {
 }
 
 /// One object to draw: its per-sample detail, whether it is static (no
-/// support polygon or centre of mass drawn) and whether it is stable.
+/// support polygon or centre of mass drawn), whether it is stable, and a
+/// label drawn beside its centre of mass in the top view.
 pub struct Drawn<'a> {
     pub detail: &'a Detail,
     pub is_static: bool,
     pub stable: bool,
+    pub label: Option<&'a str>,
 }
 
-/// Draws the top and side views of a checked scene (1024 × 512 pixels).
+/// The picture of a checked scene: a title with the verdicts, the top and
+/// side views with their key ([`draw_views`]), and the objects by number
+/// (beside their centres of mass) with their verdicts, in the verdict's
+/// colour (1024 pixels wide).
 pub fn explain_image(scene: &Scene, checks: &[ObjectCheck]) -> RgbImage {
+    let numbers: Vec<String> = (1..=checks.len()).map(|k| k.to_string()).collect();
     let items: Vec<Drawn> = checks
         .iter()
-        .map(|c| Drawn { detail: &c.detail, is_static: c.is_static, stable: c.evaluation.stable })
+        .zip(&numbers)
+        .map(|(c, n)| Drawn {
+            detail: &c.detail,
+            is_static: c.is_static,
+            stable: c.evaluation.stable,
+            label: (!c.is_static).then_some(n.as_str()),
+        })
         .collect();
-    draw_views(&scene.planes, scene.gravity, &items)
+    let views = draw_views(&scene.planes, scene.gravity, &items);
+    let dynamic: Vec<&ObjectCheck> = checks.iter().filter(|c| !c.is_static).collect();
+    let counts: Vec<String> = [Verdict::Plausible, Verdict::Unstable, Verdict::Floating, Verdict::Intersecting]
+        .iter()
+        .map(|v| (v, dynamic.iter().filter(|c| c.evaluation.verdict == *v).count()))
+        .filter(|(_, n)| *n > 0)
+        .map(|(v, n)| format!("{n} {}", v.as_str()))
+        .collect();
+    let statics = checks.len() - dynamic.len();
+    let title = format!(
+        "physical check: {} objects{}: {}",
+        checks.len(),
+        if statics > 0 { format!(" ({statics} static)") } else { String::new() },
+        if counts.is_empty() { "none dynamic".to_string() } else { counts.join(", ") }
+    );
+    let entries: Vec<(Mark, String)> = checks
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            if c.is_static {
+                (Mark::Fill(Rgb([195, 195, 195])), format!("{} {}: static", k + 1, c.name))
+            } else {
+                let margin = c.evaluation.stability_margin.map_or(String::new(), |m| format!(", margin {:.1} mm", m * 1e3));
+                (
+                    Mark::Fill(verdict_colour(c.evaluation.verdict)),
+                    format!("{} {}: {}{margin}", k + 1, c.name, c.evaluation.verdict.as_str()),
+                )
+            }
+        })
+        .collect();
+    let entries: Vec<(Mark, &str)> = entries.iter().map(|(m, s)| (*m, s.as_str())).collect();
+    let objects = draw::key(views.width(), &entries);
+    let band = draw::title_band(views.width(), &title, Rgb([225, 225, 225]));
+    draw::stack(&[&band, &views, &objects], 0)
 }
 
-/// Top and side views (1024 × 512 pixels) of `items` over `planes`.
+/// A round length of about `m` metres (1, 2 or 5 times a power of ten, at
+/// most `m`) and its label.
+fn scale_length(m: f64) -> (f64, String) {
+    let p = 10f64.powf(m.max(1e-9).log10().floor());
+    let l = [5.0, 2.0, 1.0].into_iter().map(|k| k * p).find(|&l| l <= m).unwrap_or(p);
+    let s = if l >= 1.0 {
+        format!("{} m", draw::short_number(l))
+    } else if l >= 0.01 {
+        format!("{} cm", draw::short_number(l * 1e2))
+    } else {
+        format!("{} mm", draw::short_number(l * 1e3))
+    };
+    (l, s)
+}
+
+/// The caption band of the views: each view's name and a scale bar.
+fn caption_band(views: [(&View, &str); 2]) -> RgbImage {
+    let mut band = draw::caption_band(2 * SIZE, &[]);
+    let h = band.height() as i64;
+    for (view, name) in views {
+        draw::draw_text(&mut band, view.x0 as i64 + draw::PAD as i64, (draw::PAD / 2) as i64, draw::TEXT_PX, draw::INK, name);
+        let (l, label) = scale_length(0.2 * (SIZE - 32) as f64 / view.scale);
+        let len = (l * view.scale).round() as i64;
+        let right = (view.x0 + SIZE) as i64 - 16;
+        let x0 = right - text_width(&label) as i64 - 6 - len;
+        draw::fill_rect(&mut band, x0, h / 2, len as u32, 2, draw::INK);
+        draw::fill_rect(&mut band, x0, h / 2 - 4, 1, 10, draw::INK);
+        draw::fill_rect(&mut band, x0 + len - 1, h / 2 - 4, 1, 10, draw::INK);
+        draw::draw_text(&mut band, right - text_width(&label) as i64, (draw::PAD / 2) as i64, draw::TEXT_PX, draw::INK, &label);
+    }
+    band
+}
+
+fn text_width(s: &str) -> u32 {
+    draw::text_width(draw::TEXT_PX, s)
+}
+
+/// The key of the views' marks.
+fn views_key(width: u32) -> RgbImage {
+    draw::key(
+        width,
+        &[
+            (Mark::Dot(class_colour(SampleClass::Intersecting)), "intersecting (δ < −ε)"),
+            (Mark::Dot(class_colour(SampleClass::Contact)), "contact (|δ| ≤ ε)"),
+            (Mark::Dot(class_colour(SampleClass::Supported)), "supported"),
+            (Mark::Dot(class_colour(SampleClass::Free)), "free"),
+            (Mark::Line(POLYGON), "support polygon"),
+            (Mark::Cross(COM_STABLE), "centre of mass: stable"),
+            (Mark::Cross(COM_UNSTABLE), "not stable"),
+            (Mark::Line(PLANE), "plane"),
+        ],
+    )
+}
+
+/// Top and side views of `items` over `planes`: captions with scale bars
+/// (22 pixels), the views (1024 × 512) and the key of their marks below
+/// (about 40 pixels).
 pub fn draw_views(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> RgbImage {
+    let (canvas, tv, sv) = draw_canvas(planes, gravity, items);
+    let captions = caption_band([(&tv, "top view (along gravity)"), (&sv, "side view")]);
+    draw::stack(&[&captions, &canvas, &views_key(canvas.width())], 0)
+}
+
+/// The bare views (1024 × 512) and their projections.
+fn draw_canvas(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> (RgbImage, View, View) {
     let mut img = RgbImage::from_pixel(2 * SIZE, SIZE, Rgb([255, 255, 255]));
     let (u, v) = support_basis(gravity);
     let up = -gravity.normalize();
@@ -121,12 +238,7 @@ pub fn draw_views(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> RgbImage
         if p.normal.dot(up) > 0.99 {
             let a = sv.px(DVec2::new(sv.lo.x, h));
             let b = sv.px(DVec2::new(sv.lo.x + (SIZE - 32) as f64 / sv.scale, h));
-            line(
-                &mut img,
-                (a.0.max(SIZE as i64 + 1), a.1),
-                b,
-                Rgb([60, 60, 60]),
-            );
+            line(&mut img, (a.0.max(SIZE as i64 + 1), a.1), b, PLANE);
         }
     }
     // Free samples first, then the classes on top.
@@ -146,18 +258,22 @@ pub fn draw_views(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> RgbImage
         for i in 0..hull.len() {
             let a = tv.px(hull[i]);
             let b = tv.px(hull[(i + 1) % hull.len()]);
-            line(&mut img, a, b, Rgb([20, 40, 160]));
+            line(&mut img, a, b, POLYGON);
         }
-        let col = if c.stable {
-            Rgb([0, 0, 0])
-        } else {
-            Rgb([220, 0, 0])
-        };
+        let col = if c.stable { COM_STABLE } else { COM_UNSTABLE };
         for (view, p) in [(&tv, c.detail.com), (&sv, side(c.detail.com_world))] {
             let (x, y) = view.px(p);
             line(&mut img, (x - 6, y), (x + 6, y), col);
             line(&mut img, (x, y - 6), (x, y + 6), col);
         }
+        if let Some(label) = c.label {
+            // Beside the top view's cross, on a white patch so it reads over samples.
+            let (x, y) = tv.px(c.detail.com);
+            let (w, h) = (text_width(label), draw::line_height(draw::TEXT_PX));
+            let (lx, ly) = (x + 8, y - 8 - h as i64);
+            draw::fill_rect(&mut img, lx - 2, ly, w + 4, h, Rgb([255, 255, 255]));
+            draw::draw_text(&mut img, lx, ly, draw::TEXT_PX, col, label);
+        }
     }
-    img
+    (img, tv, sv)
 }

@@ -3,11 +3,12 @@
 //! the other objects hide is left grey), and the scene's physical check
 //! (top and side views, verdicts) on the support plane.
 
-use image::{Rgb, RgbImage};
+use image::RgbImage;
 
 use super::dataset::Model;
 use crate::error::Result;
-use crate::explain::{alignment_panels, verdict_colour};
+use crate::draw;
+use crate::explain::{alignment_captions, alignment_key, alignment_panels_bare, depth_bar, depth_range, verdict_colour};
 use crate::kernels::render::{render_cpu, RenderImage};
 use crate::kernels::score::ScoreParams;
 use crate::observation::{DepthImage, RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -51,12 +52,16 @@ pub struct Explained<'a> {
     pub after: Pose,
 }
 
-/// The picture of a refined frame: a row per object with the alignment
-/// panels (observed | rendered | per-pixel alignment, see
-/// [`alignment_panels`]) before and after, a band in the colour of its
-/// verdict after; below, the physical views of the scene after (when a
-/// plane is given). Each pose is rendered among the other objects at their
-/// poses of the same stage, its hidden pixels left out.
+/// The picture of a refined frame: the key of the alignment colours on
+/// top; a row per object with the alignment panels (observed | rendered |
+/// per-pixel alignment, see [`alignment_panels`]) before and after under
+/// its name, its verdict after (in the verdict's colour) and the panels'
+/// captions, over its depth colour bar; below, the physical check of the
+/// scene after (when a plane is given: title, top and side views, key and
+/// the objects by number). Each pose is rendered among the other objects
+/// at their poses of the same stage, its hidden pixels left out.
+///
+/// [`alignment_panels`]: crate::explain::alignment_panels
 pub fn refinement_picture(depth: &DepthImage, objects: &[Explained], plane: Option<&Plane>, params: &ScoreParams, res: u32) -> Result<RgbImage> {
     let checked = match plane {
         Some(pl) if !objects.is_empty() => {
@@ -68,37 +73,49 @@ pub fn refinement_picture(depth: &DepthImage, objects: &[Explained], plane: Opti
     let mut rows = Vec::new();
     for (i, o) in objects.iter().enumerate() {
         let target = ScoreTarget::new(depth, Some(o.mask), RoiSampling::Square(res), DEFAULT_ROI_MARGIN)?;
-        let panels = |stage: fn(&Explained) -> Pose| {
+        let render = |stage: fn(&Explained) -> Pose| {
             let others: Vec<(&Model, Pose)> = objects.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, x)| (x.model, stage(x))).collect();
-            let render = render_in_scene(&target, o.model, stage(o), &others);
-            alignment_panels(&render.0, &render.1, params, 2)
+            render_in_scene(&target, o.model, stage(o), &others)
         };
-        let (before, after) = (panels(|x| x.before), panels(|x| x.after));
-        let band = checked.as_ref().map(|(_, c)| verdict_colour(c[i].evaluation.verdict)).unwrap_or(Rgb([255, 255, 255]));
-        let mut row = RgbImage::from_pixel(before.width() + 8 + after.width(), before.height() + 6, Rgb([255, 255, 255]));
-        for x in before.width() + 8..row.width() {
-            for y in 0..4 {
-                row.put_pixel(x, y, band);
-            }
-        }
-        image::imageops::overlay(&mut row, &before, 0, 6);
-        image::imageops::overlay(&mut row, &after, (before.width() + 8) as i64, 6);
-        rows.push(row);
+        let (before, after) = (render(|x| x.before), render(|x| x.after));
+        // One depth range for both stages, so their colours compare.
+        let (lo0, hi0) = depth_range(&before.0, &[&before.1]);
+        let (lo1, hi1) = depth_range(&after.0, &[&after.1]);
+        let range = (lo0.min(lo1), hi0.max(hi1));
+        let panels = |(t, r): &(ScoreTarget, RenderImage)| {
+            let captions = alignment_captions(t.intrinsics.width, SCALE);
+            draw::stack(&[&captions, &alignment_panels_bare(t, r, params, SCALE, range)], 0)
+        };
+        let (before, after) = (panels(&before), panels(&after));
+        let name = o.model.mesh.source.as_ref().and_then(|p| p.file_stem()).map_or_else(|| format!("object {}", i + 1), |s| s.to_string_lossy().into_owned());
+        let verdict = checked.as_ref().map(|(_, c)| c[i].evaluation.verdict);
+        let left = draw::title_band(before.width(), &format!("{} {name}: before refinement", i + 1), draw::PAPER);
+        let right = draw::title_band(
+            after.width(),
+            &match verdict {
+                Some(v) => format!("after refinement: {}", v.as_str()),
+                None => "after refinement".to_string(),
+            },
+            verdict.map_or(draw::PAPER, verdict_colour),
+        );
+        let head = draw::beside(&[&left, &right], GAP);
+        let body = draw::beside(&[&before, &after], GAP);
+        let bar = depth_bar(body.width().min(900), range);
+        rows.push(draw::stack(&[&head, &body, &bar], 0));
     }
     let views = checked.as_ref().map(|(scene, checks)| crate::physical::explain::explain_image(scene, checks));
     let width = rows.iter().map(|r| r.width()).chain(views.iter().map(|v| v.width())).max().unwrap_or(1);
-    let height = rows.iter().map(|r| r.height() + 4).sum::<u32>() + views.as_ref().map_or(0, |v| v.height());
-    let mut img = RgbImage::from_pixel(width, height.max(1), Rgb([255, 255, 255]));
-    let mut y = 0;
-    for r in &rows {
-        image::imageops::overlay(&mut img, r, 0, y as i64);
-        y += r.height() + 4;
-    }
-    if let Some(v) = &views {
-        image::imageops::overlay(&mut img, v, 0, y as i64);
-    }
-    Ok(img)
+    let key = alignment_key(width, params);
+    let mut parts: Vec<&RgbImage> = vec![&key];
+    parts.extend(&rows);
+    parts.extend(&views);
+    Ok(draw::stack(&parts, 8))
 }
+
+/// Scale of the alignment panels in refinement pictures.
+const SCALE: u32 = 2;
+/// Gap between the before and after panels.
+const GAP: u32 = 8;
 
 /// The target with the other objects as occluders, and the pose's
 /// rendering with its hidden pixels removed.
