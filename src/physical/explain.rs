@@ -199,6 +199,12 @@ pub fn draw_views(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> RgbImage
     draw::stack(&[&captions, &canvas, &views_key(canvas.width())], 0)
 }
 
+/// The two views alone (1024 × 512: top | side), without captions or key,
+/// for thumbnails that carry their own words (the report's gallery).
+pub fn draw_views_bare(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> RgbImage {
+    draw_canvas(planes, gravity, items).0
+}
+
 /// The bare views (1024 × 512) and their projections.
 fn draw_canvas(planes: &[Plane], gravity: DVec3, items: &[Drawn]) -> (RgbImage, View, View) {
     let mut img = RgbImage::from_pixel(2 * SIZE, SIZE, Rgb([255, 255, 255]));

@@ -1,5 +1,5 @@
 //! Side views of stable resting poses for the gallery, drawn with the
-//! physical checker's own picture code (`physical::explain::draw_views`),
+//! physical checker's own picture code (`physical::explain::draw_views_bare`),
 //! so a cluster looks exactly as `check --explain` would draw it on a
 //! table: surface samples by class, the plane's trace, the centre of mass.
 
@@ -9,7 +9,7 @@ use glam::DVec3;
 use image::{imageops, RgbImage};
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::physical::contacts::{evaluate_detailed, Body, Environment};
-use plausible::physical::explain::{draw_views, Drawn};
+use plausible::physical::explain::{draw_views_bare, Drawn};
 use plausible::physical::Plane;
 use plausible::pose::Pose;
 
@@ -91,11 +91,11 @@ pub fn side_view(body: &Body, r_model_to_plane: &[f64; 9], height: f64) -> Optio
     // The pose came to rest in the drop tests: its centre of mass is drawn
     // as stable (black) even where a few samples within ε of a curved
     // underside make the checker's support polygon degenerate.
-    let views = draw_views(&env.planes, env.gravity, &[Drawn { detail: &detail, is_static: false, stable: true }]);
+    let views = draw_views_bare(&env.planes, env.gravity, &[Drawn { detail: &detail, is_static: false, stable: true, label: None }]);
     encode(&side_half(&views))
 }
 
-/// The right half of `draw_views`' picture (the side view), shrunk.
+/// The right half of `draw_views_bare`' picture (the side view), shrunk.
 fn side_half(views: &RgbImage) -> RgbImage {
     // One column past the middle: the separator line is not part of the view.
     let half = views.width() / 2 + 1;
