@@ -33,7 +33,6 @@ use plausible::support_plane::{fit_support_plane, PlaneFitParams};
 use plausible::synth::{linemod_camera, look_at, observe_on_table, SensorNoise};
 use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device};
 
-use super::DeviceArgs;
 
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
@@ -47,7 +46,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "demo-out")]
     pub out: PathBuf,
     #[command(flatten)]
-    pub device: DeviceArgs,
+    pub device: super::AutoDeviceArgs,
 }
 
 /// The benchmark's pose: the duck seen from an oblique angle at 0.7 m.
@@ -82,7 +81,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     let scene = build_scene(a.seed)?;
     let target = ScoreTarget::new(&scene.obs, Some(&scene.mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN)?;
     let poses = around_and_random(&scene.truth, a.n, a.seed);
-    let device = a.device.open(verbose, true)?;
+    let device = a.device.open(verbose)?;
     let params = ScoreParams::default();
     let physics = PlanePhysics::new(&scene.mesh, &scene.fit.plane, None, DEFAULT_SAMPLES, DEFAULT_SEED, None)?;
     let scored = score_and_report(&device, &scene, &target, &poses, params, &physics)?;

@@ -97,7 +97,8 @@ pub struct SampleArgs {
     pub epsilon: Option<f64>,
 }
 
-/// Where to run, shared by every subcommand that runs kernels.
+/// Where to run, for the benchmarks: the adapter by default (the CPU twin
+/// is measured beside it).
 #[derive(clap::Args, Clone, Debug)]
 pub struct DeviceArgs {
     /// `gpu` (any wgpu adapter, lavapipe included) or `cpu` (the CPU twins).
@@ -109,8 +110,8 @@ pub struct DeviceArgs {
     pub adapter: Option<String>,
 }
 
-/// Where to run, for the dataset commands (eval, refine, estimate), whose
-/// default is `auto`.
+/// Where to run, for every command but the benchmarks (which measure the
+/// adapter): `auto` by default.
 #[derive(clap::Args, Clone, Debug)]
 pub struct AutoDeviceArgs {
     /// `auto` (a hardware GPU when there is one, else the CPU twin, which
@@ -125,9 +126,10 @@ pub struct AutoDeviceArgs {
 }
 
 impl AutoDeviceArgs {
-    /// Opens the device; a missing GPU adapter falls back to the CPU twin.
+    /// Opens the device: `auto` falls back to the CPU twin (saying why),
+    /// `gpu` and `cpu` force (no adapter for `gpu` is an error).
     pub fn open(&self, verbose: u8) -> Result<Device> {
-        open_device(&self.device, self.adapter.as_deref(), verbose, true)
+        open_device(&self.device, self.adapter.as_deref(), verbose, false)
     }
 }
 

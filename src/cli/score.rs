@@ -15,7 +15,7 @@ use plausible::physical::scene::read_camera_plane;
 use plausible::physical::{Evaluation, Verdict};
 use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device, Scorer};
 
-use super::{DeviceArgs, MeshArgs, ObservationArgs, SampleArgs};
+use super::{MeshArgs, ObservationArgs, SampleArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct ScoreArgs {
@@ -77,7 +77,7 @@ pub struct ScoreArgs {
     #[arg(long, value_delimiter = ',', requires = "explain")]
     pub explain_ids: Vec<usize>,
     #[command(flatten)]
-    pub device: DeviceArgs,
+    pub device: super::AutoDeviceArgs,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
@@ -107,7 +107,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
     let rmesh = RenderMesh::new(&mesh)?;
     let params = ScoreParams { tau: a.tau, alpha: a.alpha };
-    let device = a.device.open(verbose, false)?;
+    let device = a.device.open(verbose)?;
 
     let physics = match (&a.plane, a.physics) {
         (Some(path), true) => {
