@@ -15,6 +15,7 @@ pub mod plane;
 pub mod refine;
 pub mod score;
 pub mod stable;
+pub mod trace;
 
 use std::path::{Path, PathBuf};
 
