@@ -44,7 +44,7 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
     };
     let file = create(path)?;
     let error = Arc::new(Mutex::new(None));
-    let writer = Recording { inner: std::io::BufWriter::new(file), error: error.clone() };
+    let writer = Recording { inner: file, error: error.clone() };
     let (chrome, guard) = tracing_chrome::ChromeLayerBuilder::new()
         .writer(writer)
         .include_args(true)
@@ -103,18 +103,18 @@ pub fn finish() -> Result<()> {
     Ok(())
 }
 
-/// The trace file's writer: tracing-chrome's writer thread panics on a
-/// write error (a full disk), so the first error is kept here for
-/// [`finish`] to report, and what follows is dropped.
+/// The trace file's writer (tracing-chrome buffers in front of it): its
+/// writer thread panics on a write error (a full disk), so the first error
+/// is kept here for [`finish`] to report, and what follows is dropped.
 struct Recording {
-    inner: std::io::BufWriter<std::fs::File>,
+    inner: std::fs::File,
     error: Arc<Mutex<Option<std::io::Error>>>,
 }
 
 impl Recording {
     /// Runs `op` unless an earlier write failed; a failure is kept and
     /// turned into success for the writer thread.
-    fn guarded(&mut self, op: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>) {
+    fn guarded(&mut self, op: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>) {
         let mut error = self.error.lock().unwrap_or_else(|e| e.into_inner());
         if error.is_none() {
             if let Err(e) = op(&mut self.inner) {
@@ -133,12 +133,5 @@ impl Write for Recording {
     fn flush(&mut self) -> std::io::Result<()> {
         self.guarded(|w| w.flush());
         Ok(())
-    }
-}
-
-impl Drop for Recording {
-    fn drop(&mut self) {
-        // BufWriter's own drop would flush and ignore the error.
-        self.flush().ok();
     }
 }
