@@ -421,7 +421,7 @@ pub fn evaluate(
     let computed_visibility = scenes.iter().any(|s| s.gt_info.is_none());
     let need_depth = opts.has(ErrorType::Vsd) || computed_visibility;
     let t0 = Instant::now();
-    let models = load_models(ds, &obj_ids, opts, need_depth)?;
+    let models = tracing::trace_span!("load_models", objects = obj_ids.len()).in_scope(|| load_models(ds, &obj_ids, opts, need_depth))?;
     report.time_s.load_s += t0.elapsed().as_secs_f64();
     report.visibility = if computed_visibility {
         "computed from depth (bop19 rule, δ = 15 mm) where scene_gt_info.json is missing".into()
@@ -435,6 +435,7 @@ pub fn evaluate(
         let images: Vec<(&u32, &Vec<Target>)> = by_scene[&scene.id].iter().collect();
         for batch in images.chunks(opts.batch_images) {
             let ctx = BatchCtx { scene, models: &models, opts, device, need_depth };
+            let _span = tracing::trace_span!("batch", scene = scene.id, images = batch.len()).entered();
             let (t, r) = ctx.run(batch, &index, &mut report)?;
             all_targets.extend(t);
             records.extend(r);
@@ -446,7 +447,7 @@ pub fn evaluate(
     report.n_not_top = index.values().map(|v| v.len()).sum::<usize>() - report.n_estimates;
     report.n_targets = all_targets.iter().map(|t| t.valid.len()).sum();
     let t0 = Instant::now();
-    score(&all_targets, opts, &mut report);
+    tracing::trace_span!("recall").in_scope(|| score(&all_targets, opts, &mut report));
     report.time_s.scoring_s = t0.elapsed().as_secs_f64();
     report.time_s.total_s = t_start.elapsed().as_secs_f64();
     Ok((report, records))
@@ -495,9 +496,9 @@ impl BatchCtx<'_> {
         report: &mut EvalReport,
     ) -> Result<(Vec<TargetErrors>, Vec<ErrorRecord>)> {
         let t0 = Instant::now();
-        let frames = self.read_frames(batch)?;
+        let frames = tracing::trace_span!("read_frames").in_scope(|| self.read_frames(batch))?;
         report.time_s.load_s += t0.elapsed().as_secs_f64();
-        let visib = self.visible_fractions(&frames, report)?;
+        let visib = tracing::trace_span!("visibility").in_scope(|| self.visible_fractions(&frames, report))?;
         let mut targets = Vec::new();
         let mut pairs = Vec::new();
         for (fi, (im_id, tlist)) in batch.iter().enumerate() {
@@ -519,10 +520,12 @@ impl BatchCtx<'_> {
             }
         }
         let t0 = Instant::now();
+        let point_errors = tracing::trace_span!("point_errors", pairs = pairs.len()).entered();
         let mut errors: Vec<Vec<f64>> = pairs.par_iter().map(|(fi, p)| self.point_errors(&frames[*fi], p)).collect();
+        drop(point_errors);
         report.time_s.point_errors_s += t0.elapsed().as_secs_f64();
         if self.opts.has(ErrorType::Vsd) {
-            self.vsd_errors(&frames, &pairs, &mut errors, report)?;
+            tracing::trace_span!("vsd_errors").in_scope(|| self.vsd_errors(&frames, &pairs, &mut errors, report))?;
         }
         let mut records = Vec::with_capacity(pairs.len());
         for ((fi, p), errs) in pairs.iter().zip(errors) {
@@ -653,6 +656,7 @@ impl BatchCtx<'_> {
             let g = add(RenderKey::Gt(p.gt_id), p.gt.pose);
             idx.push(Some((key, e, g)));
         }
+        let render = tracing::trace_span!("render", groups = groups.len()).entered();
         let t0 = Instant::now();
         let mut renders: HashMap<GroupKey, Vec<Option<DepthTile>>> = HashMap::new();
         for (key, (k, poses)) in &groups {
@@ -661,6 +665,8 @@ impl BatchCtx<'_> {
             renders.insert(*key, render_depth(self.device, mesh, &metres, k)?);
         }
         report.time_s.render_s += t0.elapsed().as_secs_f64();
+        drop(render);
+        let _vsd = tracing::trace_span!("vsd").entered();
         let t0 = Instant::now();
         let images: Vec<VsdImage> = frames.iter().map(|f| VsdImage::new(f.depth_and_intrinsics().0, &f.k)).collect();
         let taus = &self.opts.vsd_taus;

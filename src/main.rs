@@ -14,6 +14,14 @@ struct Cli {
     /// More output: -v prints the adapter and backend, -vv debug logs.
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     verbose: u8,
+    /// Write a Chrome trace of the run to this file (JSON Trace Event
+    /// Format; open it in https://ui.perfetto.dev or chrome://tracing): one
+    /// span for the command and one per stage (load, setup, scoring with
+    /// upload / dispatch / readback, ranking, write, ...), with the GPU time
+    /// of the score passes where the adapter has timestamp queries. Without
+    /// it the spans are switched off and cost nothing.
+    #[arg(long, global = true, value_name = "TRACE.json")]
+    trace: Option<std::path::PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -61,6 +69,7 @@ fn main() {
         let msg = info.payload().downcast_ref::<String>().map(String::as_str).or_else(|| info.payload().downcast_ref::<&str>().copied());
         if let Some(m) = msg.filter(|m| m.starts_with("failed printing to stdout")) {
             eprintln!("error: cannot write the output: {}", m.trim_start_matches("failed printing to stdout: "));
+            cli::trace::finish().ok();
             std::process::exit(1);
         }
         default_hook(info);
@@ -78,19 +87,10 @@ fn main() {
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
     let cli = Cli::parse();
-    let level = match cli.verbose {
-        0 => "warn",
-        1 => "info",
-        _ => "debug",
-    };
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("warn,plausible={level}"))),
-        )
-        .with_writer(std::io::stderr)
-        .without_time()
-        .init();
+    if let Err(e) = cli::trace::init(cli.verbose, cli.trace.as_deref()) {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
     let result = match cli.command {
         Command::Score(a) => cli::score::run(a, cli.verbose),
         Command::Plane(a) => cli::plane::run(a),
@@ -104,7 +104,8 @@ fn main() {
         Command::Refine(a) => cli::refine::run(a, cli.verbose),
         Command::Report(a) => cli::report::run(a),
     };
-    if let Err(e) = result {
+    // The trace is finished (its file completed) on the error path too.
+    if let Err(e) = result.and(cli::trace::finish()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }

@@ -63,6 +63,7 @@ impl Scorer {
         match &self.inner {
             ScorerImpl::Gpu(g) => g.score_with_progress(poses, done),
             ScorerImpl::Cpu { mesh, target, params } => {
+                let _span = tracing::trace_span!("cpu_twin", hypotheses = poses.len()).entered();
                 let t = std::time::Instant::now();
                 let mut out = Vec::with_capacity(poses.len());
                 for chunk in poses.chunks(CPU_PROGRESS_CHUNK) {
@@ -104,10 +105,11 @@ pub fn score_poses_with_physics(
         Device::Gpu(ctx) => {
             let scorer = physics.gpu_scorer(ctx, mesh, target, params, poses.len())?;
             let (records, contacts, times) = scorer.score_with_physics(poses, done)?;
-            let evals = physics.finish_fused(poses, &contacts.records, &contacts.bits);
+            let evals = tracing::trace_span!("finish").in_scope(|| physics.finish_fused(poses, &contacts.records, &contacts.bits));
             Ok((records, evals, times))
         }
         Device::Cpu => {
+            let _span = tracing::trace_span!("cpu_twin", hypotheses = poses.len()).entered();
             let t = std::time::Instant::now();
             let mut records = Vec::with_capacity(poses.len());
             let mut evals = Vec::with_capacity(poses.len());

@@ -96,6 +96,10 @@ pub struct ScoreBenchRow {
     pub machine: super::machine::Machine,
 }
 
+/// Runs one benchmark. With `--trace` its span is the trace's root; `bench
+/// score` adds a span per configuration and per device measured, with the
+/// library's stage spans (upload, dispatch, readback, cpu_twin) inside.
+#[tracing::instrument(name = "plausible bench", level = "trace", skip_all)]
 pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
     match a.kind {
         BenchKind::Score(s) => bench_score(s, verbose),
@@ -185,6 +189,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
             None
         };
         for &(n, sampling) in &configs {
+            let _span = tracing::trace_span!("config", mesh = %name, hypotheses = n, sampling = ?sampling).entered();
             let target = ScoreTarget::new(&obs, Some(&mask), sampling, DEFAULT_ROI_MARGIN)?;
             let poses = around_and_random(&truth, n, 7);
             let ti: Intrinsics = target.intrinsics;
@@ -210,12 +215,14 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 machine: machine.clone(),
             };
             if let Device::Gpu(ctx) = &device {
-                measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row)?;
+                tracing::trace_span!("gpu").in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?;
             }
             if !a.no_cpu {
-                row.cpu_hyps_per_s = Some(measure_cpu(&rmesh, &target, params, &poses, repeat));
+                let cpu = tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat));
+                row.cpu_hyps_per_s = Some(cpu);
             }
             if let Some(physics) = &physics {
+                let _span = tracing::trace_span!("physics").entered();
                 measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
             }
             if a.json {

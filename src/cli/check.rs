@@ -118,6 +118,9 @@ fn to_json<'a>(o: &'a ObjectCheck, sim: Option<&Vec<Displacement>>) -> ObjectJso
     }
 }
 
+/// Checks the scene. With `--trace` its span is the trace's root: load,
+/// check (prepare, one span per object), explain, simulate, report.
+#[tracing::instrument(name = "plausible check", level = "trace", skip_all)]
 pub fn run(a: CheckArgs) -> Result<()> {
     if let Some(path) = &a.explain {
         if path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
@@ -125,8 +128,9 @@ pub fn run(a: CheckArgs) -> Result<()> {
         }
         plausible::io::check_writable(path).context("--explain")?;
     }
-    let scene =
-        Scene::load(&a.scene).with_context(|| format!("reading scene {}", a.scene.display()))?;
+    let scene = tracing::trace_span!("load")
+        .in_scope(|| Scene::load(&a.scene))
+        .with_context(|| format!("reading scene {}", a.scene.display()))?;
     let opts = CheckOptions {
         samples: a.sampling.samples,
         seed: a.sampling.seed,
@@ -134,8 +138,9 @@ pub fn run(a: CheckArgs) -> Result<()> {
         sdf_resolution: a.sdf_resolution,
         friction: a.friction,
     };
-    let checks = check_scene(&scene, &opts)?;
+    let checks = tracing::trace_span!("check").in_scope(|| check_scene(&scene, &opts))?;
     if let Some(path) = &a.explain {
+        let _span = tracing::trace_span!("explain").entered();
         plausible::physical::explain::explain_image(&scene, &checks)
             .save(path)
             .with_context(|| format!("writing {}", path.display()))?;
@@ -151,6 +156,7 @@ pub fn run(a: CheckArgs) -> Result<()> {
     } else {
         vec![None; checks.len()]
     };
+    let _report = tracing::trace_span!("report").entered();
     if a.json {
         let report = Report {
             version: env!("CARGO_PKG_VERSION"),

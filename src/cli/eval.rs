@@ -58,7 +58,12 @@ pub struct EvalArgs {
     pub dev: super::AutoDeviceArgs,
 }
 
+/// Evaluates a results file. With `--trace` its span is the trace's root:
+/// open (dataset, targets, results, device), evaluate (load_models, one
+/// span per image batch, recall), report, write.
+#[tracing::instrument(name = "plausible eval", level = "trace", skip_all)]
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
+    let open = tracing::trace_span!("open").entered();
     let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;
     let opts = EvalOptions {
         errors: a.errors.clone(),
@@ -93,6 +98,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         (None, None) => bail!("give --results or --gt-as-results"),
     };
     let device = a.dev.open(verbose)?;
+    drop(open);
     let n_images = {
         let mut ims: Vec<(u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id)).collect();
         ims.sort_unstable();
@@ -104,10 +110,12 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
     let results_name = a.results.as_ref().or(a.gt_as_results.as_ref()).map(|p| p.display().to_string()).unwrap_or_default();
-    let (report, records) = evaluate(&ds, &results, &targets, &device, &opts, &mut |done| pb.set_position(done as u64))
+    let (report, records) = tracing::trace_span!("evaluate")
+        .in_scope(|| evaluate(&ds, &results, &targets, &device, &opts, &mut |done| pb.set_position(done as u64)))
         .with_context(|| format!("evaluating {results_name}"))?;
     pb.finish_and_clear();
-    print_report(&report, &opts);
+    tracing::trace_span!("report").in_scope(|| print_report(&report, &opts));
+    let _write = tracing::trace_span!("write").entered();
     if let Some(p) = &a.out {
         let mut v = serde_json::to_value(&report)?;
         v["dataset"] = serde_json::json!(a.dataset.display().to_string());

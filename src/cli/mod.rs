@@ -16,6 +16,7 @@ pub mod refine;
 pub mod report;
 pub mod score;
 pub mod stable;
+pub mod trace;
 
 use std::path::{Path, PathBuf};
 

@@ -8,7 +8,8 @@ use anyhow::{bail, Context as _, Result};
 use plausible::kernels::score::{ScoreParams, ScoreRecord};
 use plausible::kernels::RenderMesh;
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
-use plausible::pose::{read_poses_selected, PoseUnits, SceneGtSelection};
+use plausible::observation::DepthImage;
+use plausible::pose::{read_poses_selected, Pose, PoseUnits, SceneGtSelection};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::read_camera_plane;
@@ -83,26 +84,13 @@ pub struct ScoreArgs {
     pub quiet: bool,
 }
 
+/// Scores and ranks the hypotheses. With `--trace`, its span is the root of
+/// the trace and its stages (load, setup, scoring, ranking, report, write,
+/// explain) are its direct children, covering it.
+#[tracing::instrument(name = "plausible score", level = "trace", skip_all)]
 pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
-    if !(a.tau > 0.0 && a.tau.is_finite() && a.alpha > 0.0 && a.alpha.is_finite()) {
-        bail!("--tau and --alpha must be positive");
-    }
-    if a.tau > 1.0 {
-        bail!("--tau {} m is larger than a metre: tau is in metres (the usual value is 0.02)", a.tau);
-    }
-    let sm = &a.sampling;
-    if !a.physics && (sm.samples != DEFAULT_SAMPLES || sm.seed != DEFAULT_SEED || sm.epsilon.is_some()) {
-        bail!("--samples, --seed and --epsilon set the physical terms: add --plane P.json --physics");
-    }
-    if let Some(out) = &a.out {
-        check_out(out)?;
-    }
-    let mesh = a.mesh.load()?;
-    let (obs, mask) = a.obs.load()?;
-    let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
-    let select = a.obj_id.map(|o| SceneGtSelection { frame: a.obs.frame.as_deref().unwrap_or_default(), obj_id: Some(o) });
-    let poses = read_poses_selected(&a.poses, units, a.orthonormalize, select)
-        .context("--poses (a BOP scene_gt.json needs --frame and --obj-id)")?;
+    let (mesh, obs, mask, poses) = tracing::trace_span!("load").in_scope(|| load(&a))?;
+    let setup = tracing::trace_span!("setup").entered();
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
     let rmesh = RenderMesh::new(&mesh)?;
@@ -122,6 +110,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         }
         _ => None,
     };
+    drop(setup);
 
     let t0 = Instant::now();
     let pb = super::progress(poses.len() as u64, "scoring");
@@ -129,48 +118,93 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
     if let Some(physics) = &physics {
-        let (records, evals, _) =
-            score_poses_with_physics(&device, &rmesh, &target, &poses, params, physics, |n| pb.set_position(n as u64))?;
+        let (records, evals, _) = tracing::trace_span!("scoring").in_scope(|| {
+            score_poses_with_physics(&device, &rmesh, &target, &poses, params, physics, |n| pb.set_position(n as u64))
+        })?;
         pb.finish_and_clear();
         let secs = t0.elapsed().as_secs_f64();
-        let rank = ranks_with_physics(&records, &evals);
-        print_throughput(&device, &target, poses.len(), secs);
-        let plane = physics.kernel_params().plane;
-        println!(
-            "physics against the plane n = ({:.3}, {:.3}, {:.3}), {:.1} mm from the camera: {} samples, ε = {:.2} mm; {}",
-            plane[0],
-            plane[1],
-            plane[2],
-            plane[3].abs() * 1e3,
-            physics.body().samples.len(),
-            physics.body().epsilon * 1e3,
-            verdict_counts(&evals)
-        );
-        warn_if_below_plane(&evals, mesh.diagonal());
-        print_table(&records, Some(&evals), &rank, a.top);
-        if let Some(out) = &a.out {
-            write_records(out, &records, Some(&evals), &rank)?;
-            println!("wrote {} records to {}", records.len(), out.display());
-        }
-        if let Some(dir) = &a.explain {
-            let ids = explain_ids(&a.explain_ids, &rank)?;
-            write_explanations(dir, &ids, &poses, &records, &rank, &rmesh, &target, &params, Some(physics))?;
-        }
-        return Ok(());
+        let rank = tracing::trace_span!("ranking").in_scope(|| ranks_with_physics(&records, &evals));
+        tracing::trace_span!("report").in_scope(|| {
+            print_throughput(&device, &target, poses.len(), secs);
+            let plane = physics.kernel_params().plane;
+            println!(
+                "physics against the plane n = ({:.3}, {:.3}, {:.3}), {:.1} mm from the camera: {} samples, ε = {:.2} mm; {}",
+                plane[0],
+                plane[1],
+                plane[2],
+                plane[3].abs() * 1e3,
+                physics.body().samples.len(),
+                physics.body().epsilon * 1e3,
+                verdict_counts(&evals)
+            );
+            warn_if_below_plane(&evals, mesh.diagonal());
+            print_table(&records, Some(&evals), &rank, a.top);
+        });
+        return write_outputs(&a, &records, Some(&evals), &rank, &poses, &rmesh, &target, &params, Some(physics));
     }
-    let records = Scorer::new(&device, &rmesh, &target, params, poses.len())?.score(&poses, &mut |n| pb.set_position(n as u64))?.0;
+    let records = tracing::trace_span!("scoring").in_scope(|| -> Result<_> {
+        let scorer = Scorer::new(&device, &rmesh, &target, params, poses.len())?;
+        Ok(scorer.score(&poses, &mut |n| pb.set_position(n as u64))?.0)
+    })?;
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
-    let rank = ranks(&records);
-    print_throughput(&device, &target, poses.len(), secs);
-    print_table(&records, None, &rank, a.top);
+    let rank = tracing::trace_span!("ranking").in_scope(|| ranks(&records));
+    tracing::trace_span!("report").in_scope(|| {
+        print_throughput(&device, &target, poses.len(), secs);
+        print_table(&records, None, &rank, a.top);
+    });
+    write_outputs(&a, &records, None, &rank, &poses, &rmesh, &target, &params, None)
+}
+
+/// The checked arguments and the inputs: mesh, observation (depth, mask)
+/// and poses. `--out` is checked here, before any work.
+#[allow(clippy::type_complexity)]
+fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<bool>>, Vec<Pose>)> {
+    if !(a.tau > 0.0 && a.tau.is_finite() && a.alpha > 0.0 && a.alpha.is_finite()) {
+        bail!("--tau and --alpha must be positive");
+    }
+    if a.tau > 1.0 {
+        bail!("--tau {} m is larger than a metre: tau is in metres (the usual value is 0.02)", a.tau);
+    }
+    let sm = &a.sampling;
+    if !a.physics && (sm.samples != DEFAULT_SAMPLES || sm.seed != DEFAULT_SEED || sm.epsilon.is_some()) {
+        bail!("--samples, --seed and --epsilon set the physical terms: add --plane P.json --physics");
+    }
     if let Some(out) = &a.out {
-        write_records(out, &records, None, &rank)?;
+        check_out(out)?;
+    }
+    let mesh = a.mesh.load()?;
+    let (obs, mask) = tracing::trace_span!("observation").in_scope(|| a.obs.load())?;
+    let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
+    let select = a.obj_id.map(|o| SceneGtSelection { frame: a.obs.frame.as_deref().unwrap_or_default(), obj_id: Some(o) });
+    let poses = tracing::trace_span!("poses")
+        .in_scope(|| read_poses_selected(&a.poses, units, a.orthonormalize, select))
+        .context("--poses (a BOP scene_gt.json needs --frame and --obj-id)")?;
+    Ok((mesh, obs, mask, poses))
+}
+
+/// Writes `--out` and the `--explain` pictures, each in its own stage span.
+#[allow(clippy::too_many_arguments)]
+fn write_outputs(
+    a: &ScoreArgs,
+    records: &[ScoreRecord],
+    evals: Option<&[Evaluation]>,
+    rank: &[usize],
+    poses: &[Pose],
+    rmesh: &RenderMesh,
+    target: &ScoreTarget,
+    params: &ScoreParams,
+    physics: Option<&PlanePhysics>,
+) -> Result<()> {
+    if let Some(out) = &a.out {
+        let _s = tracing::trace_span!("write").entered();
+        write_records(out, records, evals, rank)?;
         println!("wrote {} records to {}", records.len(), out.display());
     }
     if let Some(dir) = &a.explain {
-        let ids = explain_ids(&a.explain_ids, &rank)?;
-        write_explanations(dir, &ids, &poses, &records, &rank, &rmesh, &target, &params, None)?;
+        let _s = tracing::trace_span!("explain").entered();
+        let ids = explain_ids(&a.explain_ids, rank)?;
+        write_explanations(dir, &ids, poses, records, rank, rmesh, target, params, physics)?;
     }
     Ok(())
 }

@@ -164,6 +164,9 @@ fn threads(t: Option<usize>) -> usize {
     })
 }
 
+/// Drops, clusters and stores every mesh. With `--trace` its span is the
+/// trace's root: load, then per mesh prepare, drop tests and clustering.
+#[tracing::instrument(name = "plausible stable-poses", level = "trace", skip_all)]
 fn run(args: RunArgs) -> anyhow::Result<()> {
     let Some(db_path) = args.db.clone() else {
         bail!("--db is required")
@@ -180,7 +183,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if !(10.0..=10_000.0).contains(&args.step_hz) {
         bail!("--step-hz must be between 10 and 10000");
     }
-    let mut db = Db::open(&db_path)?;
+    let mut db = tracing::trace_span!("open_db").in_scope(|| Db::open(&db_path))?;
     let params = RunParams {
         drops: args.drops,
         seed: args.seed,
@@ -201,16 +204,19 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     let show_progress = !args.quiet && std::io::stderr().is_terminal();
     // Every mesh is read before the first drop: a missing or broken file
     // fails at once, not after hours of simulating the meshes before it.
+    let load = tracing::trace_span!("load").entered();
     let mut loaded = Vec::with_capacity(args.meshes.len());
     for path in &args.meshes {
         loaded.push(Mesh::load(path, args.mesh_units).with_context(|| format!("loading {}", path.display()))?);
     }
+    drop(load);
     let mut names = Vec::new();
     for (path, (mesh, report)) in args.meshes.iter().zip(loaded) {
         for w in &report.warnings {
             eprintln!("warning: {}: {w}", path.display());
         }
         let name = path.display().to_string();
+        let _span = tracing::trace_span!("mesh_run", mesh = %name).entered();
         let prepared = stable::prepare(mesh, &name, &params)?;
         for w in &prepared.warnings {
             eprintln!("warning: {w}");
@@ -272,6 +278,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         names.push(prepared.sha256.clone());
     }
     if let Some(json) = &args.json {
+        let _span = tracing::trace_span!("export").entered();
         let mut ex = stable::export::export(&db, None)?;
         ex.meshes.retain(|m| names.contains(&m.sha256));
         write_json(json, &ex)?;

@@ -213,6 +213,40 @@ pub struct GpuScorer {
     plane: Option<PlaneStage>,
 }
 
+/// Target of the GPU-time events in a `--trace` (see [`trace_gpu_time`]).
+pub const GPU_TIME_TARGET: &str = "plausible::gpu";
+
+/// Two timestamp queries (start and end of a compute pass) and the buffer
+/// they resolve into.
+fn timestamp_queries(ctx: &Context) -> (wgpu::QuerySet, wgpu::Buffer) {
+    let set = ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
+        label: Some("compute timestamps"),
+        ty: wgpu::QueryType::Timestamp,
+        count: 2,
+    });
+    let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("timestamps"),
+        size: 16,
+        usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    (set, buf)
+}
+
+/// Puts the GPU time of one score pass into the trace, inside its
+/// `dispatch` span. A software adapter (lavapipe) stamps on the CPU as it
+/// emulates the pass, so its times are marked not reliable.
+fn trace_gpu_time(ctx: &Context, gpu: Duration, hypotheses: usize) {
+    tracing::trace!(
+        target: GPU_TIME_TARGET,
+        gpu_ms = gpu.as_secs_f64() * 1e3,
+        hypotheses,
+        reliable = !ctx.is_software(),
+        adapter = %ctx.info.name,
+        "gpu pass"
+    );
+}
+
 /// Default most hypotheses per dispatch: keeps each submission short (the
 /// OS watchdog on desktop GPUs) and memory bounded for any N.
 pub const DEFAULT_MAX_CHUNK: usize = 4096;
@@ -261,6 +295,7 @@ impl GpuScorer {
         physics: Option<(&PlaneParams, &[[f32; 4]])>,
     ) -> Result<Self> {
         use wgpu::util::DeviceExt;
+        let _span = tracing::trace_span!("gpu_setup").entered();
         let k = target.intrinsics;
         super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
         let words = physics.map_or(0, |(p, _)| p.words as usize);
@@ -309,21 +344,17 @@ impl GpuScorer {
     /// supports them; returns whether they are on). Costs one extra small
     /// readback per chunk, so it is off by default.
     pub fn set_timestamps(&mut self, on: bool) -> bool {
-        self.timestamps = (on && self.ctx.timestamps).then(|| {
-            let set = self.ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("compute timestamps"),
-                ty: wgpu::QueryType::Timestamp,
-                count: 2,
-            });
-            let buf = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("timestamps"),
-                size: 16,
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            (set, buf)
-        });
+        self.timestamps = (on && self.ctx.timestamps).then(|| timestamp_queries(&self.ctx));
         self.timestamps.is_some()
+    }
+
+    /// Timestamp queries for one scoring call when a trace is being
+    /// recorded (`plausible --trace`: the GPU time of each pass goes into
+    /// it) and they are not on already. Without a trace this is one
+    /// disabled-callsite check, and the passes run without queries.
+    fn traced_timestamps(&self) -> Option<(wgpu::QuerySet, wgpu::Buffer)> {
+        let wanted = self.timestamps.is_none() && self.ctx.timestamps && tracing::enabled!(target: GPU_TIME_TARGET, tracing::Level::TRACE);
+        wanted.then(|| timestamp_queries(&self.ctx))
     }
 
     /// Replaces the observation with `target`'s, which must be the same
@@ -359,14 +390,18 @@ impl GpuScorer {
     /// of GPU time.
     pub fn score_with_progress(&self, poses: &[Pose], mut done: impl FnMut(usize)) -> Result<(Vec<ScoreRecord>, StageTimes)> {
         let k = &self.target_intrinsics;
+        let cull = tracing::trace_span!("cull", hypotheses = poses.len()).entered();
         let seen: Vec<usize> =
             (0..poses.len()).filter(|&i| super::raster::screen_rect(&GpuPose::from(&poses[i]), self.mesh.radius, k).is_some()).collect();
+        drop(cull);
         let mut out = vec![unseen_record(self.n_obs); poses.len()];
         let mut times = StageTimes::default();
         let mut finished = poses.len() - seen.len();
+        let traced = self.traced_timestamps();
+        let ts = self.timestamps.as_ref().or(traced.as_ref());
         for ids in seen.chunks(self.bufs.chunk) {
             let chunk: Vec<Pose> = ids.iter().map(|&i| poses[i]).collect();
-            let (r, _, t) = self.run_chunk(&chunk, false)?;
+            let (r, _, t) = self.run_chunk(&chunk, false, ts)?;
             for (&i, rec) in ids.iter().zip(r) {
                 out[i] = rec;
             }
@@ -397,8 +432,10 @@ impl GpuScorer {
         let mut out = Vec::with_capacity(poses.len());
         let mut phys = PlaneContactOutput::default();
         let mut times = StageTimes::default();
+        let traced = self.traced_timestamps();
+        let ts = self.timestamps.as_ref().or(traced.as_ref());
         for chunk in poses.chunks(self.bufs.chunk) {
-            let (r, p, t) = self.run_chunk(chunk, false)?;
+            let (r, p, t) = self.run_chunk(chunk, false, ts)?;
             out.extend(r);
             let p = p.expect("plane stage output");
             phys.records.extend(p.records);
@@ -414,21 +451,24 @@ impl GpuScorer {
     pub fn raster_only(&self, poses: &[Pose]) -> Result<Duration> {
         let mut total = Duration::ZERO;
         for chunk in poses.chunks(self.bufs.chunk) {
-            total += self.run_chunk(chunk, true)?.2.compute;
+            total += self.run_chunk(chunk, true, self.timestamps.as_ref())?.2.compute;
         }
         Ok(total)
     }
 
     /// One chunk: the score records, the plane stage's output when the
-    /// scorer has one, and the stage times.
+    /// scorer has one, and the stage times; with `timestamps` the GPU time
+    /// of the pass too.
     #[allow(clippy::type_complexity)]
     fn run_chunk(
         &self,
         chunk: &[Pose],
         raster_only: bool,
+        timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
     ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
         let ctx = &self.ctx;
         let mut times = StageTimes::default();
+        let upload = tracing::trace_span!("upload", hypotheses = chunk.len()).entered();
         let t0 = Instant::now();
         let gp: Vec<GpuPose> = chunk.iter().map(GpuPose::from).collect();
         let params = raster_params(
@@ -443,10 +483,12 @@ impl GpuScorer {
         ctx.queue.submit([]);
         ctx.wait()?;
         times.upload = t0.elapsed();
+        drop(upload);
 
+        let dispatch = tracing::trace_span!("dispatch", hypotheses = chunk.len()).entered();
         let t1 = Instant::now();
         let mut enc = ctx.device.create_command_encoder(&Default::default());
-        let timestamp_writes = self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+        let timestamp_writes = timestamps.map(|(set, _)| wgpu::ComputePassTimestampWrites {
             query_set: set,
             beginning_of_pass_write_index: Some(0),
             end_of_pass_write_index: Some(1),
@@ -472,22 +514,26 @@ impl GpuScorer {
             };
             self.bufs.dispatch_waves(ctx, &mut enc, pipeline, &extra, params, chunk.len(), timestamp_writes);
         }
-        if let Some((set, buf)) = &self.timestamps {
+        if let Some((set, buf)) = timestamps {
             enc.resolve_query_set(set, 0..2, buf, 0);
         }
         ctx.queue.submit([enc.finish()]);
         ctx.wait()?;
         times.compute = t1.elapsed();
-        if let Some((_, buf)) = &self.timestamps {
+        if let Some((_, buf)) = timestamps {
             let raw = ctx.read_buffer(buf, 16)?;
             let ticks: &[u64] = bytemuck::cast_slice(&raw);
             let ns = ticks[1].saturating_sub(ticks[0]) as f64 * ctx.queue.get_timestamp_period() as f64;
-            times.gpu_compute = Some(Duration::from_nanos(ns as u64));
+            let gpu = Duration::from_nanos(ns as u64);
+            times.gpu_compute = Some(gpu);
+            trace_gpu_time(&self.ctx, gpu, chunk.len());
         }
+        drop(dispatch);
         if raster_only {
             return Ok((Vec::new(), None, times));
         }
 
+        let _readback = tracing::trace_span!("readback", hypotheses = chunk.len()).entered();
         let t2 = Instant::now();
         let size = (chunk.len() * std::mem::size_of::<ScoreRecord>()) as u64;
         let bytes = ctx.read_through(&self.records, &self.staging, size)?;

@@ -90,6 +90,7 @@ impl Mesh {
     /// Loads a mesh file, converts it to metres and validates it.
     pub fn load(path: impl AsRef<Path>, units: MeshUnits) -> Result<(Mesh, MeshReport)> {
         let path = path.as_ref();
+        let _span = tracing::trace_span!("mesh", path = %path.display()).entered();
         let (vertices, triangles) = load_positions(path)?;
         validate_and_clean(path.to_path_buf(), vertices, triangles, units)
     }

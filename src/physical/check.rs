@@ -81,6 +81,7 @@ pub struct Prepared {
 
 /// Samples, mass properties and grids for every object.
 pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
+    let _span = tracing::trace_span!("prepare", objects = scene.objects.len()).entered();
     let mut done: Vec<(Arc<Mesh>, Body, Arc<SdfGrid>, MassProperties)> = Vec::new();
     let (mut bodies, mut grids, mut mass) = (Vec::new(), Vec::new(), Vec::new());
     for o in &scene.objects {
@@ -130,6 +131,8 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
     let prep = prepare(scene, opts)?;
     let mut out = Vec::new();
     for (i, o) in scene.objects.iter().enumerate() {
+        // One span per object (a scene has a handful), not per sample.
+        let _span = tracing::trace_span!("check_object", object = %o.name).entered();
         let env = environment_of(scene, &prep, i);
         let body = &prep.bodies[i];
         env.check_epsilon(body.epsilon)?;

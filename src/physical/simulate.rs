@@ -193,6 +193,7 @@ impl SimWorld {
 /// Per object (in scene order): the displacement after every round, or
 /// `None` for static objects.
 pub fn displacement(scene: &Scene, settings: &SimSettings) -> Result<Vec<Option<Vec<Displacement>>>> {
+    let _span = tracing::trace_span!("simulate", rounds = settings.rounds).entered();
     let mut sim = SimWorld::new(scene, settings)?;
     let mut out: Vec<Option<Vec<Displacement>>> = sim.handles.iter().map(|h| h.map(|_| Vec::new())).collect();
     for round in 0..settings.rounds {

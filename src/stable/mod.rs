@@ -167,6 +167,7 @@ pub fn mesh_sha256(mesh: &Mesh) -> String {
 
 /// Computes mass properties, the collider and the analytic estimate.
 pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMesh> {
+    let _span = tracing::trace_span!("prepare", mesh = name).entered();
     let sha256 = mesh_sha256(&mesh);
     let (mass, mut warnings) = MassProperties::of_mesh(&mesh)?;
     let diagonal = mesh.diagonal();
@@ -362,6 +363,8 @@ pub fn run_drops(
     mut on_result: impl FnMut(DropResult) -> Result<()>,
 ) -> Result<()> {
     let threads = threads.max(1).min(indices.len().max(1));
+    // One span for the batch: a drop is too many to trace one by one.
+    let _span = tracing::trace_span!("drop_tests", drops = indices.len(), threads).entered();
     let next = AtomicUsize::new(0);
     let stop = AtomicBool::new(false);
     let (tx, rx) = mpsc::sync_channel::<DropResult>(256);
@@ -432,6 +435,7 @@ pub fn run_into_db(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<RunSummary> {
     let t0 = std::time::Instant::now();
+    let record = tracing::trace_span!("record_run").entered();
     let (closed_b, closed_n) = {
         let mut w = prepared.mesh.clone();
         w.weld();
@@ -468,6 +472,7 @@ pub fn run_into_db(
     )?;
     db.set_analytic(run_id, &prepared.analytic.poses, &prepared.analytic.notes)?;
     let done = db.finished_drops(run_id)?;
+    drop(record);
     let shard = shard.unwrap_or(Shard { k: 1, n: 1 });
     // This shard's drops: k-1, k-1+n, ... below `drops`.
     let total = if params.drops > shard.k - 1 { (params.drops - shard.k) / shard.n + 1 } else { 0 };
@@ -501,8 +506,8 @@ pub fn run_into_db(
             Ok(())
         })?;
     }
-    db.insert_drops(run_id, &batch)?;
-    let clusters = db.recompute_clusters(run_id, cluster_params)?;
+    tracing::trace_span!("store").in_scope(|| db.insert_drops(run_id, &batch))?;
+    let clusters = tracing::trace_span!("cluster").in_scope(|| db.recompute_clusters(run_id, cluster_params))?;
     let stored = db.drops(run_id)?;
     Ok(RunSummary {
         run_id,

@@ -1,0 +1,137 @@
+//! Logging and `--trace`: the log lines on stderr, and when asked for a
+//! Chrome trace (JSON Trace Event Format, opens in https://ui.perfetto.dev
+//! and chrome://tracing) of the stage spans the library and the commands
+//! open.
+//!
+//! The stage spans are at TRACE level, so the log filter (`warn,
+//! plausible=<level>`, at most debug from `-vv`) never enables them: without
+//! `--trace` the subscriber is exactly the log formatter and every span is
+//! switched off at its call site. With `--trace` the trace layer has its own
+//! filter (everything of `plausible` down to TRACE) beside the log filter.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use anyhow::{bail, Result};
+use tracing_subscriber::filter::{EnvFilter, LevelFilter, Targets};
+use tracing_subscriber::prelude::*;
+
+/// The trace being written: the writer thread's guard and the first write
+/// error, if any. Kept in a static so that the panic hook's exit path can
+/// finish the file too.
+struct TraceFile {
+    path: PathBuf,
+    guard: tracing_chrome::FlushGuard,
+    error: Arc<Mutex<Option<std::io::Error>>>,
+}
+
+static TRACE: Mutex<Option<TraceFile>> = Mutex::new(None);
+
+/// Installs the subscriber: the log formatter, and with `trace` a Chrome
+/// trace written to that file. The file is created here, before any work,
+/// so a bad path fails at once with a clear message.
+pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
+    let level = match verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    let env = || EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(format!("warn,plausible={level}")));
+    let Some(path) = trace else {
+        tracing_subscriber::fmt().with_env_filter(env()).with_writer(std::io::stderr).without_time().init();
+        return Ok(());
+    };
+    let file = create(path)?;
+    let error = Arc::new(Mutex::new(None));
+    let writer = Recording { inner: file, error: error.clone() };
+    let (chrome, guard) = tracing_chrome::ChromeLayerBuilder::new()
+        .writer(writer)
+        .include_args(true)
+        .name_fn(Box::new(|item| match item {
+            tracing_chrome::EventOrSpan::Event(e) => event_name(e),
+            tracing_chrome::EventOrSpan::Span(s) => s.name().to_string(),
+        }))
+        .build();
+    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr).without_time().with_filter(env());
+    let traced = Targets::new().with_target("plausible", LevelFilter::TRACE);
+    tracing_subscriber::registry().with(fmt).with(chrome.with_filter(traced)).init();
+    *TRACE.lock().unwrap_or_else(|e| e.into_inner()) = Some(TraceFile { path: path.to_path_buf(), guard, error });
+    Ok(())
+}
+
+/// An event's name in the trace: its message ("gpu pass", a warning's
+/// text), where tracing would call it "event file:line".
+fn event_name(e: &tracing::Event<'_>) -> String {
+    struct Message(Option<String>);
+    impl tracing::field::Visit for Message {
+        fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+            if field.name() == "message" {
+                self.0 = Some(format!("{value:?}"));
+            }
+        }
+    }
+    let mut m = Message(None);
+    e.record(&mut m);
+    m.0.unwrap_or_else(|| e.metadata().name().to_string())
+}
+
+/// Creates the trace file, saying which flag a bad path came from.
+fn create(path: &Path) -> Result<std::fs::File> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        bail!("--trace {}: the folder {} does not exist", path.display(), dir.display());
+    }
+    if path.is_dir() {
+        bail!("--trace {}: is a folder, expected a file name (e.g. trace.json)", path.display());
+    }
+    std::fs::File::create(path).map_err(|e| anyhow::anyhow!("--trace {}: {e}", path.display()))
+}
+
+/// Finishes the trace, when one is being written: stops the writer thread
+/// (which closes the JSON array) and reports a write error. Call it before
+/// every `std::process::exit`, or the file is cut off.
+pub fn finish() -> Result<()> {
+    let Some(t) = TRACE.lock().unwrap_or_else(|e| e.into_inner()).take() else { return Ok(()) };
+    drop(t.guard);
+    if let Some(e) = t.error.lock().unwrap_or_else(|e| e.into_inner()).take() {
+        bail!("cannot write the trace {}: {e}", t.path.display());
+    }
+    Ok(())
+}
+
+/// The trace file's writer (tracing-chrome buffers in front of it): its
+/// writer thread panics on a write error (a full disk), so the first error
+/// is kept here for [`finish`] to report, and what follows is dropped.
+struct Recording {
+    inner: std::fs::File,
+    error: Arc<Mutex<Option<std::io::Error>>>,
+}
+
+impl Recording {
+    /// Runs `op` unless an earlier write failed; a failure is kept and
+    /// turned into success for the writer thread.
+    fn guarded(&mut self, op: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>) {
+        let mut error = self.error.lock().unwrap_or_else(|e| e.into_inner());
+        if error.is_none() {
+            if let Err(e) = op(&mut self.inner) {
+                *error = Some(e);
+            }
+        }
+    }
+}
+
+impl Write for Recording {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.guarded(|w| w.write_all(buf));
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.guarded(|w| w.flush());
+        Ok(())
+    }
+}
