@@ -95,6 +95,13 @@ def _scale(units: str) -> float:
     raise ValueError(f'units {units!r}: expected "m" or "mm"')
 
 
+def _uint(name: str, value: Any) -> int:
+    """A non-negative integer argument (seeds, counts), or ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0 or value >= 2**64:
+        raise ValueError(f"{name} {value!r}: expected a non-negative integer")
+    return int(value)
+
+
 def load_mesh(path: Union[str, os.PathLike], units: str = "auto") -> Mesh:
     """Loads .obj, .ply, .stl, .gltf or .glb; ``units`` "m", "mm" or "auto"."""
     return Mesh.load(os.fspath(path), units)
@@ -338,7 +345,7 @@ class Scorer:
             raise ValueError(f"samples {samples}: between 1 and 1,000,000 surface samples")
         p, n = _plane(plane, self._scale)
         cols = self._native.score(
-            r, tt, (p, n), samples=int(samples), seed=int(seed), epsilon=epsilon, orthonormalize=orthonormalize
+            r, tt, (p, n), samples=int(samples), seed=_uint("seed", seed), epsilon=epsilon, orthonormalize=orthonormalize
         )
         return _records(cols, PHYSICS_DTYPE, self._scale)
 
@@ -363,7 +370,7 @@ def fit_plane(
     ``inlier`` is in metres."""
     s = _scale(units)
     fit = _native.fit_plane(
-        _camera(K), _depth(depth, s), _mask(mask), inlier=float(inlier), iterations=int(iterations), seed=int(seed), mask_margin=int(mask_margin)
+        _camera(K), _depth(depth, s), _mask(mask), inlier=float(inlier), iterations=_uint("iterations", iterations), seed=_uint("seed", seed), mask_margin=_uint("mask_margin", mask_margin)
     )
     fit["point"] = fit["point"] / s
     fit["rms"] = fit["rms"] / s
@@ -399,7 +406,7 @@ def stable_poses(mesh: MeshLike, *, drops: int = 1000, seed: int = 0, collider: 
     height of the model origin above the plane (metres) and representative
     drops. Same seed, same result."""
     m = _mesh(mesh, units, mesh_units)
-    out = _native.stable_poses(m, drops=int(drops), seed=int(seed), collider=collider, threads=threads)
+    out = _native.stable_poses(m, drops=_uint("drops", drops), seed=_uint("seed", seed), collider=collider, threads=None if threads is None else max(1, _uint("threads", threads)))
     poses = [dict(c, kind="pose", R_model_to_plane=np.asarray(c["R_model_to_plane"]).reshape(3, 3)) for c in out["clusters"]]
     families = [dict(f) for f in out["families"]]
     result = sorted(poses + families, key=lambda c: -c["probability"])
@@ -454,7 +461,7 @@ def hypotheses(
     p, n = _plane(plane, s)
     out = _native.hypotheses(
         m, _camera(K), _depth(depth, s), _mask(mask), p, n,
-        stable_export=_export_text(stable, m), yaw_steps=int(yaw_steps), grid_radius=int(grid_radius),
+        stable_export=_export_text(stable, m), yaw_steps=_uint("yaw_steps", yaw_steps), grid_radius=_uint("grid_radius", grid_radius),
         grid_step=float(grid_step), min_probability=float(min_probability),
     )
     out["t"] = out["t"] / s
@@ -569,8 +576,9 @@ def refine(
         leads.append(lead)
     pl = None if plane is None else _plane(plane, s)
     out = _native.refine(
-        _camera(K), d, meshes, masks, rs, ts, leads, plane=pl, method=method, steps=int(steps), budget=budget,
-        physics=bool(physics), res=int(res), seed=int(seed), device=device, adapter=adapter,
+        _camera(K), d, meshes, masks, rs, ts, leads, plane=pl, method=method, steps=_uint("steps", steps),
+        budget=None if budget is None else _uint("budget", budget), physics=bool(physics), res=_uint("res", res),
+        seed=_uint("seed", seed), device=device, adapter=adapter,
     )
     return _scene_out(out, s)
 
@@ -610,7 +618,8 @@ def estimate(
     stable = [_export_text(o.get("stable"), m) for o, m in zip(objects, meshes)]
     pl = None if plane is None else _plane(plane, s)
     out = _native.estimate(
-        _camera(K), d, meshes, masks, stable, plane=pl, method=method, steps=int(steps), top=int(top),
-        yaw_steps=int(yaw_steps), physics=bool(physics), res=int(res), seed=int(seed), device=device, adapter=adapter,
+        _camera(K), d, meshes, masks, stable, plane=pl, method=method, steps=_uint("steps", steps), top=_uint("top", top),
+        yaw_steps=_uint("yaw_steps", yaw_steps), physics=bool(physics), res=_uint("res", res), seed=_uint("seed", seed),
+        device=device, adapter=adapter,
     )
     return _scene_out(out, s)

@@ -146,6 +146,8 @@ def test_bad_input_raises_value_error(demo):
         "plane through the camera": lambda: s.score(R[:2], t[:2], plane=([0, 0, 0], [0, 0, 1])),
         "zero normal": lambda: s.score(R[:2], t[:2], plane=([0, 0, 1], [0, 0, 0])),
         "epsilon": lambda: s.score(R[:2], t[:2], plane=demo / "plane.json", epsilon=float("nan")),
+        "negative seed": lambda: s.score(R[:2], t[:2], plane=demo / "plane.json", seed=-1),
+        "samples": lambda: s.score(R[:2], t[:2], plane=demo / "plane.json", samples=0),
         "tau": lambda: pl.Scorer(mesh, K, depth, mask, tau=-1, device="cpu"),
         "tau nan": lambda: pl.Scorer(mesh, K, depth, mask, tau=float("nan"), device="cpu"),
         "units": lambda: pl.Scorer(mesh, K, depth, mask, units="cm", device="cpu"),
