@@ -16,10 +16,10 @@ struct Cli {
     verbose: u8,
     /// Write a Chrome trace of the run to this file (JSON Trace Event
     /// Format; open it in https://ui.perfetto.dev or chrome://tracing): one
-    /// span for the command and one per stage (load, setup, scoring with
-    /// upload / dispatch / readback, ranking, write, ...), with the GPU time
-    /// of the score passes where the adapter has timestamp queries. Without
-    /// it the spans are switched off and cost nothing.
+    /// span for the command and one per stage (for `score`: load, setup,
+    /// scoring with upload / dispatch / readback, ranking, write), with the
+    /// GPU time of score passes where the adapter has timestamp queries.
+    /// Without it the spans are off and cost nothing.
     #[arg(long, global = true, value_name = "TRACE.json")]
     trace: Option<std::path::PathBuf>,
     #[command(subcommand)]
