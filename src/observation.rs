@@ -472,6 +472,19 @@ impl ScoreTarget {
             .collect()
     }
 
+    /// Distance (metres) of the near side of the observed object: the 5th
+    /// percentile of the region's observed depth (robust to a few stray
+    /// pixels); `None` without any observed pixel.
+    pub fn near_depth(&self) -> Option<f64> {
+        let mut d: Vec<f32> = self.depth.iter().copied().filter(|&d| d > 0.0).collect();
+        if d.is_empty() {
+            return None;
+        }
+        let k = d.len() / 20;
+        let (_, v, _) = d.select_nth_unstable_by(k, f32::total_cmp);
+        Some(*v as f64)
+    }
+
     /// Number of observed (valid, masked) pixels in the region.
     pub fn observed_pixels(&self) -> usize {
         self.depth.iter().filter(|&&d| d > 0.0).count()

@@ -11,6 +11,56 @@ use crate::physical::Evaluation;
 use crate::pose::Pose;
 
 pub use crate::gpu::Device;
+pub use crate::mesh::lod::LodChoice;
+
+/// The mesh the visual score renders, and why it was chosen.
+#[derive(Clone, Debug)]
+pub struct ScoringMesh {
+    pub mesh: crate::mesh::Mesh,
+    /// Its geometric error against the full mesh (metres).
+    pub error_m: f64,
+    /// The size of a pixel (metres) at the observed object, for `auto`.
+    pub pixel_m: Option<f64>,
+    /// Triangles of the full mesh.
+    pub full_triangles: usize,
+}
+
+impl ScoringMesh {
+    /// One line for the user: which mesh scores, and why.
+    pub fn describe(&self) -> String {
+        let n = self.mesh.triangles.len();
+        if n == self.full_triangles {
+            return format!("scoring mesh: the full {n} triangles");
+        }
+        let why = match self.pixel_m {
+            Some(p) => format!(" ≤ {} of a {:.2} mm pixel at the object", crate::mesh::lod::AUTO_PIXEL_FRACTION, p * 1e3),
+            None => String::new(),
+        };
+        format!("scoring mesh: {n} of {} triangles (level of detail, geometric error {:.3} mm{why})", self.full_triangles, self.error_m * 1e3)
+    }
+}
+
+/// The mesh to score `target` with: the full mesh (`Off`), a simplification
+/// to about N triangles (`Faces`), or (`Auto`) the coarsest level of detail
+/// whose geometric error stays within half a pixel of the scoring region at
+/// the near side of the observed object. The physical terms and evaluation
+/// always use the full mesh.
+pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreTarget) -> Result<ScoringMesh> {
+    use crate::mesh::lod::{pixel_size, with_faces, Lod};
+    let full_triangles = mesh.triangles.len();
+    let (level, pixel_m) = match choice {
+        LodChoice::Off => return Ok(ScoringMesh { mesh: mesh.clone(), error_m: 0.0, pixel_m: None, full_triangles }),
+        LodChoice::Faces(n) => (with_faces(mesh, n)?, None),
+        LodChoice::Auto => {
+            let Some(z) = target.near_depth() else {
+                return Ok(ScoringMesh { mesh: mesh.clone(), error_m: 0.0, pixel_m: None, full_triangles });
+            };
+            let pixel = pixel_size(&target.intrinsics, z);
+            (Lod::build(mesh)?.choose(pixel).clone(), Some(pixel))
+        }
+    };
+    Ok(ScoringMesh { mesh: level.mesh, error_m: level.error_m, pixel_m, full_triangles })
+}
 
 /// A scorer for one mesh and one observation, built once and called many
 /// times: on the GPU the pipeline, the mesh and the observation stay

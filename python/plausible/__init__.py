@@ -271,6 +271,10 @@ class Scorer:
             (any adapter, lavapipe included) or "cpu".
         adapter: pick the first adapter whose name contains this.
         mesh_units: units of a mesh file: "m", "mm" or "auto".
+        lod: level of detail of the mesh the visual score renders: "auto"
+            (the coarsest simplification within half a pixel at the
+            observed object), "off" (the full mesh) or a triangle count;
+            the physical terms always use the full mesh.
     """
 
     def __init__(
@@ -288,6 +292,7 @@ class Scorer:
         device: str = "auto",
         adapter: Optional[str] = None,
         mesh_units: str = "auto",
+        lod: Union[str, int] = "auto",
     ) -> None:
         self._scale = _scale(units)
         self.units = units
@@ -305,7 +310,13 @@ class Scorer:
             margin=float(margin),
             device=device,
             adapter=adapter,
+            lod=str(lod),
         )
+
+    @property
+    def scoring_mesh(self) -> str:
+        """Which mesh the visual score renders (level of detail) and why."""
+        return self._native.scoring_mesh
 
     @property
     def device(self) -> str:

@@ -43,6 +43,7 @@ class Scorer:
         margin: float = 0.25,
         device: str = "auto",
         adapter: Optional[str] = None,
+        lod: str = "auto",
     ) -> None: ...
     def score(
         self,
@@ -57,6 +58,8 @@ class Scorer:
     ) -> Dict[str, Any]: ...
     @property
     def device(self) -> str: ...
+    @property
+    def scoring_mesh(self) -> str: ...
     @property
     def region(self) -> Tuple[Tuple[int, int], Tuple[float, float, float, float]]: ...
 

@@ -10,7 +10,7 @@ use plausible::observation::{RoiSampling, ScoreTarget};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::{Evaluation, Plane};
 use plausible::pose::Pose;
-use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics};
+use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, scoring_mesh, LodChoice};
 use numpy::prelude::*;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -43,6 +43,8 @@ pub struct Scorer {
     params: ScoreParams,
     physics: Option<(PhysicsKey, PlanePhysics)>,
     note: Option<String>,
+    /// Which mesh the visual score renders, and why.
+    lod: String,
 }
 
 #[pymethods]
@@ -51,7 +53,7 @@ impl Scorer {
     /// none); `mask` (H, W) booleans or None (the whole frame); the region
     /// resampled to `res` x `res` pixels (0 = native pixels).
     #[new]
-    #[pyo3(signature = (mesh, k, depth, mask = None, *, res = 128, tau = 0.02, alpha = 0.7, margin = 0.25, device = "auto", adapter = None))]
+    #[pyo3(signature = (mesh, k, depth, mask = None, *, res = 128, tau = 0.02, alpha = 0.7, margin = 0.25, device = "auto", adapter = None, lod = "auto"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -65,6 +67,7 @@ impl Scorer {
         margin: f64,
         device: &str,
         adapter: Option<String>,
+        lod: &str,
     ) -> PyResult<Scorer> {
         if !(tau.is_finite() && tau > 0.0 && tau <= 1.0) {
             return Err(value_error(format!("tau {tau}: the depth tolerance is in metres and must lie in (0, 1] (usually 0.02)")));
@@ -77,13 +80,15 @@ impl Scorer {
         let sampling = if res == 0 { RoiSampling::Native } else { RoiSampling::Square(res) };
         let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, margin).map_err(to_py)?;
         let choice: DeviceChoice = device.parse().map_err(to_py)?;
+        let lod: LodChoice = lod.parse().map_err(value_error)?;
         let mesh = mesh.inner.clone();
         let params = ScoreParams { tau, alpha };
         py.detach(move || {
             let opened = Device::open(choice, adapter.as_deref(), false)?;
-            let rmesh = RenderMesh::new(&mesh)?;
+            let scoring = scoring_mesh(&mesh, lod, &target)?;
+            let rmesh = RenderMesh::new(&scoring.mesh)?;
             let scorer = plausible::visual::Scorer::new(&opened.device, &rmesh, &target, params, BATCH_HINT)?;
-            Ok(Scorer { scorer, device: opened.device, mesh, rmesh, target, params, physics: None, note: opened.note })
+            Ok(Scorer { scorer, device: opened.device, mesh, rmesh, target, params, physics: None, note: opened.note, lod: scoring.describe() })
         })
         .map_err(to_py)
     }
@@ -133,6 +138,12 @@ impl Scorer {
             Some(n) => format!("{} ({n})", self.device.describe()),
             None => self.device.describe(),
         }
+    }
+
+    /// Which mesh the visual score renders (level of detail) and why.
+    #[getter]
+    fn scoring_mesh(&self) -> String {
+        self.lod.clone()
     }
 
     /// Side of the scored region (pixels) and its crop in the image (x0, y0, w, h).

@@ -104,6 +104,13 @@ def test_records_are_a_structured_array_in_input_order(demo):
     np.testing.assert_allclose(mm.score(R[:64], t[:64] * 1000)["score"], rec["score"], atol=1e-6)
     chunks = np.concatenate([scorer.score(R[i:i + 16], t[i:i + 16])["score"] for i in range(0, 64, 16)])
     np.testing.assert_array_equal(chunks, rec["score"])
+    # Level of detail: auto renders a simplification within half a pixel;
+    # off the full mesh; a count about that many triangles.
+    assert "of 4212 triangles" in scorer.scoring_mesh, scorer.scoring_mesh
+    full = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu", lod="off")
+    assert "full 4212" in full.scoring_mesh
+    np.testing.assert_allclose(full.score(R[:64], t[:64])["score"], rec["score"], atol=0.02)
+    assert "300 of 4212" in pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu", lod=300).scoring_mesh
     phys = scorer.score(R[:8], t[:8], plane=demo / "plane.json")
     assert phys.dtype == pl.PHYSICS_DTYPE
     assert phys["verdict"][0] == "plausible"
@@ -165,6 +172,8 @@ def test_bad_input_raises_value_error(demo):
         "faces float": lambda: pl.Scorer((np.eye(3), [[0.0, 1.0, 2.0]]), K, depth, mask, device="cpu"),
         "vertices NaN": lambda: pl.Scorer((np.full((3, 3), np.nan), [[0, 1, 2]]), K, depth, mask, device="cpu"),
         "mesh type": lambda: pl.Scorer(42, K, depth, mask, device="cpu"),
+        "lod": lambda: pl.Scorer(mesh, K, depth, mask, lod="fine", device="cpu"),
+        "lod 2 faces": lambda: pl.Scorer(mesh, K, depth, mask, lod=2, device="cpu"),
     }
     for what, call in cases.items():
         with pytest.raises(ValueError) as e:

@@ -12,10 +12,10 @@ use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
-use plausible::synth::{linemod_camera, observe, plane_under, SensorNoise};
 use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
-use plausible::visual::{score_poses_with_physics, Device};
+use plausible::synth::{linemod_camera, observe, plane_under, SensorNoise};
+use plausible::visual::{score_poses_with_physics, scoring_mesh, Device, LodChoice};
 use serde::Serialize;
 
 use super::DeviceArgs;
@@ -67,6 +67,11 @@ pub struct BenchScoreArgs {
     /// finished on the CPU; the twins on the CPU), end to end.
     #[arg(long)]
     pub physics: bool,
+    /// Levels of detail of the scored mesh to measure (repeatable): `off`
+    /// (the full mesh), `auto` (within half a pixel at the object) or a
+    /// triangle count; every configuration is measured with each.
+    #[arg(long, default_value = "off")]
+    pub lod: Vec<LodChoice>,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
@@ -76,7 +81,12 @@ pub struct ScoreBenchRow {
     pub adapter: String,
     pub backend: String,
     pub mesh: String,
+    /// Triangles scored (after the level of detail) and of the full mesh.
     pub triangles: usize,
+    pub mesh_triangles: usize,
+    pub lod: String,
+    /// Geometric error of the scored mesh against the full one (mm).
+    pub lod_error_mm: f64,
     pub n: usize,
     pub width: u32,
     pub height: u32,
@@ -123,9 +133,7 @@ fn ms(d: Duration) -> f64 {
 /// 0.15 m diagonal. The 100k mesh is the duck with every triangle split in
 /// 25 (same surface, 25x the triangles).
 pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
-    let load = |rel: &str| -> Result<Mesh> {
-        Ok(Mesh::load(super::asset(rel), MeshUnits::Metres)?.0.normalized(0.15))
-    };
+    let load = |rel: &str| -> Result<Mesh> { Ok(Mesh::load(super::asset(rel), MeshUnits::Metres)?.0.normalized(0.15)) };
     let duck = load("assets/pybullet/duck.obj")?;
     if quick {
         return Ok(vec![("duck".into(), duck)]);
@@ -145,8 +153,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
     let k = linemod_camera();
     let params = ScoreParams::default();
     let repeat = a.repeat.max(1);
-    let mut configs: Vec<(usize, RoiSampling)> =
-        vec![(256, RoiSampling::Square(128)), (1024, RoiSampling::Square(128))];
+    let mut configs: Vec<(usize, RoiSampling)> = vec![(256, RoiSampling::Square(128)), (1024, RoiSampling::Square(128))];
     if !a.quick {
         configs.push((4096, RoiSampling::Square(128)));
         configs.push((64, RoiSampling::FullFrame));
@@ -168,8 +175,8 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         println!("machine: {}", machine.line());
         println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
         print!(
-            "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
-            "mesh", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu/cpu", "upload", "render", "reduce", "readback"
+            "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
+            "mesh", "lod", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu/cpu", "upload", "render", "reduce", "readback"
         );
         if a.physics {
             print!(" {:>13} {:>13}", "gpu+phys h/s", "cpu+phys h/s");
@@ -193,44 +200,51 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
             let target = ScoreTarget::new(&obs, Some(&mask), sampling, DEFAULT_ROI_MARGIN)?;
             let poses = around_and_random(&truth, n, 7);
             let ti: Intrinsics = target.intrinsics;
-            let mut row = ScoreBenchRow {
-                adapter: adapter.clone(),
-                backend: backend.clone(),
-                mesh: name.clone(),
-                triangles: mesh.triangles.len(),
-                n,
-                width: ti.width,
-                height: ti.height,
-                gpu_hyps_per_s: None,
-                cpu_hyps_per_s: None,
-                cpu_threads: rayon::current_num_threads(),
-                gpu_physics_hyps_per_s: None,
-                cpu_physics_hyps_per_s: None,
-                upload_ms: None,
-                render_ms: None,
-                reduce_ms: None,
-                readback_ms: None,
-                gpu_timestamp_compute_ms: None,
-                timing: "wall clock",
-                machine: machine.clone(),
-            };
-            if let Device::Gpu(ctx) = &device {
-                tracing::trace_span!("gpu").in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?;
+            for &lod in &a.lod {
+                let scoring = scoring_mesh(&mesh, lod, &target)?;
+                let rmesh = RenderMesh::new(&scoring.mesh)?;
+                let mut row = ScoreBenchRow {
+                    adapter: adapter.clone(),
+                    backend: backend.clone(),
+                    mesh: name.clone(),
+                    triangles: scoring.mesh.triangles.len(),
+                    mesh_triangles: mesh.triangles.len(),
+                    lod: lod.to_string(),
+                    lod_error_mm: scoring.error_m * 1e3,
+                    n,
+                    width: ti.width,
+                    height: ti.height,
+                    gpu_hyps_per_s: None,
+                    cpu_hyps_per_s: None,
+                    cpu_threads: rayon::current_num_threads(),
+                    gpu_physics_hyps_per_s: None,
+                    cpu_physics_hyps_per_s: None,
+                    upload_ms: None,
+                    render_ms: None,
+                    reduce_ms: None,
+                    readback_ms: None,
+                    gpu_timestamp_compute_ms: None,
+                    timing: "wall clock",
+                    machine: machine.clone(),
+                };
+                if let Device::Gpu(ctx) = &device {
+                    tracing::trace_span!("gpu").in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?;
+                }
+                if !a.no_cpu {
+                    let cpu = tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat));
+                    row.cpu_hyps_per_s = Some(cpu);
+                }
+                if let Some(physics) = &physics {
+                    let _span = tracing::trace_span!("physics").entered();
+                    measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
+                }
+                if a.json {
+                    println!("{}", serde_json::to_string(&row)?);
+                } else {
+                    print_row(&row, a.physics);
+                }
+                rows.push(row);
             }
-            if !a.no_cpu {
-                let cpu = tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat));
-                row.cpu_hyps_per_s = Some(cpu);
-            }
-            if let Some(physics) = &physics {
-                let _span = tracing::trace_span!("physics").entered();
-                measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
-            }
-            if a.json {
-                println!("{}", serde_json::to_string(&row)?);
-            } else {
-                print_row(&row, a.physics);
-            }
-            rows.push(row);
         }
     }
     if !a.json {
@@ -238,7 +252,9 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         if a.physics {
             println!(" +phys = visual score and physical terms against a support plane, 1024 samples, end to end: fused kernel + support polygons on the CPU;");
         }
-        println!(" --json adds gpu_timestamp_compute_ms from GPU timestamp queries where the adapter has them: on lavapipe they are unreliable)");
+        println!(
+            " --json adds gpu_timestamp_compute_ms from GPU timestamp queries where the adapter has them: on lavapipe they are unreliable)"
+        );
     }
     Ok(())
 }
@@ -346,8 +362,9 @@ fn print_row(row: &ScoreBenchRow, physics: bool) {
         _ => "-".into(),
     };
     print!(
-        "{:>8} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
         row.mesh,
+        row.lod,
         row.triangles,
         row.n,
         format!("{}x{}", row.width, row.height),

@@ -14,7 +14,7 @@ use plausible::physical::batch::PlanePhysics;
 use plausible::physical::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use plausible::physical::scene::read_camera_plane;
 use plausible::physical::{Evaluation, Verdict};
-use plausible::visual::{ranks, ranks_with_physics, score_poses_with_physics, Device, Scorer};
+use plausible::visual::{scoring_mesh, LodChoice, ranks, ranks_with_physics, score_poses_with_physics, Device, Scorer};
 
 use super::{MeshArgs, ObservationArgs, SampleArgs};
 
@@ -49,6 +49,12 @@ pub struct ScoreArgs {
     /// Normal tolerance α of eq. 5.
     #[arg(long, default_value_t = 0.7)]
     pub alpha: f32,
+    /// Level of detail of the mesh the visual score renders: `auto` (the
+    /// coarsest simplification whose geometric error stays within half a
+    /// pixel at the observed object), `off` (the full mesh) or a triangle
+    /// count. The physical terms always use the full mesh.
+    #[arg(long, default_value = "auto")]
+    pub lod: LodChoice,
     /// Region of interest resampled to RES x RES pixels; 0 = native pixels.
     #[arg(long, default_value_t = 128)]
     pub res: u32,
@@ -93,7 +99,11 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let setup = tracing::trace_span!("setup").entered();
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
-    let rmesh = RenderMesh::new(&mesh)?;
+    let scoring = scoring_mesh(&mesh, a.lod, &target)?;
+    if verbose > 0 || scoring.mesh.triangles.len() != scoring.full_triangles {
+        eprintln!("{}", scoring.describe());
+    }
+    let rmesh = RenderMesh::new(&scoring.mesh)?;
     let params = ScoreParams { tau: a.tau, alpha: a.alpha };
     let device = a.device.open(verbose)?;
 

@@ -7,6 +7,7 @@
 //! boundaries, a unit guess) are reported in a [`MeshReport`].
 
 mod load;
+pub mod lod;
 pub mod mass;
 mod ply;
 mod stl;
