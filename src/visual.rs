@@ -42,11 +42,11 @@ impl ScoringMesh {
 
 /// The mesh to score `target` with: the full mesh (`Off`), a simplification
 /// to about N triangles (`Faces`), or (`Auto`) the coarsest level of detail
-/// whose geometric error stays within half a pixel of the scoring region at
+/// whose geometric error stays within a quarter of a pixel of the scoring region at
 /// the near side of the observed object. The physical terms and evaluation
 /// always use the full mesh.
 pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreTarget) -> Result<ScoringMesh> {
-    use crate::mesh::lod::{pixel_size, with_faces, Lod};
+    use crate::mesh::lod::{pixel_size, with_faces, within_error, AUTO_PIXEL_FRACTION};
     let full_triangles = mesh.triangles.len();
     let (level, pixel_m) = match choice {
         LodChoice::Off => return Ok(ScoringMesh { mesh: mesh.clone(), error_m: 0.0, pixel_m: None, full_triangles }),
@@ -56,7 +56,7 @@ pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreT
                 return Ok(ScoringMesh { mesh: mesh.clone(), error_m: 0.0, pixel_m: None, full_triangles });
             };
             let pixel = pixel_size(&target.intrinsics, z);
-            (Lod::build(mesh)?.choose(pixel).clone(), Some(pixel))
+            (within_error(mesh, AUTO_PIXEL_FRACTION * pixel)?, Some(pixel))
         }
     };
     Ok(ScoringMesh { mesh: level.mesh, error_m: level.error_m, pixel_m, full_triangles })

@@ -272,7 +272,7 @@ class Scorer:
         adapter: pick the first adapter whose name contains this.
         mesh_units: units of a mesh file: "m", "mm" or "auto".
         lod: level of detail of the mesh the visual score renders: "auto"
-            (the coarsest simplification within half a pixel at the
+            (the coarsest simplification within a quarter of a pixel at the
             observed object), "off" (the full mesh) or a triangle count;
             the physical terms always use the full mesh.
     """

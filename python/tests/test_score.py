@@ -104,7 +104,7 @@ def test_records_are_a_structured_array_in_input_order(demo):
     np.testing.assert_allclose(mm.score(R[:64], t[:64] * 1000)["score"], rec["score"], atol=1e-6)
     chunks = np.concatenate([scorer.score(R[i:i + 16], t[i:i + 16])["score"] for i in range(0, 64, 16)])
     np.testing.assert_array_equal(chunks, rec["score"])
-    # Level of detail: auto renders a simplification within half a pixel;
+    # Level of detail: auto renders a simplification within a quarter of a pixel;
     # off the full mesh; a count about that many triangles.
     assert "of 4212 triangles" in scorer.scoring_mesh, scorer.scoring_mesh
     full = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu", lod="off")

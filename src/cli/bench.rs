@@ -68,7 +68,7 @@ pub struct BenchScoreArgs {
     #[arg(long)]
     pub physics: bool,
     /// Levels of detail of the scored mesh to measure (repeatable): `off`
-    /// (the full mesh), `auto` (within half a pixel at the object) or a
+    /// (the full mesh), `auto` (within a quarter of a pixel at the object) or a
     /// triangle count; every configuration is measured with each.
     #[arg(long, default_value = "off")]
     pub lod: Vec<LodChoice>,
