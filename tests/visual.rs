@@ -345,3 +345,38 @@ fn gpu_scene_level_score_hides_pixels_behind_other_objects_like_the_cpu_twin() {
     let other = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(64), DEFAULT_ROI_MARGIN).unwrap();
     assert!(reused.set_observation(&other).is_err());
 }
+
+/// A 2M-triangle mesh (the duck, every triangle split in 22² = 484): the
+/// GPU refuses its full mesh by name of the limit; with `--lod auto` GPU and
+/// CPU score the same simplification within the twin tolerance; the CPU twin
+/// scores the full mesh like the 4k duck it was made from.
+#[test]
+fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
+    use plausible::gpu::Device;
+    use plausible::visual::{score_poses, scoring_mesh, LodChoice};
+    let ctx = test_context();
+    let small = duck();
+    let big = small.subdivided(22);
+    assert!(big.triangles.len() > 2_000_000, "{}", big.triangles.len());
+    let target = demo_target(&RenderMesh::new(&small).unwrap(), SensorNoise::default());
+    let poses = around_and_random(&true_pose(), 8, 5);
+    let params = ScoreParams::default();
+    let gpu = Device::Gpu(Box::new(ctx));
+
+    let full = RenderMesh::new(&big).unwrap();
+    let e = score_poses(&gpu, &full, &target, &poses, params).unwrap_err().to_string();
+    assert!(e.contains(&format!("{} triangles", big.triangles.len())) && e.contains("at most 500000"), "{e}");
+
+    let lod = scoring_mesh(&big, LodChoice::Auto, &target).unwrap();
+    assert!(lod.mesh.triangles.len() < 10_000, "{}", lod.describe());
+    let rlod = RenderMesh::new(&lod.mesh).unwrap();
+    let (g, _) = score_poses(&gpu, &rlod, &target, &poses, params).unwrap();
+    let (c, _) = score_poses(&Device::Cpu, &rlod, &target, &poses, params).unwrap();
+    let (reference, _) = score_poses(&Device::Cpu, &RenderMesh::new(&small).unwrap(), &target, &poses, params).unwrap();
+    let (c_full, _) = score_poses(&Device::Cpu, &full, &target, &poses, params).unwrap();
+    for i in 0..poses.len() {
+        assert!((g[i].score - c[i].score).abs() < 1e-3, "pose {i}: gpu {:?} cpu {:?}", g[i], c[i]);
+        assert!((c[i].score - reference[i].score).abs() < 0.01, "pose {i}: lod {:?} vs 4k {:?}", c[i], reference[i]);
+        assert!((c_full[i].score - reference[i].score).abs() < 1e-3, "pose {i}: 2M {:?} vs 4k {:?}", c_full[i], reference[i]);
+    }
+}
