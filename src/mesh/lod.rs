@@ -72,7 +72,7 @@ impl std::fmt::Display for LodChoice {
 /// `max_error_m` (metres): one call of the simplifier with that error bound
 /// and a floor of [`MIN_TRIANGLES`] (the full mesh when nothing can go).
 pub fn within_error(mesh: &Mesh, max_error_m: f64) -> Result<LodLevel> {
-    if mesh.triangles.len() <= MIN_TRIANGLES || !(max_error_m > 0.0) {
+    if mesh.triangles.len() <= MIN_TRIANGLES || max_error_m.is_nan() || max_error_m <= 0.0 {
         return Ok(LodLevel { mesh: mesh.clone(), error_m: 0.0 });
     }
     let level = simplify(&welded(mesh), MIN_TRIANGLES, max_error_m as f32)?;
