@@ -58,6 +58,13 @@ pub struct EstimateArgs {
     /// Refine without the simulation between ICP steps (SIR without PIR).
     #[arg(long)]
     pub no_physics: bool,
+    /// Level of detail of the mesh the visual score renders: `off` (the
+    /// full model, default), `auto` (the coarsest simplification within a
+    /// quarter of a pixel at each object) or a triangle count (the paper's
+    /// Table 1: 704, 352, 70, 34). ICP, the simulation and the evaluation
+    /// keep the full model.
+    #[arg(long, default_value = "off")]
+    pub lod: plausible::mesh::lod::LodChoice,
     #[command(flatten)]
     pub run: super::refine::ImageRunArgs,
 }
@@ -82,7 +89,7 @@ fn read_stable(path: &std::path::Path) -> Result<String> {
 pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;
-    params.refine = RefineParams { method: Method::parse(&a.method).context("--method")?, steps: a.steps.max(1), physics: !a.no_physics, ..Default::default() };
+    params.refine = RefineParams { method: Method::parse(&a.method).context("--method")?, steps: a.steps.max(1), physics: !a.no_physics, lod: a.lod, ..Default::default() };
     params.refine.validate().context("check --steps")?;
     params.refine.steps = a.steps;
     if a.top == 0 || a.top > 100 {

@@ -35,6 +35,13 @@ pub struct RefineArgs {
     /// SIR and RIR without the simulation (ICP steps only).
     #[arg(long)]
     pub no_physics: bool,
+    /// Level of detail of the mesh the visual score renders: `off` (the
+    /// full model, default), `auto` (the coarsest simplification within a
+    /// quarter of a pixel at each object) or a triangle count (the paper's
+    /// Table 1: 704, 352, 70, 34). ICP, the simulation and the evaluation
+    /// keep the full model.
+    #[arg(long, default_value = "off")]
+    pub lod: plausible::mesh::lod::LodChoice,
     /// Refinement steps per hypothesis (RIR: the budget is this times the
     /// object's hypotheses).
     #[arg(long, default_value_t = 2)]
@@ -215,6 +222,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         exploration: a.exploration,
         gamma: a.discount,
         physics: !a.no_physics,
+        lod: a.lod,
         ..Default::default()
     };
     params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;

@@ -134,7 +134,7 @@ pub fn estimate_frame<'a>(
             }
             let th = Instant::now();
             let hyps = on_plane_hypotheses(&m.model.mesh, &m.rests, plane, depth, mask, &p.hypotheses)?;
-            let mut view = ObjectView::new(device, &m.model.render, depth, mask, &p.refine)?;
+            let mut view = ObjectView::new(device, &m.model, depth, mask, &p.refine)?;
             let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
             let scores = view.score_many(&poses)?;
             let mut order: Vec<usize> = (0..poses.len()).collect();

@@ -90,6 +90,11 @@ pub struct RefineParams {
     /// `physics` is false): rounds per step and their settings.
     pub physics: bool,
     pub sim: crate::physical::simulate::SimSettings,
+    /// Level of detail of the mesh the visual score renders (per object
+    /// view; `Off` by default here: the published numbers were measured
+    /// with the full meshes). ICP, the simulation and the pictures keep the
+    /// full mesh.
+    pub lod: crate::mesh::lod::LodChoice,
 }
 
 impl Method {
@@ -119,6 +124,7 @@ impl Default for RefineParams {
             physics: true,
             // VeREFINE's settings: dt 1/60 s, 3 steps, one round per step.
             sim: crate::physical::simulate::SimSettings { rounds: 1, ..Default::default() },
+            lod: crate::mesh::lod::LodChoice::Off,
         }
     }
 }
@@ -194,8 +200,9 @@ impl RefineTimes {
 }
 
 impl ObjectView {
-    /// The object's view in `depth` through `mask` (same size).
-    pub fn new(device: &Device, mesh: &RenderMesh, depth: &DepthImage, mask: &[bool], p: &RefineParams) -> Result<ObjectView> {
+    /// The object's view in `depth` through `mask` (same size), scoring
+    /// `model`'s mesh at the level of detail `p.lod` picks for this view.
+    pub fn new(device: &Device, model: &dataset::Model, depth: &DepthImage, mask: &[bool], p: &RefineParams) -> Result<ObjectView> {
         if mask.len() != depth.depth.len() {
             return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth image {}", mask.len(), depth.depth.len())));
         }
@@ -204,7 +211,13 @@ impl ObjectView {
         let points: Vec<DVec3> =
             (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();
         let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
-        let scorer = Scorer::new(device, mesh, &target, p.score, 8)?;
+        let scorer = match p.lod {
+            crate::mesh::lod::LodChoice::Off => Scorer::new(device, &model.render, &target, p.score, 8)?,
+            lod => {
+                let mesh = RenderMesh::new(&crate::visual::scoring_mesh(&model.mesh, lod, &target)?.mesh)?;
+                Scorer::new(device, &mesh, &target, p.score, 8)?
+            }
+        };
         let times = RefineTimes { scene: t.elapsed().as_secs_f64(), ..Default::default() };
         Ok(ObjectView { points, target, scorer, sim: None, times })
     }

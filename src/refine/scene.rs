@@ -76,7 +76,7 @@ pub fn refine_scene(
             if observed < MIN_OBSERVED_POINTS || o.hypotheses.is_empty() {
                 return Ok(None);
             }
-            ObjectView::new(device, &o.model.render, depth, o.mask, p).map(Some)
+            ObjectView::new(device, o.model, depth, o.mask, p).map(Some)
         })
         .collect::<Result<_>>()?;
     let mut current: Vec<Pose> = objects.iter().map(|o| o.hypotheses.get(o.lead).copied().unwrap_or(Pose::IDENTITY)).collect();
