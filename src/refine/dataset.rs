@@ -95,6 +95,9 @@ pub fn support_plane<'a>(depth: &DepthImage, masks: impl IntoIterator<Item = &'a
 /// surface samples (ICP), in metres.
 pub struct Model {
     pub render: RenderMesh,
+    /// With `--lod N` (a fixed triangle count, the same for every view):
+    /// the simplified mesh the visual score renders, built once here.
+    pub scoring: Option<RenderMesh>,
     pub surface: ModelSurface,
     /// The mesh (metres), and its colliders and mass for the simulation.
     pub mesh: std::sync::Arc<Mesh>,
@@ -104,8 +107,13 @@ pub struct Model {
 impl Model {
     /// The render mesh, surface samples and the mesh itself.
     pub fn new(mesh: Mesh, p: &RefineParams) -> Result<Model> {
+        let scoring = match p.lod {
+            crate::mesh::lod::LodChoice::Faces(n) => Some(RenderMesh::new(&crate::mesh::lod::with_faces(&mesh, n)?.mesh)?),
+            _ => None,
+        };
         Ok(Model {
             render: RenderMesh::new(&mesh)?,
+            scoring,
             surface: ModelSurface::sample(&mesh, p.samples, p.seed)?,
             shapes: SimShapes::new(&mesh.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "object".into()), &mesh)?,
             mesh: std::sync::Arc::new(mesh),
