@@ -77,24 +77,9 @@ pub fn check<'py>(
             Ok((checks, sims))
         })
         .map_err(to_py)?;
-    let objects: Vec<serde_json::Value> = checks
-        .iter()
-        .zip(&sims)
-        .map(|(o, sim)| {
-            let e = &o.evaluation;
-            serde_json::json!({
-                "name": o.name, "static": o.is_static, "verdict": e.verdict.as_str(),
-                "intersecting": e.intersecting, "contact": e.contact, "supported": e.supported,
-                "min_distance": e.min_distance, "stability_margin": e.stability_margin,
-                "feasible": e.feasible, "stable": e.stable,
-                "friction_equilibrium": o.friction_equilibrium, "methods_disagree": o.methods_disagree(),
-                "epsilon": o.epsilon, "mass_kg": o.mass_kg, "centre_of_mass": o.com_world.to_array(),
-                "displacement": sim.as_ref().and_then(|v| v.last()).map(|l| serde_json::json!({
-                    "translation": l.translation, "rotation_deg": l.rotation_deg })),
-            })
-        })
-        .collect();
-    json_to_py(py, &serde_json::Value::Array(objects))
+    let records: Vec<_> = checks.iter().zip(&sims).map(|(o, sim)| o.record(sim.as_deref())).collect();
+    let v = serde_json::to_value(&records).map_err(|e| value_error(e.to_string()))?;
+    json_to_py(py, &v)
 }
 
 /// Stable resting poses of `mesh` from `drops` seeded drop tests (rapier),

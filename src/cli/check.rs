@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
-use plausible::physical::check::{check_scene, CheckOptions, ObjectCheck};
+use plausible::physical::check::{check_scene, CheckOptions, CheckRecord};
 use plausible::physical::simulate::{displacement, Displacement, SimSettings};
 use plausible::physical::Scene;
 use serde::Serialize;
@@ -44,78 +44,13 @@ pub struct CheckArgs {
 }
 
 #[derive(Serialize)]
-struct DisplacementJson {
-    /// After the last round: distance the origin moved (m) ...
-    translation: f64,
-    /// ... and rotation angle (degrees).
-    rotation_deg: f64,
-    /// After every round.
-    series: Vec<Displacement>,
-}
-
-#[derive(Serialize)]
-struct ObjectJson<'a> {
-    name: &'a str,
-    verdict: &'static str,
-    #[serde(rename = "static")]
-    is_static: bool,
-    intersecting: u32,
-    contact: u32,
-    supported: u32,
-    min_distance: f64,
-    stability_margin: Option<f64>,
-    /// Static equilibrium with friction: true / false, null when not
-    /// feasible, static or undecided.
-    friction_equilibrium: Option<bool>,
-    /// The friction check and the support polygon disagree.
-    methods_disagree: bool,
-    /// With --sim (dynamic objects): displacement over time.
-    displacement: Option<DisplacementJson>,
-    feasible: bool,
-    stable: bool,
-    epsilon: f64,
-    grid_error_bound: f64,
-    mass_kg: f64,
-    centre_of_mass: [f64; 3],
-}
-
-#[derive(Serialize)]
 struct Report<'a> {
     version: &'static str,
     scene: String,
     samples: usize,
     seed: u64,
     friction: f64,
-    objects: Vec<ObjectJson<'a>>,
-}
-
-fn to_json<'a>(o: &'a ObjectCheck, sim: Option<&Vec<Displacement>>) -> ObjectJson<'a> {
-    let e = &o.evaluation;
-    ObjectJson {
-        name: &o.name,
-        verdict: e.verdict.as_str(),
-        is_static: o.is_static,
-        intersecting: e.intersecting,
-        contact: e.contact,
-        supported: e.supported,
-        min_distance: e.min_distance,
-        stability_margin: e.stability_margin,
-        friction_equilibrium: o.friction_equilibrium,
-        methods_disagree: o.methods_disagree(),
-        displacement: sim.and_then(|v| {
-            v.last().map(|l| DisplacementJson {
-                translation: l.translation,
-                rotation_deg: l.rotation_deg,
-                series: v.clone(),
-            })
-        }),
-        feasible: e.feasible,
-        stable: e.stable,
-        epsilon: o.epsilon,
-        grid_error_bound: o.grid_error_bound,
-        mass_kg: o.mass_kg,
-        centre_of_mass: o.com_world.to_array(),
-    }
+    objects: Vec<CheckRecord<'a>>,
 }
 
 /// Checks the scene. With `--trace` its span is the trace's root: load,
@@ -167,7 +102,7 @@ pub fn run(a: CheckArgs) -> Result<()> {
             objects: checks
                 .iter()
                 .zip(&sim)
-                .map(|(c, d)| to_json(c, d.as_ref()))
+                .map(|(c, d)| c.record(d.as_deref()))
                 .collect(),
         };
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -12,6 +12,7 @@ use super::contacts::{
 use super::friction::static_equilibrium;
 use super::samples::{DEFAULT_SAMPLES, DEFAULT_SEED};
 use super::scene::Scene;
+use super::simulate::Displacement;
 use super::sdf::{SdfGrid, DEFAULT_RESOLUTION};
 use crate::error::Result;
 use crate::mesh::mass::MassProperties;
@@ -68,6 +69,74 @@ impl ObjectCheck {
     pub fn methods_disagree(&self) -> bool {
         self.friction_equilibrium
             .is_some_and(|f| f != self.evaluation.stable)
+    }
+}
+
+/// Displacement under the simulation, as reported.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DisplacementRecord {
+    /// After the last round: distance the origin moved (m) ...
+    pub translation: f64,
+    /// ... and rotation angle (degrees).
+    pub rotation_deg: f64,
+    /// After every round.
+    pub series: Vec<Displacement>,
+}
+
+/// One object's check as reported (`plausible check --json`, the Python
+/// `check`): the verdict and its reasons, flat.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CheckRecord<'a> {
+    pub name: &'a str,
+    pub verdict: &'static str,
+    #[serde(rename = "static")]
+    pub is_static: bool,
+    pub intersecting: u32,
+    pub contact: u32,
+    pub supported: u32,
+    pub min_distance: f64,
+    pub stability_margin: Option<f64>,
+    /// Static equilibrium with friction: true / false, null when not
+    /// feasible, static or undecided.
+    pub friction_equilibrium: Option<bool>,
+    /// The friction check and the support polygon disagree.
+    pub methods_disagree: bool,
+    /// With the simulation (dynamic objects): displacement over time.
+    pub displacement: Option<DisplacementRecord>,
+    pub feasible: bool,
+    pub stable: bool,
+    pub epsilon: f64,
+    pub grid_error_bound: f64,
+    pub mass_kg: f64,
+    pub centre_of_mass: [f64; 3],
+}
+
+impl ObjectCheck {
+    /// The check as reported, with the simulation's displacements when
+    /// there are any.
+    pub fn record(&self, sim: Option<&[Displacement]>) -> CheckRecord<'_> {
+        let e = &self.evaluation;
+        CheckRecord {
+            name: &self.name,
+            verdict: e.verdict.as_str(),
+            is_static: self.is_static,
+            intersecting: e.intersecting,
+            contact: e.contact,
+            supported: e.supported,
+            min_distance: e.min_distance,
+            stability_margin: e.stability_margin,
+            friction_equilibrium: self.friction_equilibrium,
+            methods_disagree: self.methods_disagree(),
+            displacement: sim.and_then(|v| {
+                v.last().map(|l| DisplacementRecord { translation: l.translation, rotation_deg: l.rotation_deg, series: v.to_vec() })
+            }),
+            feasible: e.feasible,
+            stable: e.stable,
+            epsilon: self.epsilon,
+            grid_error_bound: self.grid_error_bound,
+            mass_kg: self.mass_kg,
+            centre_of_mass: self.com_world.to_array(),
+        }
     }
 }
 
