@@ -162,15 +162,26 @@ pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
     };
     let point = vec3("point", &raw.point).map_err(bad)? * scale;
     let normal = vec3("normal", &raw.normal).map_err(bad)?;
-    Plane::in_camera(point, normal).map_err(|reason| {
-        let dist = point.length();
-        let hint = if scale == 1e-3 && reason.contains("camera centre") && dist > 1e-5 {
-            format!("; the point is {:.1} mm from the camera: is it in metres? (add \"units\": \"m\")", dist * 1e3)
-        } else {
-            String::new()
+    Plane::in_camera(point, normal).map_err(|e| {
+        let hint = match e {
+            PlaneError::ThroughCamera { distance_m } if scale == 1e-3 && distance_m > 1e-5 => {
+                format!("; the point is {:.1} mm from the camera: is it in metres? (add \"units\": \"m\")", point.length() * 1e3)
+            }
+            _ => String::new(),
         };
-        bad(format!("{reason}{hint}"))
+        bad(format!("{e}{hint}"))
     })
+}
+
+/// Why numbers do not make a support plane seen by the camera.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum PlaneError {
+    #[error("point and normal must be finite")]
+    NotFinite,
+    #[error("normal has zero length")]
+    ZeroNormal,
+    #[error("the plane passes {:.1} mm from the camera centre; a support plane seen by the camera lies well in front of it", .distance_m * 1e3)]
+    ThroughCamera { distance_m: f64 },
 }
 
 impl Plane {
@@ -178,21 +189,18 @@ impl Plane {
     /// camera frame, the normal made unit and turned towards the camera.
     /// Refused: a zero normal, or a plane through the camera centre (within
     /// 1 cm; a support plane lies well in front of the camera).
-    pub fn in_camera(point: DVec3, normal: DVec3) -> std::result::Result<Plane, String> {
+    pub fn in_camera(point: DVec3, normal: DVec3) -> std::result::Result<Plane, PlaneError> {
         if !(point.is_finite() && normal.is_finite()) {
-            return Err("point and normal must be finite".into());
+            return Err(PlaneError::NotFinite);
         }
         let len = normal.length();
         if len <= 1e-12 {
-            return Err("normal has zero length".into());
+            return Err(PlaneError::ZeroNormal);
         }
         let normal = normal / len;
-        let dist = normal.dot(point).abs();
-        if dist < 0.01 {
-            return Err(format!(
-                "the plane passes {:.1} mm from the camera centre; a support plane seen by the camera lies well in front of it",
-                dist * 1e3
-            ));
+        let distance_m = normal.dot(point).abs();
+        if distance_m < 0.01 {
+            return Err(PlaneError::ThroughCamera { distance_m });
         }
         Ok(Plane { point, normal }.facing_camera())
     }
