@@ -46,18 +46,16 @@ impl ScoringMesh {
 /// the near side of the observed object. The physical terms and evaluation
 /// always use the full mesh.
 pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreTarget) -> Result<ScoringMesh> {
-    use crate::mesh::lod::{pixel_size, with_faces, within_error, AUTO_PIXEL_FRACTION};
+    use crate::mesh::lod::{pixel_size, with_faces, within_error, LodLevel, AUTO_PIXEL_FRACTION};
     let full_triangles = mesh.triangles.len();
-    let (level, pixel_m) = match choice {
-        LodChoice::Off => return Ok(ScoringMesh { mesh: mesh.clone(), error_m: 0.0, pixel_m: None, full_triangles }),
-        LodChoice::Faces(n) => (with_faces(mesh, n)?, None),
-        LodChoice::Auto => {
-            let Some(z) = target.near_depth() else {
-                return Ok(ScoringMesh { mesh: mesh.clone(), error_m: 0.0, pixel_m: None, full_triangles });
-            };
-            let pixel = pixel_size(&target.intrinsics, z);
-            (within_error(mesh, AUTO_PIXEL_FRACTION * pixel)?, Some(pixel))
-        }
+    let pixel_m = match choice {
+        LodChoice::Auto => target.near_depth().map(|z| pixel_size(&target.intrinsics, z)),
+        _ => None,
+    };
+    let level = match (choice, pixel_m) {
+        (LodChoice::Faces(n), _) => with_faces(mesh, n)?,
+        (LodChoice::Auto, Some(pixel)) => within_error(mesh, AUTO_PIXEL_FRACTION * pixel)?,
+        _ => LodLevel::full(mesh),
     };
     Ok(ScoringMesh { mesh: level.mesh, error_m: level.error_m, pixel_m, full_triangles })
 }

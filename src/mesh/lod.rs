@@ -32,6 +32,13 @@ pub struct LodLevel {
     pub error_m: f64,
 }
 
+impl LodLevel {
+    /// The full mesh itself (no error).
+    pub fn full(mesh: &Mesh) -> LodLevel {
+        LodLevel { mesh: mesh.clone(), error_m: 0.0 }
+    }
+}
+
 /// How the scoring mesh is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum LodChoice {
@@ -73,11 +80,11 @@ impl std::fmt::Display for LodChoice {
 /// and a floor of [`MIN_TRIANGLES`] (the full mesh when nothing can go).
 pub fn within_error(mesh: &Mesh, max_error_m: f64) -> Result<LodLevel> {
     if mesh.triangles.len() <= MIN_TRIANGLES || max_error_m.is_nan() || max_error_m <= 0.0 {
-        return Ok(LodLevel { mesh: mesh.clone(), error_m: 0.0 });
+        return Ok(LodLevel::full(mesh));
     }
     let level = simplify(&welded(mesh), MIN_TRIANGLES, max_error_m as f32)?;
     if level.mesh.triangles.len() >= mesh.triangles.len() {
-        return Ok(LodLevel { mesh: mesh.clone(), error_m: 0.0 });
+        return Ok(LodLevel::full(mesh));
     }
     Ok(level)
 }
@@ -86,7 +93,7 @@ pub fn within_error(mesh: &Mesh, max_error_m: f64) -> Result<LodLevel> {
 /// it has no more), with its geometric error.
 pub fn with_faces(mesh: &Mesh, faces: usize) -> Result<LodLevel> {
     if faces >= mesh.triangles.len() {
-        return Ok(LodLevel { mesh: mesh.clone(), error_m: 0.0 });
+        return Ok(LodLevel::full(mesh));
     }
     simplify(&welded(mesh), faces, f32::MAX)
 }
