@@ -83,3 +83,35 @@ pub fn json_to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound
     let text = serde_json::to_string(v).map_err(|e| value_error(e.to_string()))?;
     py.import("json")?.call_method1("loads", (text,))
 }
+
+/// A support plane from its point (metres) and normal in the camera frame,
+/// checked as the plane JSON is.
+pub fn plane(point: &PyReadonlyArray1<f64>, normal: &PyReadonlyArray1<f64>) -> PyResult<plausible::physical::Plane> {
+    plausible::physical::Plane::in_camera(vec3(point, "plane point")?, vec3(normal, "plane normal")?)
+        .map_err(|e| value_error(format!("plane: {e}")))
+}
+
+/// Poses as numpy arrays: rotations (N, 3, 3) and translations (N, 3), metres.
+pub fn pose_arrays<'py>(py: Python<'py>, poses: &[Pose]) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    use numpy::IntoPyArray;
+    let n = poses.len();
+    let r: Vec<f64> = poses.iter().flat_map(|p| p.r_row_major()).collect();
+    let t: Vec<f64> = poses.iter().flat_map(|p| p.t.to_array()).collect();
+    Ok((r.into_pyarray(py).reshape([n, 3, 3])?.into_any(), t.into_pyarray(py).reshape([n, 3])?.into_any()))
+}
+
+/// The resting poses of `mesh` from a stable-pose export's text (or the
+/// hull's quasi-static analysis), warning as `plausible hypotheses` does
+/// when the export's only entry matches neither the mesh's geometry nor its
+/// name and is used anyway.
+pub fn resting_poses(py: Python<'_>, mesh: &plausible::mesh::Mesh, export: Option<&str>) -> PyResult<Vec<plausible::hypotheses::on_plane::RestingPose>> {
+    use plausible::hypotheses::on_plane::{resting_poses, ExportMatch};
+    let name = mesh.source.as_ref().and_then(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (rests, how) = py.detach(|| resting_poses(mesh, export, &name)).map_err(to_py)?;
+    if how == Some(ExportMatch::OnlyEntry) {
+        let msg = std::ffi::CString::new(format!("the stable-pose export's only mesh matches neither the geometry of {name} nor its name; using it anyway"))
+            .expect("no NUL in the message");
+        PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &msg, 1)?;
+    }
+    Ok(rests)
+}

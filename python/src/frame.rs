@@ -38,8 +38,7 @@ fn plane_for(
     masks: &[Vec<bool>],
 ) -> PyResult<Option<Plane>> {
     if let Some((p, n)) = given {
-        let plane = Plane::in_camera(convert::vec3(&p, "plane point")?, convert::vec3(&n, "plane normal")?);
-        return plane.map(Some).map_err(|r| value_error(format!("plane: {r}")));
+        return convert::plane(&p, &n).map(Some);
     }
     if !needed {
         return Ok(None);
@@ -71,12 +70,11 @@ fn scene_dict<'py>(py: Python<'py>, out: &SceneRefined, plane: Option<&Plane>) -
             objects.append(py.None())?;
             continue;
         };
-        let n = refined.len();
         let d = PyDict::new(py);
-        let r: Vec<f64> = refined.iter().flat_map(|x| x.pose.r_row_major()).collect();
-        let t: Vec<f64> = refined.iter().flat_map(|x| x.pose.t.to_array()).collect();
-        d.set_item("R", r.into_pyarray(py).reshape([n, 3, 3])?)?;
-        d.set_item("t", t.into_pyarray(py).reshape([n, 3])?)?;
+        let poses: Vec<_> = refined.iter().map(|x| x.pose).collect();
+        let (r, t) = convert::pose_arrays(py, &poses)?;
+        d.set_item("R", r)?;
+        d.set_item("t", t)?;
         d.set_item("score", refined.iter().map(|x| x.score).collect::<Vec<_>>().into_pyarray(py))?;
         d.set_item("steps", refined.iter().map(|x| x.steps as u32).collect::<Vec<_>>().into_pyarray(py))?;
         d.set_item("kept", refined.iter().map(|x| x.kept as u32).collect::<Vec<_>>().into_pyarray(py))?;
@@ -167,7 +165,6 @@ pub fn estimate<'py>(
     device: &str,
     adapter: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use plausible::hypotheses::on_plane::{analytic_resting_poses, resting_poses_from_export};
     let n = meshes.len();
     if masks_in.len() != n || stable.len() != n {
         return Err(value_error("one mask and one stable-pose entry (or None) per mesh"));
@@ -183,6 +180,7 @@ pub fn estimate<'py>(
     let obs = convert::depth_image(k, depth)?;
     let masks = masks(masks_in, &obs)?;
     let plane = plane_for(plane, true, &obs, &masks)?.expect("fitted when not given");
+    let rests: Vec<_> = meshes.iter().zip(&stable).map(|(m, s)| convert::resting_poses(py, &m.inner, s.as_deref())).collect::<PyResult<_>>()?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
     let (out, instance) = py
@@ -190,14 +188,8 @@ pub fn estimate<'py>(
             let device = Device::open(choice, adapter, false)?.device;
             let models: Vec<EstimateModel> = mesh_data
                 .into_iter()
-                .zip(&stable)
-                .map(|(m, s)| {
-                    let rests = match s {
-                        Some(text) => resting_poses_from_export(text, &plausible::stable::mesh_sha256(&m), "")?.0,
-                        None => analytic_resting_poses(&m)?,
-                    };
-                    Ok(EstimateModel { model: Model::new(m, &ep.refine)?, rests })
-                })
+                .zip(rests)
+                .map(|(m, rests)| Ok(EstimateModel { model: Model::new(m, &ep.refine)?, rests }))
                 .collect::<plausible::Result<_>>()?;
             let instances: Vec<Instance> = (0..n).map(|i| Instance { model: &models[i], mask: &masks[i] }).collect();
             let mut stats = EstimateStats::default();

@@ -8,7 +8,7 @@ use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use plausible::gpu::{Device, DeviceChoice};
 use plausible::physical::check::{check_scene, CheckOptions};
 use plausible::physical::simulate::{displacement, SimSettings};
-use plausible::physical::{Plane, Scene};
+use plausible::physical::Scene;
 use plausible::support_plane::{fit_support_plane, PlaneFitParams};
 use numpy::prelude::*;
 use pyo3::prelude::*;
@@ -144,32 +144,23 @@ pub fn hypotheses<'py>(
     grid_step: f64,
     min_probability: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, OnPlaneParams};
+    use plausible::hypotheses::on_plane::{on_plane_hypotheses, OnPlaneParams};
     if !(0.0..1.0).contains(&min_probability) {
         return Err(value_error(format!("min_probability {min_probability}: must lie in [0, 1)")));
     }
     let obs = convert::depth_image(k, depth)?;
     let mask = convert::mask(Some(mask), &obs)?.expect("given");
-    let plane = Plane::in_camera(convert::vec3(&plane_point, "plane point")?, convert::vec3(&plane_normal, "plane normal")?)
-        .map_err(|r| value_error(format!("plane: {r}")))?;
+    let plane = convert::plane(&plane_point, &plane_normal)?;
     let m = &mesh.inner;
+    let rests = convert::resting_poses(py, m, stable_export)?;
     let params = OnPlaneParams { yaw_steps, grid_radius, grid_step, min_probability, ..Default::default() };
-    let (rests, hyps) = py
-        .detach(|| -> plausible::Result<_> {
-            let rests = match stable_export {
-                Some(text) => resting_poses_from_export(text, &plausible::stable::mesh_sha256(m), "")?.0,
-                None => analytic_resting_poses(m)?,
-            };
-            let hyps = on_plane_hypotheses(m, &rests, &plane, &obs, &mask, &params)?;
-            Ok((rests, hyps))
-        })
-        .map_err(to_py)?;
+    let hyps = py.detach(|| on_plane_hypotheses(m, &rests, &plane, &obs, &mask, &params)).map_err(to_py)?;
     let n = hyps.len();
     let d = PyDict::new(py);
-    let r: Vec<f64> = hyps.iter().flat_map(|h| h.pose.r_row_major()).collect();
-    let t: Vec<f64> = hyps.iter().flat_map(|h| h.pose.t.to_array()).collect();
-    d.set_item("R", r.into_pyarray(py).reshape([n, 3, 3])?)?;
-    d.set_item("t", t.into_pyarray(py).reshape([n, 3])?)?;
+    let poses: Vec<_> = hyps.iter().map(|h| h.pose).collect();
+    let (r, t) = convert::pose_arrays(py, &poses)?;
+    d.set_item("R", r)?;
+    d.set_item("t", t)?;
     d.set_item("rest", hyps.iter().map(|h| h.rest as u32).collect::<Vec<_>>().into_pyarray(py))?;
     d.set_item("rest_probability", hyps.iter().map(|h| rests[h.rest].probability).collect::<Vec<_>>().into_pyarray(py))?;
     d.set_item("yaw", hyps.iter().map(|h| h.yaw).collect::<Vec<_>>().into_pyarray(py))?;

@@ -136,6 +136,17 @@ pub fn analytic_resting_poses(mesh: &Mesh) -> Result<Vec<RestingPose>> {
         .collect())
 }
 
+/// The resting poses of `mesh`: from a stable-pose export's JSON text when
+/// given (see [`resting_poses_from_export`]; `name` is the mesh file's name,
+/// and how the entry was found comes back for the caller's policy), else the
+/// quasi-static analysis of its convex hull.
+pub fn resting_poses(mesh: &Mesh, export: Option<&str>, name: &str) -> Result<(Vec<RestingPose>, Option<ExportMatch>)> {
+    match export {
+        Some(text) => resting_poses_from_export(text, &crate::stable::mesh_sha256(mesh), name).map(|(r, how)| (r, Some(how))),
+        None => Ok((analytic_resting_poses(mesh)?, None)),
+    }
+}
+
 /// The resting poses of one mesh in a `plausible stable-poses export` JSON:
 /// the entry whose `sha256` matches `sha256`, else the one whose file name
 /// stem is `name`, else the only entry (reported as [`ExportMatch::OnlyEntry`]

@@ -229,17 +229,11 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
         .map(|&id| {
             let path = ds.model_path(id);
             let mesh = model_mesh(ds, id)?;
-            let rests = match stable {
-                Some(text) => {
-                    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-                    let (rests, how) = crate::hypotheses::on_plane::resting_poses_from_export(text, &crate::stable::mesh_sha256(&mesh), &name)?;
-                    if how == crate::hypotheses::on_plane::ExportMatch::OnlyEntry {
-                        return Err(Error::InvalidInput(format!("the stable-pose export has no entry for {name} (object {id})")));
-                    }
-                    rests
-                }
-                None => crate::hypotheses::on_plane::analytic_resting_poses(&mesh)?,
-            };
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let (rests, how) = crate::hypotheses::on_plane::resting_poses(&mesh, stable, &name)?;
+            if how == Some(crate::hypotheses::on_plane::ExportMatch::OnlyEntry) {
+                return Err(Error::InvalidInput(format!("the stable-pose export has no entry for {name} (object {id})")));
+            }
             Ok((id, EstimateModel { model: Model::new(mesh, p)?, rests }))
         })
         .collect()
