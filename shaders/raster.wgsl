@@ -4,7 +4,11 @@
 // buffer (one u32 per pixel); a dispatch runs one wave of hypotheses, one
 // per slot (a workgroup never loops over hypotheses: lavapipe caps the total
 // loop iterations of an invocation, see BIG_PIXELS). Its invocations take
-// the triangles in rounds; each covered pixel gets atomicMax of the key
+// the mesh's meshlets (up to 64 neighbouring triangles with a bounding
+// sphere and normal cone) in rounds: a meshlet facing away from the camera
+// or outside the region is skipped whole, before any of its triangles is
+// set up; otherwise each invocation sets up one of its triangles. Each
+// covered pixel gets atomicMax of the key
 // (quantized inverse depth << id_bits) | triangle id, so the nearest triangle
 // wins and 0 means "nothing drawn". Inverse depth is quantized over the
 // hypothesis' own depth range [t.z - radius, t.z + radius], so 32 - id_bits
@@ -22,12 +26,17 @@
 
 struct RasterParams {
     fx: f32, fy: f32, cx: f32, cy: f32,
-    width: u32, height: u32, n_hyp: u32, n_tri: u32,
+    width: u32, height: u32, n_hyp: u32, n_meshlets: u32,
     id_bits: u32, cull: u32, radius: f32, tau: f32,
     alpha: f32, near: f32, n_obs: u32, first: u32,
 }
 
 struct GpuTriangle { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
+
+// Triangles first..first+count (model space): bounding sphere (centre,
+// radius) and normal cone (axis, cutoff; a cutoff above 1 never culls).
+// first_vertex and vertex_count serve the CPU twin only.
+struct GpuMeshlet { sphere: vec4<f32>, cone: vec4<f32>, first: u32, count: u32, first_vertex: u32, vertex_count: u32 }
 
 // Rows of [R | t], model -> camera, metres.
 struct GpuPose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
@@ -36,6 +45,7 @@ struct GpuPose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
 @group(0) @binding(1) var<storage, read> tris: array<GpuTriangle>;
 @group(0) @binding(2) var<storage, read> poses: array<GpuPose>;
 @group(0) @binding(3) var<storage, read_write> vis: array<atomic<u32>>;
+@group(0) @binding(10) var<storage, read> meshlets: array<GpuMeshlet>;
 
 // Invocations per workgroup: 64 measured fastest on lavapipe (fewer
 // reduction steps per hypothesis) and is a full warp/wavefront on GPUs.
@@ -99,6 +109,37 @@ fn rect_pixels(rect: vec4<i32>) -> u32 {
 fn rect_index(rect: vec4<i32>, j: u32) -> u32 {
     let rw = u32(rect.z - rect.x + 1);
     return (u32(rect.y) + j / rw) * params.width + u32(rect.x) + j % rw;
+}
+
+// Whether meshlet m may draw into [first, last] (CPU twin:
+// kernels/raster.rs meshlet_visible): not when it faces away from the camera
+// as a whole (meshoptimizer's cone test with the bounding sphere, cam = the
+// camera centre in model coordinates), lies behind the near plane, or
+// projects outside the rectangle (with half a pixel to spare). Every
+// triangle of a rejected meshlet would be rejected on its own.
+fn meshlet_visible(m: GpuMeshlet, p: GpuPose, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> bool {
+    let centre = m.sphere.xyz;
+    let r = m.sphere.w;
+    if (params.cull != 0u) {
+        let v = centre - cam;
+        if (dot(v, m.cone.xyz) >= m.cone.w * length(v) + r) {
+            return false;
+        }
+    }
+    let c = transform(p, centre);
+    if (c.z + r < params.near) {
+        return false;
+    }
+    if (c.z - r <= params.near) {
+        return true;
+    }
+    let zn = c.z - r;
+    let zf = c.z + r;
+    let xlo = min((c.x - r) / zn, (c.x - r) / zf) * params.fx + params.cx;
+    let xhi = max((c.x + r) / zn, (c.x + r) / zf) * params.fx + params.cx;
+    let ylo = min((c.y - r) / zn, (c.y - r) / zf) * params.fy + params.cy;
+    let yhi = max((c.y + r) / zn, (c.y + r) / zf) * params.fy + params.cy;
+    return xhi >= first.x - 0.5 && yhi >= first.y - 0.5 && xlo <= last.x + 0.5 && ylo <= last.y + 0.5;
 }
 
 // Takes the key of a pixel and leaves the slot empty (EMPTY = nothing drawn).
@@ -170,15 +211,20 @@ fn shade(s: Setup, t: u32, i: u32, j: u32, base: u32, izfar: f32, izscale: f32, 
 // loops after 65535 iterations in total, which a single invocation filling a
 // large triangle would exceed.
 const BIG_PIXELS: u32 = 256u;
-// Triangles per invocation per round: rounds end with a barrier (to draw
-// the queued big triangles), so fewer, larger rounds are cheaper.
+// Meshlets per round (one per invocation for the culling test): rounds end
+// with a barrier (to draw the queued big triangles), so fewer, larger
+// rounds are cheaper. A round holds at most PER_ROUND * 64 triangles.
 const PER_ROUND: u32 = 64u;
 var<workgroup> big_count: atomic<u32>;
-var<workgroup> big_list: array<u32, WG * PER_ROUND>;
+var<workgroup> big_list: array<u32, 64u * PER_ROUND>;
+// Bit k: meshlet k of the round may draw.
+var<workgroup> keep: array<atomic<u32>, 2>;
 
 // Rasterizes hypothesis p into the slot at `base`; returns (after a barrier,
 // so every invocation sees it) the tight rectangle of the drawn triangles.
-// Triangles are taken in rounds of WG * PER_ROUND: small ones are drawn by the
+// Meshlets are taken in rounds of PER_ROUND: each invocation tests one, then
+// the workgroup steps through the kept ones, one triangle per invocation
+// (meshlets hold at most WG triangles). Small triangles are drawn by the
 // invocation that set them up, big ones queued and drawn cooperatively.
 fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
     if (lid == 0u) {
@@ -203,16 +249,28 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
     // one dot product, before any vertex is transformed.
     let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
     let cam = -(p.r0.xyz * tr.x + p.r1.xyz * tr.y + p.r2.xyz * tr.z);
-    for (var round = 0u; round < params.n_tri; round += WG * PER_ROUND) {
+    for (var round = 0u; round < params.n_meshlets; round += PER_ROUND) {
         if (lid == 0u) {
             atomicStore(&big_count, 0u);
+            atomicStore(&keep[0], 0u);
+            atomicStore(&keep[1], 0u);
         }
         workgroupBarrier();
+        let mine = round + lid;
+        if (lid < PER_ROUND && mine < params.n_meshlets && meshlet_visible(meshlets[mine], p, cam, first, last)) {
+            atomicOr(&keep[lid / 32u], 1u << (lid % 32u));
+        }
+        workgroupBarrier();
+        let kept = vec2<u32>(atomicLoad(&keep[0]), atomicLoad(&keep[1]));
         for (var k = 0u; k < PER_ROUND; k++) {
-            let t = round + k * WG + lid;
-            if (t >= params.n_tri) {
+            let m = round + k;
+            if (m >= params.n_meshlets) {
                 break;
             }
+            if ((kept[k / 32u] & (1u << (k % 32u))) == 0u || lid >= meshlets[m].count) {
+                continue;
+            }
+            let t = meshlets[m].first + lid;
             let s = setup_triangle(p, t, cam, first, last);
             if (!s.ok) {
                 continue;

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use plausible::kernels::{check_loop_budget, MAX_GPU_PIXELS, MAX_GPU_TRIANGLES};
+use plausible::kernels::{check_loop_budget, GpuMeshlet, RenderMesh, MAX_GPU_MESHLETS, MAX_GPU_PIXELS};
 use plausible::observation::{DepthImage, RoiSampling, ScoreTarget};
 use plausible::pose::{read_poses, PoseUnits};
 
@@ -21,11 +21,14 @@ fn run(args: &[&str]) -> (i32, String) {
 
 #[test]
 fn gpu_loop_budget_is_refused_not_returned_as_zeros() {
-    let e = check_loop_budget(MAX_GPU_TRIANGLES + 1, 100).unwrap_err().to_string();
-    assert!(e.contains("triangles") && e.contains("CPU twin"), "{e}");
-    let e = check_loop_budget(1000, MAX_GPU_PIXELS + 1).unwrap_err().to_string();
+    let mut mesh = RenderMesh::new(&plausible::shapes::cuboid(glam::DVec3::splat(0.1))).unwrap();
+    assert!(check_loop_budget(&mesh, MAX_GPU_PIXELS).is_ok());
+    let e = check_loop_budget(&mesh, MAX_GPU_PIXELS + 1).unwrap_err().to_string();
     assert!(e.contains("pixels"), "{e}");
-    assert!(check_loop_budget(MAX_GPU_TRIANGLES, MAX_GPU_PIXELS).is_ok());
+    // Only the count matters to the check: a mesh of too many meshlets.
+    mesh.meshlets.resize(MAX_GPU_MESHLETS + 1, GpuMeshlet::default());
+    let e = check_loop_budget(&mesh, 100).unwrap_err().to_string();
+    assert!(e.contains("meshlets") && e.contains("CPU twin"), "{e}");
 }
 
 fn flat_observation() -> DepthImage {

@@ -365,7 +365,7 @@ fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
 
     let full = RenderMesh::new(&big).unwrap();
     let e = score_poses(&gpu, &full, &target, &poses, params).unwrap_err().to_string();
-    assert!(e.contains(&format!("{} triangles", big.triangles.len())) && e.contains("at most 500000"), "{e}");
+    assert!(e.contains(&format!("{} triangles", big.triangles.len())) && e.contains("at most 8192 meshlets"), "{e}");
 
     let lod = scoring_mesh(&big, LodChoice::Auto, &target).unwrap();
     assert!(lod.mesh.triangles.len() < 10_000, "{}", lod.describe());
@@ -373,10 +373,86 @@ fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
     let (g, _) = score_poses(&gpu, &rlod, &target, &poses, params).unwrap();
     let (c, _) = score_poses(&Device::Cpu, &rlod, &target, &poses, params).unwrap();
     let (reference, _) = score_poses(&Device::Cpu, &RenderMesh::new(&small).unwrap(), &target, &poses, params).unwrap();
+    // The CPU twin ray-casts the full mesh (about 500 triangles per pixel
+    // of the hypothesis' rectangle).
+    let rect = plausible::kernels::raster::screen_rect(&(&true_pose()).into(), full.radius, &target.intrinsics).unwrap();
+    assert_eq!(full.cpu_renderer((rect[2] - rect[0] + 1) * (rect[3] - rect[1] + 1)), plausible::kernels::CpuRenderer::RayCast);
     let (c_full, _) = score_poses(&Device::Cpu, &full, &target, &poses, params).unwrap();
     for i in 0..poses.len() {
         assert!((g[i].score - c[i].score).abs() < 1e-3, "pose {i}: gpu {:?} cpu {:?}", g[i], c[i]);
         assert!((c[i].score - reference[i].score).abs() < 0.01, "pose {i}: lod {:?} vs 4k {:?}", c[i], reference[i]);
         assert!((c_full[i].score - reference[i].score).abs() < 1e-3, "pose {i}: 2M {:?} vs 4k {:?}", c_full[i], reference[i]);
+    }
+}
+
+/// Meshlet culling (whole meshlets facing away from the camera, behind the
+/// near plane or outside the region) only skips work: renderings with the
+/// meshlets' culling disabled are identical, on the CPU twin and the GPU,
+/// for a scanned LM-O model (closed, back faces culled), the duck, and an
+/// open mesh, with poses partly outside the image and close to the camera.
+#[test]
+fn meshlet_culling_changes_no_pixel() {
+    let ctx = test_context();
+    let ape = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_000001.ply");
+    let ape = Mesh::load(ape, MeshUnits::Millimetres).unwrap().0;
+    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
+    open.triangles.truncate(10); // one face missing: no back-face culling
+    let k = Intrinsics { fx: 572.4, fy: 573.6, cx: 325.3, cy: 242.0, width: 160, height: 120 };
+    for mesh in [ape, duck(), open] {
+        let culled = RenderMesh::new(&mesh).unwrap();
+        assert!(culled.meshlets.len() > 1 || mesh.triangles.len() <= 64);
+        // The same meshlets with culling switched off: a cone cutoff above 1
+        // and a sphere that holds everything.
+        let mut all = culled.clone();
+        for m in &mut all.meshlets {
+            m.cone[3] = 2.0;
+            m.sphere = [0.0, 0.0, 0.0, 1e3];
+        }
+        let centre = DVec3::new(0.0, 0.0, 0.45);
+        let mut poses = around_and_random(&Pose::new(axis_angle(DVec3::new(0.2, 1.0, 0.1), 1.0), centre), 40, 17);
+        poses.push(Pose::new(axis_angle(DVec3::X, 0.7), DVec3::new(0.1, 0.05, 0.3))); // partly outside
+        poses.push(Pose::new(axis_angle(DVec3::Y, 2.0), DVec3::new(0.0, 0.0, 0.06))); // through the near plane
+        // Culling does reject meshlets here (back faces and the region).
+        let gp = plausible::kernels::GpuPose::from(&poses[0]);
+        let rejected = culled
+            .meshlets
+            .iter()
+            .filter(|m| !plausible::kernels::raster::meshlet_visible(m, &gp, gp.inverse_translation(), culled.cull_back_faces, &k, (0.0, 0.0), (159.0, 119.0)))
+            .count();
+        assert!(rejected > 0 || !culled.cull_back_faces, "no meshlet culled");
+        let with_gpu = render_gpu(&ctx, &culled, &poses, &k).unwrap();
+        let without_gpu = render_gpu(&ctx, &all, &poses, &k).unwrap();
+        for (i, p) in poses.iter().enumerate() {
+            let (a, b) = (render_cpu(&culled, p, &k), render_cpu(&all, p, &k));
+            assert_eq!(a.depth, b.depth, "CPU twin, pose {i}");
+            assert_eq!(with_gpu[i].depth, without_gpu[i].depth, "GPU, pose {i}");
+        }
+    }
+}
+
+/// The BVH ray caster (the CPU renderer for very large meshes) draws what
+/// the rasterizer twin draws: the same coverage within 1 % of the pixels
+/// (silhouette edges) and the same depth inside, for a closed scanned
+/// model, the duck and an open mesh, at 128x128 and at full frame.
+#[test]
+fn ray_caster_renders_like_the_rasterizer() {
+    use plausible::kernels::RendererChoice;
+    let ape = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_000001.ply");
+    let ape = Mesh::load(ape, MeshUnits::Millimetres).unwrap().0;
+    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
+    open.triangles.truncate(10);
+    let full = linemod_camera();
+    let crop = full.crop(220.0, 140.0, 200.0, 200.0, 128, 128);
+    for mesh in [ape, duck(), open] {
+        let mut raster = RenderMesh::new(&mesh).unwrap();
+        raster.renderer = RendererChoice::Raster;
+        let mut rays = raster.clone();
+        rays.renderer = RendererChoice::RayCast;
+        assert!(rays.ray_caster().is_some());
+        for k in [crop, full] {
+            for p in around_and_random(&true_pose(), 12, 23) {
+                assert_renders_match(&render_cpu(&raster, &p, &k), &render_cpu(&rays, &p, &k));
+            }
+        }
     }
 }

@@ -72,6 +72,12 @@ pub struct BenchScoreArgs {
     /// triangle count; every configuration is measured with each.
     #[arg(long, default_value = "off")]
     pub lod: Vec<LodChoice>,
+    /// CPU renderers to measure (repeatable): `auto` (the ray caster above
+    /// a few triangles per region pixel), `raster` (the GPU kernel's twin)
+    /// or `bvh` (ray casting through a CWBVH); the GPU is measured once per
+    /// level of detail, with the first.
+    #[arg(long, default_value = "auto")]
+    pub renderer: Vec<plausible::kernels::RendererChoice>,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
@@ -87,6 +93,9 @@ pub struct ScoreBenchRow {
     pub lod: String,
     /// Geometric error of the scored mesh against the full one (mm).
     pub lod_error_mm: f64,
+    /// The CPU twin's renderer (`raster` or `bvh`) and how it was chosen.
+    pub cpu_renderer: String,
+    pub renderer_choice: String,
     pub n: usize,
     pub width: u32,
     pub height: u32,
@@ -175,8 +184,8 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         println!("machine: {}", machine.line());
         println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
         print!(
-            "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
-            "mesh", "lod", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu/cpu", "upload", "render", "reduce", "readback"
+            "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
+            "mesh", "lod", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "cpu ren", "gpu/cpu", "upload", "render", "reduce", "readback"
         );
         if a.physics {
             print!(" {:>13} {:>13}", "gpu+phys h/s", "cpu+phys h/s");
@@ -202,48 +211,59 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
             let ti: Intrinsics = target.intrinsics;
             for &lod in &a.lod {
                 let scoring = scoring_mesh(&mesh, lod, &target)?;
-                let rmesh = RenderMesh::new(&scoring.mesh)?;
-                let mut row = ScoreBenchRow {
-                    adapter: adapter.clone(),
-                    backend: backend.clone(),
-                    mesh: name.clone(),
-                    triangles: scoring.mesh.triangles.len(),
-                    mesh_triangles: mesh.triangles.len(),
-                    lod: lod.to_string(),
-                    lod_error_mm: scoring.error_m * 1e3,
-                    n,
-                    width: ti.width,
-                    height: ti.height,
-                    gpu_hyps_per_s: None,
-                    cpu_hyps_per_s: None,
-                    cpu_threads: rayon::current_num_threads(),
-                    gpu_physics_hyps_per_s: None,
-                    cpu_physics_hyps_per_s: None,
-                    upload_ms: None,
-                    render_ms: None,
-                    reduce_ms: None,
-                    readback_ms: None,
-                    gpu_timestamp_compute_ms: None,
-                    timing: "wall clock",
-                    machine: machine.clone(),
-                };
-                if let Device::Gpu(ctx) = &device {
-                    tracing::trace_span!("gpu").in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?;
+                for (r, &renderer) in a.renderer.iter().enumerate() {
+                    let mut rmesh = RenderMesh::new(&scoring.mesh)?;
+                    rmesh.renderer = renderer;
+                    let mut row = ScoreBenchRow {
+                        adapter: adapter.clone(),
+                        backend: backend.clone(),
+                        mesh: name.clone(),
+                        triangles: scoring.mesh.triangles.len(),
+                        mesh_triangles: mesh.triangles.len(),
+                        lod: lod.to_string(),
+                        lod_error_mm: scoring.error_m * 1e3,
+                        cpu_renderer: cpu_renderer_at(&rmesh, &truth, &ti).to_string(),
+                        renderer_choice: format!("{renderer:?}").to_lowercase(),
+                        n,
+                        width: ti.width,
+                        height: ti.height,
+                        gpu_hyps_per_s: None,
+                        cpu_hyps_per_s: None,
+                        cpu_threads: rayon::current_num_threads(),
+                        gpu_physics_hyps_per_s: None,
+                        cpu_physics_hyps_per_s: None,
+                        upload_ms: None,
+                        render_ms: None,
+                        reduce_ms: None,
+                        readback_ms: None,
+                        gpu_timestamp_compute_ms: None,
+                        timing: "wall clock",
+                        machine: machine.clone(),
+                    };
+                    if let (Device::Gpu(ctx), 0) = (&device, r) {
+                        // A mesh past the kernels' loop budget is refused, not
+                        // benchmarked: the row keeps its CPU figures.
+                        match plausible::kernels::check_loop_budget(&rmesh, ti.pixels()) {
+                            Ok(()) => tracing::trace_span!("gpu")
+                                .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?,
+                            Err(e) => eprintln!("{name}: GPU not measured: {e}"),
+                        }
+                    }
+                    if !a.no_cpu {
+                        let cpu = tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat));
+                        row.cpu_hyps_per_s = Some(cpu);
+                    }
+                    if let Some(physics) = &physics {
+                        let _span = tracing::trace_span!("physics").entered();
+                        measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
+                    }
+                    if a.json {
+                        println!("{}", serde_json::to_string(&row)?);
+                    } else {
+                        print_row(&row, a.physics);
+                    }
+                    rows.push(row);
                 }
-                if !a.no_cpu {
-                    let cpu = tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat));
-                    row.cpu_hyps_per_s = Some(cpu);
-                }
-                if let Some(physics) = &physics {
-                    let _span = tracing::trace_span!("physics").entered();
-                    measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
-                }
-                if a.json {
-                    println!("{}", serde_json::to_string(&row)?);
-                } else {
-                    print_row(&row, a.physics);
-                }
-                rows.push(row);
             }
         }
     }
@@ -354,6 +374,13 @@ fn measure_physics(
     Ok(())
 }
 
+/// The CPU renderer the mesh gets at the true pose (hypotheses around it
+/// get the same, or the other near the crossover).
+fn cpu_renderer_at(rmesh: &RenderMesh, pose: &plausible::pose::Pose, k: &Intrinsics) -> plausible::kernels::CpuRenderer {
+    let rect = plausible::kernels::raster::screen_rect(&pose.into(), rmesh.radius, k);
+    rmesh.cpu_renderer(rect.map_or(0, |r| (r[2] - r[0] + 1) * (r[3] - r[1] + 1)))
+}
+
 /// One table row.
 fn print_row(row: &ScoreBenchRow, physics: bool) {
     let f = |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
@@ -362,7 +389,7 @@ fn print_row(row: &ScoreBenchRow, physics: bool) {
         _ => "-".into(),
     };
     print!(
-        "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
         row.mesh,
         row.lod,
         row.triangles,
@@ -370,6 +397,7 @@ fn print_row(row: &ScoreBenchRow, physics: bool) {
         format!("{}x{}", row.width, row.height),
         f(row.gpu_hyps_per_s, 0),
         f(row.cpu_hyps_per_s, 0),
+        row.cpu_renderer,
         ratio,
         f(row.upload_ms, 2),
         f(row.render_ms, 2),

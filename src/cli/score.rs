@@ -106,6 +106,16 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let rmesh = RenderMesh::new(&scoring.mesh)?;
     let params = ScoreParams { tau: a.tau, alpha: a.alpha };
     let device = a.device.open(verbose)?;
+    if let (Device::Cpu, Some(first), true) = (&device, poses.first(), verbose > 0) {
+        let rect = plausible::kernels::raster::screen_rect(&first.into(), rmesh.radius, &target.intrinsics);
+        let px = rect.map_or(0, |r| (r[2] - r[0] + 1) * (r[3] - r[1] + 1));
+        eprintln!(
+            "CPU renderer: {} for the first hypothesis ({} triangles over a {px}-pixel rectangle; the BVH ray caster above {} per pixel)",
+            rmesh.cpu_renderer(px),
+            rmesh.triangles.len(),
+            plausible::kernels::RAY_CAST_TRIANGLES_PER_PIXEL
+        );
+    }
 
     let physics = match (&a.plane, a.physics) {
         (Some(path), true) => {

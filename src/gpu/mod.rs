@@ -157,6 +157,12 @@ impl std::fmt::Debug for Context {
     }
 }
 
+/// Storage buffers the largest kernel binds (score with the plane stage:
+/// triangles, meshlets, poses, visibility, observation, records, samples,
+/// contact records and support bits). Desktop Vulkan, Metal and DX12
+/// adapters offer far more; WebGPU's default is 8.
+const STORAGE_BUFFERS: u32 = 9;
+
 impl Context {
     /// Opens a device. Backends: `WGPU_BACKEND` when set, otherwise the
     /// primary ones (Vulkan, Metal, DX12): probing GL on a headless server
@@ -201,7 +207,13 @@ impl Context {
         required.max_compute_workgroups_per_dimension = alimits.max_compute_workgroups_per_dimension;
         required.max_compute_invocations_per_workgroup = alimits.max_compute_invocations_per_workgroup.min(256);
         required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
-        required.max_storage_buffers_per_shader_stage = alimits.max_storage_buffers_per_shader_stage.min(8);
+        if alimits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
+            return Err(Error::Gpu(format!(
+                "{} binds at most {} storage buffers per shader stage; the score kernel with physics needs {STORAGE_BUFFERS}: use the CPU twin (--device cpu)",
+                info.name, alimits.max_storage_buffers_per_shader_stage
+            )));
+        }
+        required.max_storage_buffers_per_shader_stage = STORAGE_BUFFERS;
         required.max_compute_workgroup_storage_size = alimits.max_compute_workgroup_storage_size.min(16384);
         let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {

@@ -17,7 +17,7 @@ use glam::{DMat3, DVec2, DVec3};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::kernels::raster::{raster_ids, resolve};
+use crate::kernels::raster::{render_ids, resolve};
 use crate::kernels::{GpuPose, RenderMesh};
 use crate::mesh::mass::MassProperties;
 use crate::mesh::Mesh;
@@ -248,7 +248,7 @@ fn observed_points(obs: &DepthImage, mask: &[bool]) -> Vec<DVec3> {
 /// alignment was most of `estimate`'s time.
 fn visible_centroid(mesh: &RenderMesh, pose: &Pose, k: &crate::camera::Intrinsics, to_plane: &Pose, zbuf: &mut [f32], ids: &mut [u32]) -> Option<DVec2> {
     let gp = GpuPose::from(pose);
-    let [x0, y0, x1, y1] = raster_ids(mesh, &gp, k, zbuf, ids)?;
+    let [x0, y0, x1, y1] = render_ids(mesh, &gp, k, zbuf, ids)?;
     let w = k.width as usize;
     let (mut sum, mut count) = (DVec3::ZERO, 0usize);
     for y in y0..=y1 {

@@ -15,8 +15,8 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::raster::{raster_ids, raster_params, resolve, screen_rect, RasterBuffers};
-use super::{GpuPose, RenderMesh, MAX_GPU_TRIANGLES, RASTER_WGSL};
+use super::raster::{raster_params, render_ids, resolve, screen_rect, RasterBuffers};
+use super::{GpuPose, RenderMesh, MAX_GPU_MESHLETS, RASTER_WGSL};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -99,7 +99,7 @@ pub fn tile_rect(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> Option<[usiz
 pub fn depth_tile_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<DepthTile> {
     let gp = GpuPose::from(pose);
     let rect = screen_rect(&gp, mesh.radius, k)?;
-    let drawn = raster_ids(mesh, &gp, k, zbuf, ids);
+    let drawn = render_ids(mesh, &gp, k, zbuf, ids);
     let w = k.width as usize;
     let mut depth = Vec::with_capacity((rect[2] - rect[0] + 1) * (rect[3] - rect[1] + 1));
     for y in rect[1]..=rect[3] {
@@ -167,10 +167,11 @@ impl<'a> GpuDepth<'a> {
     /// Depth tiles of `poses`, in input order. Poses whose tile exceeds
     /// [`MAX_GPU_TILE_PIXELS`] are rendered by the CPU twin.
     pub fn render(&self, poses: &[Pose]) -> Result<Vec<Option<DepthTile>>> {
-        if self.mesh.triangles.len() > MAX_GPU_TRIANGLES {
+        if self.mesh.meshlets.len() > MAX_GPU_MESHLETS {
             tracing::warn!(
-                "the mesh has {} triangles, more than the depth kernel's {MAX_GPU_TRIANGLES} (lavapipe's loop cap): rendering with the CPU twin",
-                self.mesh.triangles.len()
+                "the mesh has {} triangles in {} meshlets, more than the depth kernel's {MAX_GPU_MESHLETS} (lavapipe's loop cap): rendering with the CPU twin",
+                self.mesh.triangles.len(),
+                self.mesh.meshlets.len()
             );
             return Ok(depth_tiles_cpu(self.mesh, poses, &self.k));
         }

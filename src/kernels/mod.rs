@@ -17,6 +17,7 @@
 //! kernel fuses that with the eq. 3-5 alignment and a workgroup reduction,
 //! so only one record per hypothesis leaves the GPU.
 
+pub mod bvh;
 pub mod contacts;
 pub mod depth;
 pub mod plane_contacts;
@@ -38,22 +39,25 @@ pub const RASTER_WGSL: &str = include_str!("../../shaders/raster.wgsl");
 /// of the 32-bit visibility key, leaving at least 8 bits of depth.
 pub const MAX_TRIANGLES: usize = 1 << 24;
 
-/// Most triangles the GPU visual kernels take, and most region pixels of
-/// the score and render kernels. lavapipe silently ends every loop of an
-/// invocation after 65,535 iterations in total: each of a workgroup's 64
-/// invocations sets up n/64 triangles (about three loop iterations each with
-/// their pixels) and visits pixels/64 region pixels (twice), so these caps
-/// keep one hypothesis under ~57,000 iterations. Larger inputs are refused
-/// with an error (or, for evaluation renders, drawn by the CPU twin), never
+/// Most meshlets the GPU visual kernels take (about 500,000 triangles:
+/// meshlets hold up to 64), and most region pixels of the score and render
+/// kernels. lavapipe silently ends every loop of an invocation after 65,535
+/// iterations in total: each of a workgroup's 64 invocations sets up one
+/// triangle per meshlet (about three loop iterations with its pixels) and
+/// visits pixels/64 region pixels (twice), so these caps keep one
+/// hypothesis under ~57,000 iterations. Larger inputs are refused with an
+/// error (or, for evaluation renders, drawn by the CPU twin), never
 /// returned as silent zeros.
-pub const MAX_GPU_TRIANGLES: usize = 500_000;
+pub const MAX_GPU_MESHLETS: usize = 8192;
 pub const MAX_GPU_PIXELS: usize = 1 << 20;
 
 /// Refuses work that would exceed a GPU kernel's loop budget.
-pub fn check_loop_budget(triangles: usize, pixels: usize) -> Result<()> {
-    if triangles > MAX_GPU_TRIANGLES {
+pub fn check_loop_budget(mesh: &RenderMesh, pixels: usize) -> Result<()> {
+    if mesh.meshlets.len() > MAX_GPU_MESHLETS {
         return Err(Error::InvalidInput(format!(
-            "the mesh has {triangles} triangles; the GPU kernels take at most {MAX_GPU_TRIANGLES} (software adapters stop long loops silently): decimate it or use the CPU twin"
+            "the mesh has {} triangles in {} meshlets; the GPU kernels take at most {MAX_GPU_MESHLETS} meshlets of {MESHLET_TRIANGLES} triangles (software adapters stop long loops silently): decimate it (--lod) or use the CPU twin",
+            mesh.triangles.len(),
+            mesh.meshlets.len()
         )));
     }
     if pixels > MAX_GPU_PIXELS {
@@ -153,7 +157,8 @@ pub struct RasterParams {
     pub width: u32,
     pub height: u32,
     pub n_hyp: u32,
-    pub n_tri: u32,
+    /// Meshlets of the mesh (the rasterizer's outer loop).
+    pub n_meshlets: u32,
     pub id_bits: u32,
     pub cull: u32,
     pub radius: f32,
@@ -167,19 +172,99 @@ pub struct RasterParams {
 }
 const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
 
-/// A mesh prepared for rendering: f32 triangles with planes, its bounding
-/// radius about the model origin, and whether back faces may be culled
-/// (only for closed meshes: through an open mesh's holes you see inside).
+/// One meshlet as the GPU sees it (`GpuMeshlet` in raster.wgsl): up to
+/// [`MESHLET_TRIANGLES`] neighbouring triangles, stored contiguously from
+/// `first`, with a bounding sphere (model space, metres) and meshoptimizer's
+/// normal cone. The rasterizer tests a whole meshlet against the region and
+/// for back faces before it sets up any of its triangles.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct GpuMeshlet {
+    /// Centre and radius of the bounding sphere.
+    pub sphere: [f32; 4],
+    /// Cone axis and cutoff: the meshlet faces away from a camera at `c`
+    /// when `dot(centre - c, axis) >= cutoff * |centre - c| + radius`
+    /// (meshoptimizer's test; a cutoff above 1 never culls).
+    pub cone: [f32; 4],
+    pub first: u32,
+    pub count: u32,
+    /// The meshlet's vertices in [`RenderMesh::meshlet_vertices`] (the CPU
+    /// twin transforms each once per meshlet; the GPU reads corners).
+    pub first_vertex: u32,
+    pub vertex_count: u32,
+}
+const _: () = assert!(std::mem::size_of::<GpuMeshlet>() == 48);
+
+/// Most triangles of a meshlet: the rasterizer's workgroup takes one
+/// meshlet per step, one triangle per invocation.
+pub const MESHLET_TRIANGLES: usize = 64;
+/// Most vertices of a meshlet (meshoptimizer allows 256): three per
+/// triangle, so meshlets fill up even on meshes whose faces share no
+/// vertices.
+const MESHLET_VERTICES: usize = 192;
+
+/// A mesh prepared for rendering: f32 triangles with planes grouped into
+/// meshlets, its bounding radius about the model origin, and whether back
+/// faces may be culled (only for closed meshes: through an open mesh's
+/// holes you see inside).
 #[derive(Clone, Debug)]
 pub struct RenderMesh {
+    /// Triangles in meshlet order (triangle ids index this).
     pub triangles: Vec<GpuTriangle>,
-    /// f32 vertices and each triangle's corner indices (the CPU twin
-    /// transforms and projects each vertex once per pose, not once per
-    /// corner; the corners are the same f32 values as in `triangles`).
+    pub meshlets: Vec<GpuMeshlet>,
+    /// f32 vertices (welded): each meshlet's vertices are
+    /// `vertices[meshlet_vertices[first_vertex..][..vertex_count]]`, and
+    /// `corners[t]` are triangle `t`'s corners among its meshlet's vertices.
+    /// The CPU twin transforms and projects each meshlet vertex once per
+    /// pose; the values are the same f32 numbers as in `triangles`.
     pub vertices: Vec<Vec3>,
-    pub indices: Vec<[u32; 3]>,
+    pub meshlet_vertices: Vec<u32>,
+    pub corners: Vec<[u8; 3]>,
     pub radius: f32,
     pub cull_back_faces: bool,
+    /// Which CPU renderer draws it (the GPU always rasterizes).
+    pub renderer: RendererChoice,
+    /// The ray caster's BVH, built on first use and shared by clones.
+    ray_caster: std::sync::Arc<std::sync::OnceLock<Option<bvh::RayCaster>>>,
+}
+
+/// The CPU renderer of a mesh: the rasterizer (the GPU kernel's twin) or
+/// the BVH ray caster ([`bvh`]), or `Auto`: the ray caster where it is
+/// measured faster (see [`RenderMesh::cpu_renderer`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RendererChoice {
+    #[default]
+    Auto,
+    Raster,
+    RayCast,
+}
+
+impl std::str::FromStr for RendererChoice {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(RendererChoice::Auto),
+            "raster" => Ok(RendererChoice::Raster),
+            "bvh" | "raycast" => Ok(RendererChoice::RayCast),
+            _ => Err(Error::InvalidInput(format!("unknown renderer {s:?}: expected auto, raster or bvh"))),
+        }
+    }
+}
+
+/// The CPU renderer [`RenderMesh::cpu_renderer`] picked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CpuRenderer {
+    Raster,
+    RayCast,
+}
+
+impl std::fmt::Display for CpuRenderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            CpuRenderer::Raster => "raster",
+            CpuRenderer::RayCast => "bvh",
+        })
+    }
 }
 
 impl RenderMesh {
@@ -190,24 +275,55 @@ impl RenderMesh {
                 mesh.triangles.len()
             )));
         }
+        // Welded, so meshlets follow the surface's connectivity (per-face
+        // vertices, as in STL, would hide it).
+        let mut welded = mesh.clone();
+        welded.weld();
+        let cull_back_faces = welded.is_closed();
+        let vertices: Vec<Vec3> = welded.vertices.iter().map(|v| v.as_vec3()).collect();
+        let built = build_meshlets(&welded, &vertices, cull_back_faces);
         let v4 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32, 0.0];
-        let triangles = (0..mesh.triangles.len())
-            .map(|i| {
-                let [a, b, c] = mesh.corners(i);
-                let n = mesh.face_normal(i);
+        let triangles = built
+            .order
+            .iter()
+            .map(|&[a, b, c]| {
+                let [a, b, c] = [a, b, c].map(|i| welded.vertices[i as usize]);
+                let n = (b - a).cross(c - a).normalize_or_zero();
                 GpuTriangle { v0: v4(a), v1: v4(b), v2: v4(c), plane: [n.x as f32, n.y as f32, n.z as f32, n.dot(a) as f32] }
             })
             .collect();
-        let mut welded = mesh.clone();
-        welded.weld();
-        let vertices = mesh.vertices.iter().map(|v| v.as_vec3()).collect();
         Ok(RenderMesh {
             triangles,
+            meshlets: built.meshlets,
             vertices,
-            indices: mesh.triangles.clone(),
+            meshlet_vertices: built.vertices,
+            corners: built.corners,
             radius: (mesh.radius_about_origin() * 1.0001) as f32,
-            cull_back_faces: welded.is_closed(),
+            cull_back_faces,
+            renderer: RendererChoice::Auto,
+            ray_caster: Default::default(),
         })
+    }
+
+    /// The CPU renderer for a hypothesis whose rectangle (the projection
+    /// of the bounding sphere, clipped to the region) has `pixels` pixels.
+    /// `Auto` ray-casts when the mesh has more than
+    /// [`RAY_CAST_TRIANGLES_PER_PIXEL`] triangles per pixel of it (the
+    /// rasterizer's cost grows with triangles, the ray caster's with
+    /// pixels) and its BVH is shallow enough to traverse.
+    pub fn cpu_renderer(&self, pixels: usize) -> CpuRenderer {
+        let wanted = match self.renderer {
+            RendererChoice::Raster => false,
+            RendererChoice::RayCast => true,
+            RendererChoice::Auto => self.triangles.len() as f64 > RAY_CAST_TRIANGLES_PER_PIXEL * pixels as f64,
+        };
+        if wanted && self.ray_caster().is_some() { CpuRenderer::RayCast } else { CpuRenderer::Raster }
+    }
+
+    /// The ray caster, its BVH built on first use (`None` when the tree is
+    /// too deep to traverse safely).
+    pub fn ray_caster(&self) -> Option<&bvh::RayCaster> {
+        self.ray_caster.get_or_init(|| bvh::RayCaster::new(self)).as_ref()
     }
 
     /// Bits of the visibility key used for the triangle id.
@@ -215,6 +331,52 @@ impl RenderMesh {
         (usize::BITS - self.triangles.len().saturating_sub(1).leading_zeros()).max(1)
     }
 }
+
+/// Meshlets of a welded mesh: the triangles (global vertex ids) in meshlet
+/// order, the meshlet records, their vertex lists and each triangle's
+/// corners among its meshlet's vertices.
+struct Built {
+    order: Vec<[u32; 3]>,
+    meshlets: Vec<GpuMeshlet>,
+    vertices: Vec<u32>,
+    corners: Vec<[u8; 3]>,
+}
+
+/// Groups triangles into meshlets with meshoptimizer (`meshopt`, the
+/// reference implementation), weighting normal-cone tightness so whole
+/// meshlets can be culled as back faces; bounds come from meshoptimizer
+/// too. Meshes that are not closed get a cutoff of 2, which never culls.
+fn build_meshlets(mesh: &Mesh, vertices: &[Vec3], closed: bool) -> Built {
+    let positions: Vec<[f32; 3]> = vertices.iter().map(|v| v.to_array()).collect();
+    let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&positions), 12, 0).expect("12-byte f32 positions");
+    let ml = meshopt::build_meshlets(&indices, &adapter, MESHLET_VERTICES, MESHLET_TRIANGLES, 0.5);
+    let mut out = Built { order: Vec::with_capacity(mesh.triangles.len()), meshlets: Vec::with_capacity(ml.len()), vertices: Vec::new(), corners: Vec::new() };
+    for m in ml.iter() {
+        let b = meshopt::compute_meshlet_bounds(m, &adapter);
+        let cutoff = if closed { b.cone_cutoff } else { 2.0 };
+        out.meshlets.push(GpuMeshlet {
+            sphere: [b.center[0], b.center[1], b.center[2], b.radius],
+            cone: [b.cone_axis[0], b.cone_axis[1], b.cone_axis[2], cutoff],
+            first: out.order.len() as u32,
+            count: (m.triangles.len() / 3) as u32,
+            first_vertex: out.vertices.len() as u32,
+            vertex_count: m.vertices.len() as u32,
+        });
+        for c in m.triangles.chunks_exact(3) {
+            out.order.push([c[0], c[1], c[2]].map(|i| m.vertices[i as usize]));
+            out.corners.push([c[0], c[1], c[2]]);
+        }
+        out.vertices.extend_from_slice(m.vertices);
+    }
+    out
+}
+
+/// Triangles per pixel of a hypothesis' rectangle above which `Auto`
+/// ray-casts on the CPU: the measured crossover was 45-50 at 128x128 and
+/// 640x480 regions alike (LM-O can subdivided to 45k-2.9M triangles, see
+/// the README's design notes).
+pub const RAY_CAST_TRIANGLES_PER_PIXEL: f64 = 40.0;
 
 /// Every WGSL source as the pipelines compile it: `(name, source)`.
 pub fn shader_sources() -> Vec<(&'static str, String)> {
@@ -294,7 +456,8 @@ mod tests {
         macro_rules! same {
             ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
         }
-        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_tri, id_bits, cull, radius, tau, alpha, near, n_obs, first));
+        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_meshlets, id_bits, cull, radius, tau, alpha, near, n_obs, first));
+        wgsl_layout::assert_layout(src, "GpuMeshlet", size_of::<GpuMeshlet>(), same!(GpuMeshlet, sphere, cone, first, count, first_vertex, vertex_count));
         wgsl_layout::assert_layout(src, "GpuTriangle", size_of::<GpuTriangle>(), same!(GpuTriangle, v0, v1, v2, plane));
         let rows = offset_of!(GpuPose, rows);
         wgsl_layout::assert_layout(src, "GpuPose", size_of::<GpuPose>(), &[("r0", rows), ("r1", rows + 16), ("r2", rows + 32)]);

@@ -7,7 +7,7 @@
 
 use glam::Vec3;
 
-use super::{GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M};
+use super::{GpuMeshlet, GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -36,11 +36,60 @@ pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize
     (x0 <= x1 && y0 <= y1).then_some([x0 as usize, y0 as usize, x1 as usize, y1 as usize])
 }
 
+/// Whether meshlet `m` may draw into the pixel rectangle `[first, last]`
+/// (the twin of `meshlet_visible` in raster.wgsl): false when the whole
+/// meshlet faces away from the camera (`cam`, the camera centre in model
+/// coordinates, only for meshes whose back faces may be culled), lies
+/// behind the near plane, or projects outside the rectangle (its bounding
+/// sphere's box, with half a pixel to spare). Every triangle of a rejected
+/// meshlet would have been rejected on its own.
+#[inline]
+pub fn meshlet_visible(m: &GpuMeshlet, pose: &GpuPose, cam: Vec3, cull: bool, k: &Intrinsics, first: (f32, f32), last: (f32, f32)) -> bool {
+    let centre = Vec3::from_slice(&m.sphere[..3]);
+    let r = m.sphere[3];
+    if cull {
+        let v = centre - cam;
+        if v.dot(Vec3::from_slice(&m.cone[..3])) >= m.cone[3] * v.length() + r {
+            return false;
+        }
+    }
+    let c = pose.transform(centre);
+    if c.z + r < NEAR_M {
+        return false;
+    }
+    if c.z - r <= NEAR_M {
+        return true;
+    }
+    let (zn, zf) = (c.z - r, c.z + r);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let xlo = ((c.x - r) / zn).min((c.x - r) / zf) * fx + cx;
+    let xhi = ((c.x + r) / zn).max((c.x + r) / zf) * fx + cx;
+    let ylo = ((c.y - r) / zn).min((c.y - r) / zf) * fy + cy;
+    let yhi = ((c.y + r) / zn).max((c.y + r) / zf) * fy + cy;
+    xhi >= first.0 - 0.5 && yhi >= first.1 - 0.5 && xlo <= last.0 + 0.5 && ylo <= last.1 + 0.5
+}
+
+/// `x.floor()` and `x.ceil()` inlined: without SSE4.1 in the target
+/// features they are library calls, a tenth of the rasterizer's time on
+/// meshes of sub-pixel triangles. Exact for |x| < 2^31; beyond, the bounds
+/// are clamped to the image anyway.
+#[inline(always)]
+fn floor_f32(x: f32) -> f32 {
+    let i = x as i32 as f32;
+    if i > x { i - 1.0 } else { i }
+}
+#[inline(always)]
+fn ceil_f32(x: f32) -> f32 {
+    let i = x as i32 as f32;
+    if i < x { i + 1.0 } else { i }
+}
+
 /// Rasterizes `mesh` at `pose` into a z-buffer of triangle ids (`u32::MAX`
 /// for background) and depths. `zbuf` and `ids` must hold `w * h` items.
 /// Returns the tight rectangle `[x0, y0, x1, y1]` of the drawn triangles'
 /// pixel bounds (`None` if nothing was drawn); only inside it are the
-/// buffers valid (the GPU kernel visits the same rectangle).
+/// buffers valid (the GPU kernel visits the same rectangle). Meshlets are
+/// culled first, as the kernel culls them.
 pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
     let w = k.width as usize;
     let rect = screen_rect(pose, mesh.radius, k)?;
@@ -52,35 +101,42 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     let cross2 = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
     let sub = |a: (f32, f32), b: (f32, f32)| (a.0 - b.0, a.1 - b.1);
+    let (first, last) = ((rect[0] as f32, rect[1] as f32), (rect[2] as f32, rect[3] as f32));
     // Camera centre in model coordinates: a face is a back face when the
     // camera lies on the inner side of its plane.
     let cam = pose.inverse_translation();
-    PROJECTED.with_borrow_mut(|proj| {
-        // Every vertex transformed and projected once (the same f32 operations
-        // the kernel does per corner, so the results are identical).
-        proj.clear();
-        proj.extend(mesh.vertices.iter().map(|&v| {
-            let p = pose.transform(v);
-            (p, (fx * p.x / p.z + cx, fy * p.y / p.z + cy))
-        }));
-        for (t, tri) in mesh.triangles.iter().enumerate() {
+    let mut proj = [(Vec3::ZERO, (0.0f32, 0.0f32)); 256];
+    for m in &mesh.meshlets {
+        if !meshlet_visible(m, pose, cam, mesh.cull_back_faces, k, first, last) {
+            continue;
+        }
+        // The meshlet's vertices transformed and projected once (the same
+        // f32 operations the kernel does per corner, so the values are
+        // identical).
+        let verts = &mesh.meshlet_vertices[m.first_vertex as usize..][..m.vertex_count as usize];
+        for (slot, &v) in proj.iter_mut().zip(verts) {
+            let p = pose.transform(mesh.vertices[v as usize]);
+            *slot = (p, (fx * p.x / p.z + cx, fy * p.y / p.z + cy));
+        }
+        for t in m.first as usize..(m.first + m.count) as usize {
+            let tri = &mesh.triangles[t];
             if mesh.cull_back_faces && Vec3::from_slice(&tri.plane[..3]).dot(cam) <= tri.plane[3] {
                 continue;
             }
-            let [ia, ib, ic] = mesh.indices[t];
+            let [ia, ib, ic] = mesh.corners[t];
             let ((a, sa), (b, sb), (c, sc)) = (proj[ia as usize], proj[ib as usize], proj[ic as usize]);
             if a.z.min(b.z).min(c.z) < NEAR_M {
                 continue;
             }
-            let area = cross2(sub(sb, sa), sub(sc, sa));
-            if area.abs() < 1e-12 {
+            let x_lo = ceil_f32(sa.0.min(sb.0).min(sc.0)).max(first.0);
+            let y_lo = ceil_f32(sa.1.min(sb.1).min(sc.1)).max(first.1);
+            let x_hi = floor_f32(sa.0.max(sb.0).max(sc.0)).min(last.0);
+            let y_hi = floor_f32(sa.1.max(sb.1).max(sc.1)).min(last.1);
+            if x_lo > x_hi || y_lo > y_hi {
                 continue;
             }
-            let x_lo = sa.0.min(sb.0).min(sc.0).ceil().max(rect[0] as f32);
-            let y_lo = sa.1.min(sb.1).min(sc.1).ceil().max(rect[1] as f32);
-            let x_hi = sa.0.max(sb.0).max(sc.0).floor().min(rect[2] as f32);
-            let y_hi = sa.1.max(sb.1).max(sc.1).floor().min(rect[3] as f32);
-            if x_lo > x_hi || y_lo > y_hi {
+            let area = cross2(sub(sb, sa), sub(sc, sa));
+            if area.abs() < 1e-12 {
                 continue;
             }
             let (bx0, by0, bx1, by1) = (x_lo as usize, y_lo as usize, x_hi as usize, y_hi as usize);
@@ -89,8 +145,8 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
                 Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
             });
             let inv = 1.0 / area;
-            for y in y_lo as usize..=y_hi as usize {
-                for x in x_lo as usize..=x_hi as usize {
+            for y in by0..=by1 {
+                for x in bx0..=bx1 {
                     let q = (x as f32, y as f32);
                     let w0 = cross2(sub(sc, sb), sub(q, sb)) * inv;
                     let w1 = cross2(sub(sa, sc), sub(q, sc)) * inv;
@@ -107,13 +163,19 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
                 }
             }
         }
-    });
+    }
     drawn
 }
 
-thread_local! {
-    /// Per-thread scratch of camera-frame vertices and their projections.
-    static PROJECTED: std::cell::RefCell<Vec<(Vec3, (f32, f32))>> = const { std::cell::RefCell::new(Vec::new()) };
+/// Triangle ids and depths of `mesh` at `pose` with its CPU renderer (the
+/// rasterizer twin or the BVH ray caster, chosen per hypothesis by
+/// [`RenderMesh::cpu_renderer`]); the same contract as [`raster_ids`].
+pub fn render_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
+    let r = screen_rect(pose, mesh.radius, k)?;
+    match mesh.cpu_renderer((r[2] - r[0] + 1) * (r[3] - r[1] + 1)) {
+        super::CpuRenderer::RayCast => mesh.ray_caster().expect("chosen only when built").cast_ids(mesh, pose, k, zbuf, ids),
+        super::CpuRenderer::Raster => raster_ids(mesh, pose, k, zbuf, ids),
+    }
 }
 
 /// Exact depth and camera-facing normal at pixel `(x, y)` on triangle `tri`,
@@ -141,7 +203,7 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
         width: k.width,
         height: k.height,
         n_hyp,
-        n_tri: mesh.triangles.len() as u32,
+        n_meshlets: mesh.meshlets.len() as u32,
         id_bits: mesh.id_bits(),
         cull: mesh.cull_back_faces as u32,
         radius: mesh.radius,
@@ -157,6 +219,7 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
 pub(crate) struct RasterBuffers {
     pub params: wgpu::Buffer,
     pub tris: wgpu::Buffer,
+    pub meshlets: wgpu::Buffer,
     pub poses: wgpu::Buffer,
     pub vis: wgpu::Buffer,
     /// Hypotheses per dispatch.
@@ -177,7 +240,8 @@ impl RasterBuffers {
         let lim = ctx.limits;
         let pix = k.pixels() as u64;
         let tri_bytes = (mesh.triangles.len() * std::mem::size_of::<GpuTriangle>()) as u64;
-        if tri_bytes > lim.max_storage_binding.min(lim.max_buffer) {
+        let meshlet_bytes = (mesh.meshlets.len() * std::mem::size_of::<GpuMeshlet>()) as u64;
+        if tri_bytes.max(meshlet_bytes) > lim.max_storage_binding.min(lim.max_buffer) {
             return Err(Error::Gpu(format!(
                 "mesh needs {tri_bytes} bytes of triangles but the adapter binds at most {} bytes: decimate it",
                 lim.max_storage_binding
@@ -207,6 +271,11 @@ impl RasterBuffers {
             contents: bytemuck::cast_slice(&mesh.triangles),
             usage: storage,
         });
+        let meshlets = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("meshlets"),
+            contents: bytemuck::cast_slice(&mesh.meshlets),
+            usage: storage,
+        });
         // One parameter block per wave, each at a uniform-offset boundary.
         let waves = (chunk as u64).div_ceil(slots as u64);
         let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -227,7 +296,7 @@ impl RasterBuffers {
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
-        Ok(RasterBuffers { params, tris, poses, vis, chunk, slots })
+        Ok(RasterBuffers { params, tris, meshlets, poses, vis, chunk, slots })
     }
 
     /// Runs a kernel over `n` hypotheses (already uploaded to `poses`) in
@@ -270,6 +339,7 @@ impl RasterBuffers {
                     wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: MESHLETS_BINDING, resource: self.meshlets.as_entire_binding() },
                 ];
                 entries.extend(extra.iter().cloned());
                 ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("wave"), layout: &layout, entries: &entries })
@@ -283,6 +353,10 @@ impl RasterBuffers {
         }
     }
 }
+
+/// Binding of the meshlet table in raster.wgsl (after every kernel's own
+/// bindings 4-9).
+const MESHLETS_BINDING: u32 = 10;
 
 /// Byte stride of the per-wave parameter blocks (the largest uniform-offset
 /// alignment wgpu allows).

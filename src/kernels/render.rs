@@ -5,7 +5,7 @@
 
 use glam::Vec3;
 
-use super::raster::{raster_ids, raster_params, resolve, RasterBuffers};
+use super::raster::{raster_params, render_ids, resolve, RasterBuffers};
 use super::{GpuPose, RenderMesh, RASTER_WGSL};
 use crate::camera::Intrinsics;
 use crate::error::Result;
@@ -32,7 +32,7 @@ pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage
     let gp = GpuPose::from(pose);
     let mut zbuf = vec![f32::INFINITY; n];
     let mut ids = vec![u32::MAX; n];
-    raster_ids(mesh, &gp, k, &mut zbuf, &mut ids);
+    render_ids(mesh, &gp, k, &mut zbuf, &mut ids);
     let mut depth = vec![0.0; n];
     let mut normals = vec![Vec3::ZERO; n];
     for i in 0..n {
@@ -50,7 +50,7 @@ pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage
 /// GPU `render` kernel: depth and normals of every pose (for tests and
 /// pictures; scoring uses the fused `score` kernel instead).
 pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Result<Vec<RenderImage>> {
-    super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
+    super::check_loop_budget(mesh, k.pixels())?;
     let pix = k.pixels();
     let bufs = RasterBuffers::new(ctx, mesh, k, poses.len(), pix as u64 * 16, usize::MAX)?;
     let pipeline = ctx.pipeline("render", &render_wgsl(), "render_main");

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::raster::{raster_ids, raster_params, resolve, RasterBuffers};
+use super::raster::{raster_params, render_ids, resolve, RasterBuffers};
 use super::{GpuPose, RenderMesh};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -139,7 +139,7 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
             |(zbuf, ids), pose| {
                 let gp = GpuPose::from(pose);
                 let mut acc = Acc::default();
-                if let Some([x0, y0, x1, y1]) = raster_ids(mesh, &gp, k, zbuf, ids) {
+                if let Some([x0, y0, x1, y1]) = render_ids(mesh, &gp, k, zbuf, ids) {
                     for y in y0..=y1 {
                         for x in x0..=x1 {
                             let i = y * w + x;
@@ -297,7 +297,7 @@ impl GpuScorer {
         use wgpu::util::DeviceExt;
         let _span = tracing::trace_span!("gpu_setup").entered();
         let k = target.intrinsics;
-        super::check_loop_budget(mesh.triangles.len(), k.pixels())?;
+        super::check_loop_budget(mesh, k.pixels())?;
         let words = physics.map_or(0, |(p, _)| p.words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
