@@ -68,9 +68,9 @@ impl RayCaster {
     }
 
     /// Casts one ray through each pixel centre of the hypothesis' rectangle
-    /// and writes the nearest triangle's id and depth (`u32::MAX` and
-    /// infinity where nothing is hit). Returns the tight rectangle of the
-    /// hit pixels, like `raster_ids`.
+    /// and writes the nearest triangle's id and inverse depth (`u32::MAX`
+    /// and 0 where nothing is hit), as `raster_ids` does. Returns the tight
+    /// rectangle of the hit pixels.
     pub fn cast_ids(&self, mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
         let w = k.width as usize;
         let rect = screen_rect(pose, mesh.radius, k)?;
@@ -87,7 +87,7 @@ impl RayCaster {
                 let i = y * w + x;
                 match self.nearest(origin, dir) {
                     Some((t, id)) => {
-                        zbuf[i] = t;
+                        zbuf[i] = 1.0 / t;
                         ids[i] = id;
                         drawn = Some(match drawn {
                             None => [x, y, x, y],
@@ -95,7 +95,7 @@ impl RayCaster {
                         });
                     }
                     None => {
-                        zbuf[i] = f32::INFINITY;
+                        zbuf[i] = 0.0;
                         ids[i] = u32::MAX;
                     }
                 }

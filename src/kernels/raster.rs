@@ -5,7 +5,7 @@
 //! same exact plane-based depth and normal per pixel. Also the buffers and
 //! wave dispatch every visual kernel uses.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3, Vec3A};
 
 use super::{GpuMeshlet, GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M};
 use crate::camera::Intrinsics;
@@ -84,28 +84,30 @@ fn ceil_f32(x: f32) -> f32 {
     if i < x { i + 1.0 } else { i }
 }
 
-/// Rasterizes `mesh` at `pose` into a z-buffer of triangle ids (`u32::MAX`
-/// for background) and depths. `zbuf` and `ids` must hold `w * h` items.
-/// Returns the tight rectangle `[x0, y0, x1, y1]` of the drawn triangles'
-/// pixel bounds (`None` if nothing was drawn); only inside it are the
-/// buffers valid (the GPU kernel visits the same rectangle). Meshlets are
-/// culled first, as the kernel culls them.
+/// Rasterizes `mesh` at `pose` into a buffer of triangle ids (`u32::MAX`
+/// for background), with `zbuf` as the depth test's scratch (inverse depth,
+/// larger = nearer, as in the kernel; exact depth comes from [`resolve`]).
+/// `zbuf` and `ids` must hold `w * h` items. Returns the tight rectangle
+/// `[x0, y0, x1, y1]` of the drawn triangles' pixel bounds (`None` if
+/// nothing was drawn); only inside it are the buffers valid (the GPU kernel
+/// visits the same rectangle). Meshlets are culled first, as the kernel
+/// culls them, and each triangle is set up as the kernel sets it up:
+/// barycentric weights affine in the pixel position (start value and
+/// steps), inverse depth interpolated with them.
 pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
     let w = k.width as usize;
     let rect = screen_rect(pose, mesh.radius, k)?;
     for y in rect[1]..=rect[3] {
-        zbuf[y * w + rect[0]..=y * w + rect[2]].fill(f32::INFINITY);
+        zbuf[y * w + rect[0]..=y * w + rect[2]].fill(0.0);
         ids[y * w + rect[0]..=y * w + rect[2]].fill(u32::MAX);
     }
     let mut drawn: Option<[usize; 4]> = None;
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
-    let cross2 = |a: (f32, f32), b: (f32, f32)| a.0 * b.1 - a.1 * b.0;
-    let sub = |a: (f32, f32), b: (f32, f32)| (a.0 - b.0, a.1 - b.1);
     let (first, last) = ((rect[0] as f32, rect[1] as f32), (rect[2] as f32, rect[3] as f32));
     // Camera centre in model coordinates: a face is a back face when the
     // camera lies on the inner side of its plane.
     let cam = pose.inverse_translation();
-    let mut proj = [(Vec3::ZERO, (0.0f32, 0.0f32)); 256];
+    let mut proj = [(Vec3::ZERO, Vec2::ZERO); 256];
     for m in &mesh.meshlets {
         if !meshlet_visible(m, pose, cam, mesh.cull_back_faces, k, first, last) {
             continue;
@@ -116,7 +118,7 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
         let verts = &mesh.meshlet_vertices[m.first_vertex as usize..][..m.vertex_count as usize];
         for (slot, &v) in proj.iter_mut().zip(verts) {
             let p = pose.transform(mesh.vertices[v as usize]);
-            *slot = (p, (fx * p.x / p.z + cx, fy * p.y / p.z + cy));
+            *slot = (p, Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy));
         }
         for t in m.first as usize..(m.first + m.count) as usize {
             let tri = &mesh.triangles[t];
@@ -128,37 +130,38 @@ pub fn raster_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
             if a.z.min(b.z).min(c.z) < NEAR_M {
                 continue;
             }
-            let x_lo = ceil_f32(sa.0.min(sb.0).min(sc.0)).max(first.0);
-            let y_lo = ceil_f32(sa.1.min(sb.1).min(sc.1)).max(first.1);
-            let x_hi = floor_f32(sa.0.max(sb.0).max(sc.0)).min(last.0);
-            let y_hi = floor_f32(sa.1.max(sb.1).max(sc.1)).min(last.1);
-            if x_lo > x_hi || y_lo > y_hi {
+            let lo = Vec2::new(ceil_f32(sa.x.min(sb.x).min(sc.x)).max(first.0), ceil_f32(sa.y.min(sb.y).min(sc.y)).max(first.1));
+            let hi = Vec2::new(floor_f32(sa.x.max(sb.x).max(sc.x)).min(last.0), floor_f32(sa.y.max(sb.y).max(sc.y)).min(last.1));
+            if lo.x > hi.x || lo.y > hi.y {
                 continue;
             }
-            let area = cross2(sub(sb, sa), sub(sc, sa));
+            let area = (sb - sa).perp_dot(sc - sa);
             if area.abs() < 1e-12 {
                 continue;
             }
-            let (bx0, by0, bx1, by1) = (x_lo as usize, y_lo as usize, x_hi as usize, y_hi as usize);
+            let (bx0, by0, bx1, by1) = (lo.x as usize, lo.y as usize, hi.x as usize, hi.y as usize);
             drawn = Some(match drawn {
                 None => [bx0, by0, bx1, by1],
                 Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
             });
+            // The kernel's setup (setup_triangle in raster.wgsl).
             let inv = 1.0 / area;
-            for y in by0..=by1 {
-                for x in bx0..=bx1 {
-                    let q = (x as f32, y as f32);
-                    let w0 = cross2(sub(sc, sb), sub(q, sb)) * inv;
-                    let w1 = cross2(sub(sa, sc), sub(q, sc)) * inv;
-                    let w2 = cross2(sub(sb, sa), sub(q, sa)) * inv;
-                    if w0.min(w1).min(w2) < 0.0 {
+            let iz = Vec3A::new(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
+            let dw_dx = Vec3A::new(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
+            let dw_dy = Vec3A::new(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
+            let w0 = Vec3A::new((sc - sb).perp_dot(lo - sb), (sa - sc).perp_dot(lo - sc), (sb - sa).perp_dot(lo - sa)) * inv;
+            for (j, y) in (by0..=by1).enumerate() {
+                let w_row = w0 + dw_dy * j as f32;
+                for (i, x) in (bx0..=bx1).enumerate() {
+                    let wt = w_row + dw_dx * i as f32;
+                    if wt.min_element() < 0.0 {
                         continue;
                     }
-                    let z = 1.0 / (w0 / a.z + w1 / b.z + w2 / c.z);
-                    let i = y * w + x;
-                    if z < zbuf[i] {
-                        zbuf[i] = z;
-                        ids[i] = t as u32;
+                    let near = wt.dot(iz);
+                    let at = y * w + x;
+                    if near > zbuf[at] {
+                        zbuf[at] = near;
+                        ids[at] = t as u32;
                     }
                 }
             }
