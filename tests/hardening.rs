@@ -31,6 +31,21 @@ fn gpu_loop_budget_is_refused_not_returned_as_zeros() {
     assert!(e.contains("meshlets") && e.contains("CPU twin"), "{e}");
 }
 
+/// `--device auto` scores a mesh past the GPU's loop budget on the CPU twin
+/// (saying so) instead of failing; `gpu` keeps the refusal.
+#[test]
+fn gpu_auto_device_moves_an_oversized_mesh_to_the_cpu() {
+    use plausible::gpu::{test_context, Device, DeviceChoice};
+    let mut mesh = RenderMesh::new(&plausible::shapes::cuboid(glam::DVec3::splat(0.1))).unwrap();
+    let (d, note) = Device::Gpu(Box::new(test_context())).for_mesh(DeviceChoice::Auto, &mesh, 1000);
+    assert!(matches!(d, Device::Gpu(_)) && note.is_none());
+    mesh.meshlets.resize(MAX_GPU_MESHLETS + 1, GpuMeshlet::default());
+    let (d, note) = Device::Gpu(Box::new(test_context())).for_mesh(DeviceChoice::Auto, &mesh, 1000);
+    assert!(matches!(d, Device::Cpu) && note.unwrap().contains("CPU twin"));
+    let (d, _) = Device::Gpu(Box::new(test_context())).for_mesh(DeviceChoice::Gpu, &mesh, 1000);
+    assert!(matches!(d, Device::Gpu(_)));
+}
+
 fn flat_observation() -> DepthImage {
     let k = plausible::camera::Intrinsics { fx: 500.0, fy: 500.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
     DepthImage { intrinsics: k, depth: vec![0.7; 64 * 48] }

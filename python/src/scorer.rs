@@ -87,8 +87,10 @@ impl Scorer {
             let opened = Device::open(choice, adapter.as_deref(), false)?;
             let scoring = scoring_mesh(&mesh, lod, &target)?;
             let rmesh = RenderMesh::new(&scoring.mesh)?;
-            let scorer = plausible::visual::Scorer::new(&opened.device, &rmesh, &target, params, BATCH_HINT)?;
-            Ok(Scorer { scorer, device: opened.device, mesh, rmesh, target, params, physics: None, note: opened.note, lod: scoring.describe() })
+            let (device, too_big) = opened.device.for_mesh(choice, &rmesh, target.intrinsics.pixels());
+            let note = too_big.or(opened.note);
+            let scorer = plausible::visual::Scorer::new(&device, &rmesh, &target, params, BATCH_HINT)?;
+            Ok(Scorer { scorer, device, mesh, rmesh, target, params, physics: None, note, lod: scoring.describe() })
         })
         .map_err(to_py)
     }

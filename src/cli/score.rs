@@ -106,6 +106,11 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let rmesh = RenderMesh::new(&scoring.mesh)?;
     let params = ScoreParams { tau: a.tau, alpha: a.alpha };
     let device = a.device.open(verbose)?;
+    let choice: plausible::gpu::DeviceChoice = a.device.device.parse()?;
+    let (device, too_big) = device.for_mesh(choice, &rmesh, target.intrinsics.pixels());
+    if let Some(note) = too_big {
+        eprintln!("note: {note}");
+    }
     if let (Device::Cpu, Some(first), true) = (&device, poses.first(), verbose > 0) {
         let rect = plausible::kernels::raster::screen_rect(&first.into(), rmesh.radius, &target.intrinsics);
         let px = rect.map_or(0, |r| (r[2] - r[0] + 1) * (r[3] - r[1] + 1));

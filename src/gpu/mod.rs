@@ -109,6 +109,21 @@ pub struct Opened {
 }
 
 impl Device {
+    /// Under `auto`, a mesh past the GPU kernels' loop budget (more than
+    /// [`MAX_GPU_MESHLETS`](crate::kernels::MAX_GPU_MESHLETS) meshlets) is
+    /// scored by the CPU twin, whose ray caster takes any size, instead of
+    /// being refused; `gpu` keeps the refusal. Returns the device and, when
+    /// it changed, why.
+    pub fn for_mesh(self, choice: DeviceChoice, mesh: &crate::kernels::RenderMesh, pixels: usize) -> (Device, Option<String>) {
+        match (&self, choice) {
+            (Device::Gpu(_), DeviceChoice::Auto) => match crate::kernels::check_loop_budget(mesh, pixels) {
+                Ok(()) => (self, None),
+                Err(e) => (Device::Cpu, Some(format!("{e}; device auto: scoring on the CPU twin"))),
+            },
+            _ => (self, None),
+        }
+    }
+
     /// Opens `choice` on the first adapter whose name contains `adapter`.
     /// With `fallback`, a missing adapter gives the CPU twin and a note
     /// instead of an error (`Auto` always falls back).
