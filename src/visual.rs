@@ -60,6 +60,39 @@ pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreT
     Ok(ScoringMesh { mesh: level.mesh, error_m: level.error_m, pixel_m, full_triangles })
 }
 
+/// `auto` levels of detail of one mesh, kept per error bound: refinement
+/// and estimation score many views of each model, at pixel sizes that
+/// differ by little, and simplifying for every view cost more than the
+/// smaller mesh saved (RIR on LM-O: 42 s with `auto` against 32 s with the
+/// full models). Bounds are rounded *down* to quarter octaves (the mesh is
+/// never coarser than `auto` asks), so a model is simplified a few times per
+/// dataset, not once per view.
+#[derive(Debug, Default)]
+pub struct AutoLodCache {
+    levels: std::sync::Mutex<std::collections::HashMap<i32, std::sync::Arc<RenderMesh>>>,
+}
+
+impl AutoLodCache {
+    /// The render mesh `auto` scores `target` with (the full `render` mesh
+    /// when the view has no depth to size pixels by).
+    pub fn render_mesh(&self, mesh: &crate::mesh::Mesh, render: &RenderMesh, target: &ScoreTarget) -> Result<std::sync::Arc<RenderMesh>> {
+        use crate::mesh::lod::{pixel_size, within_error, AUTO_PIXEL_FRACTION};
+        let bound = target.near_depth().map(|z| AUTO_PIXEL_FRACTION * pixel_size(&target.intrinsics, z));
+        // i32::MIN: no bound, the full mesh.
+        let bucket = bound.filter(|b| b.is_finite() && *b > 0.0).map_or(i32::MIN, |b| (b.log2() * 4.0).floor() as i32);
+        let poisoned = |_| crate::error::Error::InvalidInput("the level-of-detail cache was poisoned by a panic".into());
+        if let Some(level) = self.levels.lock().map_err(poisoned)?.get(&bucket) {
+            return Ok(level.clone());
+        }
+        let level = std::sync::Arc::new(match bucket {
+            i32::MIN => render.clone(),
+            b => RenderMesh::new(&within_error(mesh, (b as f64 / 4.0).exp2())?.mesh)?,
+        });
+        self.levels.lock().map_err(poisoned)?.insert(bucket, level.clone());
+        Ok(level)
+    }
+}
+
 /// A scorer for one mesh and one observation, built once and called many
 /// times: on the GPU the pipeline, the mesh and the observation stay
 /// uploaded between calls; on the CPU it runs the twin. The one scoring API

@@ -98,6 +98,8 @@ pub struct Model {
     /// With `--lod N` (a fixed triangle count, the same for every view):
     /// the simplified mesh the visual score renders, built once here.
     pub scoring: Option<RenderMesh>,
+    /// With `--lod auto`: the levels simplified so far, per pixel size.
+    pub auto_lod: crate::visual::AutoLodCache,
     pub surface: ModelSurface,
     /// The mesh (metres), and its colliders and mass for the simulation.
     pub mesh: std::sync::Arc<Mesh>,
@@ -114,6 +116,7 @@ impl Model {
         Ok(Model {
             render: RenderMesh::new(&mesh)?,
             scoring,
+            auto_lod: Default::default(),
             surface: ModelSurface::sample(&mesh, p.samples, p.seed)?,
             shapes: SimShapes::new(&mesh.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "object".into()), &mesh)?,
             mesh: std::sync::Arc::new(mesh),

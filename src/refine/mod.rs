@@ -212,11 +212,10 @@ impl ObjectView {
             (0..depth.depth.len()).filter(|&i| mask[i] && depth.depth[i] > 0.0).map(|i| k.pixel_point(i, depth.depth[i] as f64)).collect();
         let target = ScoreTarget::new(depth, Some(mask), RoiSampling::Square(p.res), DEFAULT_ROI_MARGIN)?;
         // A fixed triangle count was simplified once with the model; auto
-        // depends on this view's pixel size.
+        // depends on this view's pixel size (levels cached per model).
         let scorer = match (p.lod, &model.scoring) {
             (crate::mesh::lod::LodChoice::Auto, _) => {
-                let mesh = RenderMesh::new(&crate::visual::scoring_mesh(&model.mesh, p.lod, &target)?.mesh)?;
-                Scorer::new(device, &mesh, &target, p.score, 8)?
+                Scorer::new(device, &*model.auto_lod.render_mesh(&model.mesh, &model.render, &target)?, &target, p.score, 8)?
             }
             (_, Some(scoring)) => Scorer::new(device, scoring, &target, p.score, 8)?,
             _ => Scorer::new(device, &model.render, &target, p.score, 8)?,
