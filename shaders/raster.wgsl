@@ -77,6 +77,18 @@ fn depth_range(p: GpuPose) -> vec2<f32> {
     return vec2<f32>(max(p.r2.w - params.radius, params.near), p.r2.w + params.radius);
 }
 
+// Projection (xlo, ylo, xhi, yhi), in pixels, of the box around a sphere at
+// c (camera frame) of radius r lying wholly beyond the near plane.
+fn sphere_bounds(c: vec3<f32>, r: f32) -> vec4<f32> {
+    let zn = c.z - r;
+    let zf = c.z + r;
+    let xlo = min((c.x - r) / zn, (c.x - r) / zf) * params.fx + params.cx;
+    let xhi = max((c.x + r) / zn, (c.x + r) / zf) * params.fx + params.cx;
+    let ylo = min((c.y - r) / zn, (c.y - r) / zf) * params.fy + params.cy;
+    let yhi = max((c.y + r) / zn, (c.y + r) / zf) * params.fy + params.cy;
+    return vec4<f32>(xlo, ylo, xhi, yhi);
+}
+
 // Pixel rectangle (x0, y0, x1, y1), inclusive, that can hold the
 // hypothesis: the projection of the box around its bounding sphere, clipped
 // to the image. x0 > x1 when it misses the image.
@@ -87,14 +99,9 @@ fn screen_rect(p: GpuPose) -> vec4<i32> {
     if (c.z - r <= params.near) {
         return full;
     }
-    let zn = c.z - r;
-    let zf = c.z + r;
-    let xlo = min((c.x - r) / zn, (c.x - r) / zf) * params.fx + params.cx;
-    let xhi = max((c.x + r) / zn, (c.x + r) / zf) * params.fx + params.cx;
-    let ylo = min((c.y - r) / zn, (c.y - r) / zf) * params.fy + params.cy;
-    let yhi = max((c.y + r) / zn, (c.y + r) / zf) * params.fy + params.cy;
-    let lo = max(vec2<f32>(ceil(xlo), ceil(ylo)), vec2<f32>(-1.0));
-    let hi = min(vec2<f32>(floor(xhi), floor(yhi)), vec2<f32>(f32(params.width), f32(params.height)));
+    let b = sphere_bounds(c, r);
+    let lo = max(ceil(b.xy), vec2<f32>(-1.0));
+    let hi = min(floor(b.zw), vec2<f32>(f32(params.width), f32(params.height)));
     return vec4<i32>(max(vec2<i32>(lo), full.xy), min(vec2<i32>(hi), full.zw));
 }
 
@@ -133,13 +140,8 @@ fn meshlet_visible(m: GpuMeshlet, p: GpuPose, cam: vec3<f32>, first: vec2<f32>, 
     if (c.z - r <= params.near) {
         return true;
     }
-    let zn = c.z - r;
-    let zf = c.z + r;
-    let xlo = min((c.x - r) / zn, (c.x - r) / zf) * params.fx + params.cx;
-    let xhi = max((c.x + r) / zn, (c.x + r) / zf) * params.fx + params.cx;
-    let ylo = min((c.y - r) / zn, (c.y - r) / zf) * params.fy + params.cy;
-    let yhi = max((c.y + r) / zn, (c.y + r) / zf) * params.fy + params.cy;
-    return xhi >= first.x - 0.5 && yhi >= first.y - 0.5 && xlo <= last.x + 0.5 && ylo <= last.y + 0.5;
+    let b = sphere_bounds(c, r);
+    return all(b.zw >= first - 0.5) && all(b.xy <= last + 0.5);
 }
 
 // Takes the key of a pixel and leaves the slot empty (EMPTY = nothing drawn).

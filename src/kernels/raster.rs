@@ -13,6 +13,21 @@ use crate::error::{Error, Result};
 use crate::gpu::Context;
 
 
+/// Projection `[xlo, ylo, xhi, yhi]`, in pixels, of the box around a
+/// sphere at `c` (camera frame) of radius `r` lying wholly beyond the near
+/// plane (the twin of `sphere_bounds` in raster.wgsl).
+#[inline]
+fn sphere_bounds(c: Vec3, r: f32, k: &Intrinsics) -> [f32; 4] {
+    let (zn, zf) = (c.z - r, c.z + r);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    [
+        ((c.x - r) / zn).min((c.x - r) / zf) * fx + cx,
+        ((c.y - r) / zn).min((c.y - r) / zf) * fy + cy,
+        ((c.x + r) / zn).max((c.x + r) / zf) * fx + cx,
+        ((c.y + r) / zn).max((c.y + r) / zf) * fy + cy,
+    ]
+}
+
 /// Inclusive pixel rectangle `[x0, x1] x [y0, y1]` that can hold the
 /// hypothesis: the projection of the box around its bounding sphere,
 /// clipped to the image (`None` when it misses the image). Nothing outside
@@ -23,12 +38,7 @@ pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize
     if c.z - radius <= NEAR_M {
         return Some([0, 0, w as usize - 1, h as usize - 1]);
     }
-    let (zn, zf) = (c.z - radius, c.z + radius);
-    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
-    let xlo = ((c.x - radius) / zn).min((c.x - radius) / zf) * fx + cx;
-    let xhi = ((c.x + radius) / zn).max((c.x + radius) / zf) * fx + cx;
-    let ylo = ((c.y - radius) / zn).min((c.y - radius) / zf) * fy + cy;
-    let yhi = ((c.y + radius) / zn).max((c.y + radius) / zf) * fy + cy;
+    let [xlo, ylo, xhi, yhi] = sphere_bounds(c, radius, k);
     let x0 = (xlo.ceil().max(-1.0) as i64).max(0);
     let y0 = (ylo.ceil().max(-1.0) as i64).max(0);
     let x1 = (xhi.floor().min(w as f32) as i64).min(w - 1);
@@ -60,12 +70,7 @@ pub fn meshlet_visible(m: &GpuMeshlet, pose: &GpuPose, cam: Vec3, cull: bool, k:
     if c.z - r <= NEAR_M {
         return true;
     }
-    let (zn, zf) = (c.z - r, c.z + r);
-    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
-    let xlo = ((c.x - r) / zn).min((c.x - r) / zf) * fx + cx;
-    let xhi = ((c.x + r) / zn).max((c.x + r) / zf) * fx + cx;
-    let ylo = ((c.y - r) / zn).min((c.y - r) / zf) * fy + cy;
-    let yhi = ((c.y + r) / zn).max((c.y + r) / zf) * fy + cy;
+    let [xlo, ylo, xhi, yhi] = sphere_bounds(c, r, k);
     xhi >= first.0 - 0.5 && yhi >= first.1 - 0.5 && xlo <= last.0 + 0.5 && ylo <= last.1 + 0.5
 }
 
