@@ -4,7 +4,9 @@
 //! `depth`, `score`, `plane_contacts` (the score kernel's fused plane
 //! stage) and `contacts` (contact classification over plain scene data;
 //! `physical::gpu` builds that data from a physical scene and finishes the
-//! verdicts). Each has its CPU twin beside it and owns its WGSL file's `#[repr(C)]`
+//! verdicts). `bvh` is the one CPU-only renderer (ray casting for meshes
+//! with many triangles per pixel; no shader, so no twin to keep). Each
+//! shader has its CPU twin beside it and owns its WGSL file's `#[repr(C)]`
 //! structs, named as in the WGSL (checked field by field); the layouts several
 //! kernels share ([`GpuPose`], [`ContactRecord`], [`GpuTriangle`],
 //! [`RasterParams`]) live here. `physical` imports

@@ -1,9 +1,12 @@
 //! The compute rasterizer shared by the visual kernels (`shaders/raster.wgsl`)
-//! and its CPU twin: [`raster_ids`] is a plain z-buffer with the same
-//! coverage rule (pixel centres inside or on the edge), the same
-//! perspective-correct depth for the visibility test, and [`resolve`] the
-//! same exact plane-based depth and normal per pixel. Also the buffers and
-//! wave dispatch every visual kernel uses.
+//! and its CPU twin: [`raster_ids`] culls the same meshlets
+//! ([`meshlet_visible`]), sets triangles up the same way and keeps the same
+//! coverage rule (pixel centres inside or on the edge) and interpolated
+//! inverse depth for the visibility test; [`resolve`] gives the same exact
+//! plane-based depth and normal per pixel. [`render_ids`] is what CPU
+//! consumers call: the twin, or the BVH ray caster ([`super::bvh`]) for a
+//! hypothesis with many triangles per pixel. Also the buffers and wave
+//! dispatch every visual kernel uses.
 
 use glam::{Vec2, Vec3, Vec3A, Vec4};
 
