@@ -46,10 +46,10 @@ impl ScoringMesh {
 /// the near side of the observed object. The physical terms and evaluation
 /// always use the full mesh.
 pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreTarget) -> Result<ScoringMesh> {
-    use crate::mesh::lod::{pixel_size, with_faces, within_error, LodLevel, AUTO_PIXEL_FRACTION};
+    use crate::mesh::lod::{with_faces, within_error, LodLevel, AUTO_PIXEL_FRACTION};
     let full_triangles = mesh.triangles.len();
     let pixel_m = match choice {
-        LodChoice::Auto => target.near_depth().map(|z| pixel_size(&target.intrinsics, z)),
+        LodChoice::Auto => auto_pixel(target),
         _ => None,
     };
     let level = match (choice, pixel_m) {
@@ -58,6 +58,12 @@ pub fn scoring_mesh(mesh: &crate::mesh::Mesh, choice: LodChoice, target: &ScoreT
         _ => LodLevel::full(mesh),
     };
     Ok(ScoringMesh { mesh: level.mesh, error_m: level.error_m, pixel_m, full_triangles })
+}
+
+/// The size (metres) of a pixel of `target` at the near side of the
+/// observed object: what `auto` bounds the geometric error by.
+fn auto_pixel(target: &ScoreTarget) -> Option<f64> {
+    target.near_depth().map(|z| crate::mesh::lod::pixel_size(&target.intrinsics, z))
 }
 
 /// `auto` levels of detail of one mesh, kept per error bound: refinement
@@ -76,8 +82,8 @@ impl AutoLodCache {
     /// The render mesh `auto` scores `target` with (the full `render` mesh
     /// when the view has no depth to size pixels by).
     pub fn render_mesh(&self, mesh: &crate::mesh::Mesh, render: &RenderMesh, target: &ScoreTarget) -> Result<std::sync::Arc<RenderMesh>> {
-        use crate::mesh::lod::{pixel_size, within_error, AUTO_PIXEL_FRACTION};
-        let bound = target.near_depth().map(|z| AUTO_PIXEL_FRACTION * pixel_size(&target.intrinsics, z));
+        use crate::mesh::lod::{within_error, AUTO_PIXEL_FRACTION};
+        let bound = auto_pixel(target).map(|pixel| AUTO_PIXEL_FRACTION * pixel);
         // i32::MIN: no bound, the full mesh.
         let bucket = bound.filter(|b| b.is_finite() && *b > 0.0).map_or(i32::MIN, |b| (b.log2() * 4.0).floor() as i32);
         let poisoned = |_| crate::error::Error::InvalidInput("the level-of-detail cache was poisoned by a panic".into());

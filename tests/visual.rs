@@ -375,8 +375,8 @@ fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
     let (reference, _) = score_poses(&Device::Cpu, &RenderMesh::new(&small).unwrap(), &target, &poses, params).unwrap();
     // The CPU twin ray-casts the full mesh (about 500 triangles per pixel
     // of the hypothesis' rectangle).
-    let rect = plausible::kernels::raster::screen_rect(&(&true_pose()).into(), full.radius, &target.intrinsics).unwrap();
-    assert_eq!(full.cpu_renderer((rect[2] - rect[0] + 1) * (rect[3] - rect[1] + 1)), plausible::kernels::CpuRenderer::RayCast);
+    let renderer = plausible::kernels::raster::cpu_renderer_at(&full, &(&true_pose()).into(), &target.intrinsics);
+    assert_eq!(renderer, Some(plausible::kernels::CpuRenderer::RayCast));
     let (c_full, _) = score_poses(&Device::Cpu, &full, &target, &poses, params).unwrap();
     for i in 0..poses.len() {
         assert!((g[i].score - c[i].score).abs() < 1e-3, "pose {i}: gpu {:?} cpu {:?}", g[i], c[i]);

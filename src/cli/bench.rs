@@ -377,8 +377,7 @@ fn measure_physics(
 /// The CPU renderer the mesh gets at the true pose (hypotheses around it
 /// get the same, or the other near the crossover).
 fn cpu_renderer_at(rmesh: &RenderMesh, pose: &plausible::pose::Pose, k: &Intrinsics) -> plausible::kernels::CpuRenderer {
-    let rect = plausible::kernels::raster::screen_rect(&pose.into(), rmesh.radius, k);
-    rmesh.cpu_renderer(rect.map_or(0, |r| (r[2] - r[0] + 1) * (r[3] - r[1] + 1)))
+    plausible::kernels::raster::cpu_renderer_at(rmesh, &pose.into(), k).unwrap_or(plausible::kernels::CpuRenderer::Raster)
 }
 
 /// One table row.

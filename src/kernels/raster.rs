@@ -199,12 +199,18 @@ fn fill_row(w_row: Vec3A, dw_dx: Vec3A, iz: Vec3A, zbuf: &mut [f32], ids: &mut [
     }
 }
 
+/// The CPU renderer `mesh` gets at `pose` (from the pixels of the
+/// hypothesis' rectangle; `None` when it misses the image).
+pub fn cpu_renderer_at(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics) -> Option<super::CpuRenderer> {
+    let r = screen_rect(pose, mesh.radius, k)?;
+    Some(mesh.cpu_renderer((r[2] - r[0] + 1) * (r[3] - r[1] + 1)))
+}
+
 /// Triangle ids and depths of `mesh` at `pose` with its CPU renderer (the
 /// rasterizer twin or the BVH ray caster, chosen per hypothesis by
 /// [`RenderMesh::cpu_renderer`]); the same contract as [`raster_ids`].
 pub fn render_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
-    let r = screen_rect(pose, mesh.radius, k)?;
-    match mesh.cpu_renderer((r[2] - r[0] + 1) * (r[3] - r[1] + 1)) {
+    match cpu_renderer_at(mesh, pose, k)? {
         super::CpuRenderer::RayCast => mesh.ray_caster().expect("chosen only when built").cast_ids(mesh, pose, k, zbuf, ids),
         super::CpuRenderer::Raster => raster_ids(mesh, pose, k, zbuf, ids),
     }
