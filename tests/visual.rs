@@ -430,6 +430,40 @@ fn meshlet_culling_changes_no_pixel() {
     }
 }
 
+/// Back faces are culled only where that changes nothing: rendering with
+/// them culled gives the depth of drawing every face, on a scan with faces
+/// wound backwards (LM-O's eggbox, which `Mesh::orient` turns round; before,
+/// they were culled as holes), on the ape, and on their simplifications for
+/// `--lod auto` (meshoptimizer can leave a folded pair of faces, dropped,
+/// or sheets touching along an edge, which still bound a solid). Silhouette
+/// pixels may differ where a back face ties with the front one.
+#[test]
+fn back_face_culling_changes_no_pixel_on_solid_models() {
+    let ctx = test_context();
+    let k = Intrinsics { fx: 572.4, fy: 573.6, cx: 80.0, cy: 60.0, width: 160, height: 120 };
+    for id in [10, 1] {
+        let path = format!("{}/assets/lmo-synth/models/obj_{id:06}.ply", env!("CARGO_MANIFEST_DIR"));
+        let full = Mesh::load(&path, MeshUnits::Millimetres).unwrap().0;
+        for bound in [0.0, 2e-4, 1e-3] {
+            let mesh = plausible::mesh::lod::within_error(&full, bound).unwrap().mesh;
+            let culled = RenderMesh::new(&mesh).unwrap();
+            assert!(culled.cull_back_faces, "obj {id} at {bound} m");
+            let mut all = culled.clone();
+            all.cull_back_faces = false;
+            let centre = DVec3::new(0.0, 0.0, 0.5);
+            let poses = around_and_random(&Pose::new(axis_angle(DVec3::new(0.2, 1.0, 0.1), 1.0), centre), 12, 5);
+            let (gpu_culled, gpu_all) = (render_gpu(&ctx, &culled, &poses, &k).unwrap(), render_gpu(&ctx, &all, &poses, &k).unwrap());
+            for (i, p) in poses.iter().enumerate() {
+                for (what, a, b) in [("CPU twin", render_cpu(&culled, p, &k), render_cpu(&all, p, &k)), ("GPU", gpu_culled[i].clone(), gpu_all[i].clone())] {
+                    let covered = b.depth.iter().filter(|&&d| d > 0.0).count();
+                    let differ = a.depth.iter().zip(&b.depth).filter(|(x, y)| (*x - *y).abs() > 1e-4).count();
+                    assert!(covered > 100 && differ * 200 <= covered, "{what}, obj {id} at {bound} m, pose {i}: {differ} of {covered} pixels differ");
+                }
+            }
+        }
+    }
+}
+
 /// The BVH ray caster (the CPU renderer for very large meshes) draws what
 /// the rasterizer twin draws: the same coverage within 1 % of the pixels
 /// (silhouette edges) and the same depth inside, for a closed scanned

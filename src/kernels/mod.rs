@@ -207,8 +207,8 @@ const MESHLET_VERTICES: usize = 192;
 
 /// A mesh prepared for rendering: f32 triangles with planes grouped into
 /// meshlets, its bounding radius about the model origin, and whether back
-/// faces may be culled (only for closed meshes: through an open mesh's
-/// holes you see inside).
+/// faces may be culled (only for meshes that bound a solid,
+/// [`Mesh::bounds_solid`]: through an open mesh's holes you see inside).
 #[derive(Clone, Debug)]
 pub struct RenderMesh {
     /// Triangles in meshlet order (triangle ids index this).
@@ -281,7 +281,9 @@ impl RenderMesh {
         // vertices, as in STL, would hide it).
         let mut welded = mesh.clone();
         welded.weld();
-        let cull_back_faces = welded.is_closed();
+        // Back faces are culled when the mesh bounds a solid, after faces
+        // wound against their neighbours are turned round.
+        let cull_back_faces = welded.orient();
         let vertices: Vec<Vec3> = welded.vertices.iter().map(|v| v.as_vec3()).collect();
         let built = build_meshlets(&welded, &vertices, cull_back_faces);
         let v4 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32, 0.0];

@@ -104,11 +104,15 @@ pub fn pixel_size(region: &Intrinsics, z: f64) -> f64 {
     z.max(0.0) / region.fx.max(region.fy)
 }
 
-/// A copy with coincident vertices merged: the simplifier collapses edges,
-/// which needs the connectivity that per-face vertices hide.
+/// A copy with coincident vertices merged (the simplifier collapses edges,
+/// which needs the connectivity that per-face vertices hide) and faces
+/// wound consistently ([`Mesh::orient`]): a scan's backwards patches would
+/// otherwise come out of the simplifier as neither closed nor solid, and
+/// the renderer could not cull its back faces.
 fn welded(mesh: &Mesh) -> Mesh {
     let mut m = mesh.clone();
     m.weld();
+    m.orient();
     m
 }
 
@@ -130,6 +134,7 @@ fn simplify(mesh: &Mesh, target: usize, max_error: f32) -> Result<LodLevel> {
     if out.len() < 3 {
         return Err(Error::InvalidInput(format!("simplifying {} triangles to {target} left nothing", mesh.triangles.len())));
     }
+    let out = without_flaps(&out);
     let mut remap = vec![u32::MAX; mesh.vertices.len()];
     let mut vertices: Vec<DVec3> = Vec::new();
     let mut map = |i: u32| {
@@ -144,6 +149,27 @@ fn simplify(mesh: &Mesh, target: usize, max_error: f32) -> Result<LodLevel> {
     let name = mesh.source.clone().unwrap_or_else(|| "<mesh>".into());
     let (mesh, _) = Mesh::from_raw(name, vertices, triangles)?;
     Ok(LodLevel { mesh, error_m: error as f64 })
+}
+
+/// `indices` without flaps: triangles that appear more than once with the
+/// same corners in the same order. meshoptimizer's edge collapses
+/// occasionally fold two neighbours onto one another (LM-O's can, simplified
+/// to a quarter pixel at 128×128, keeps one such pair). The pair adds no
+/// surface a closed mesh needs, but it makes the mesh non-manifold, and
+/// rendering then cannot cull back faces: twice the triangles and pixels
+/// for the rasterizer, which is what `--lod auto` exists to save.
+fn without_flaps(indices: &[u32]) -> Vec<u32> {
+    // Each triangle's corners rotated so the smallest comes first: the same
+    // key for the same oriented triangle.
+    let key = |t: &[u32]| {
+        let r = (0..3).min_by_key(|&k| t[k]).unwrap_or(0);
+        [t[r], t[(r + 1) % 3], t[(r + 2) % 3]]
+    };
+    let mut count = std::collections::HashMap::<[u32; 3], u32>::new();
+    for t in indices.chunks_exact(3) {
+        *count.entry(key(t)).or_default() += 1;
+    }
+    indices.chunks_exact(3).filter(|t| count[&key(t)] == 1).flatten().copied().collect()
 }
 
 #[cfg(test)]
@@ -171,6 +197,38 @@ mod tests {
         }
         assert!(last < mesh.triangles.len() / 8, "{last} of {}", mesh.triangles.len());
         assert_eq!(within_error(&mesh, 0.0).unwrap().mesh.triangles.len(), mesh.triangles.len());
+    }
+
+    #[test]
+    fn folded_pairs_are_dropped_and_the_rest_kept() {
+        // A tetrahedron (closed) and a flap: one triangle on an edge of it
+        // twice, as the simplifier leaves it.
+        let tet = [0, 2, 1, 0, 1, 3, 1, 2, 3, 0, 3, 2];
+        let mut with_flap = tet.to_vec();
+        with_flap.extend([1, 0, 4, 0, 4, 1]); // the same triangle, rotated
+        assert_eq!(without_flaps(&with_flap), tet.to_vec());
+        // Opposite orientations are a two-sided sheet, not a fold: kept.
+        let mut sheet = tet.to_vec();
+        sheet.extend([1, 0, 4, 0, 1, 4]);
+        assert_eq!(without_flaps(&sheet), sheet);
+    }
+
+    #[test]
+    fn simplifying_a_closed_model_keeps_it_closed() {
+        // The LM-O models shipped in assets/, at the error bounds `--lod
+        // auto` picks for 128x128 to 640x480 regions and beyond: still the
+        // boundary of a solid, so the renderer may cull back faces (the
+        // eggbox at 1 mm has an edge where two sheets touch, which is fine;
+        // its scan has faces wound backwards, which welded() turns round).
+        for id in [1, 10, 11] {
+            let path = format!("{}/assets/lmo-synth/models/obj_{id:06}.ply", env!("CARGO_MANIFEST_DIR"));
+            let (mesh, _) = Mesh::load(&path, crate::mesh::MeshUnits::Millimetres).unwrap();
+            assert!(mesh.is_closed(), "{path}");
+            for bound in [2e-4, 5e-4, 1e-3, 2e-3, 5e-3] {
+                let l = within_error(&mesh, bound).unwrap();
+                assert!(l.mesh.bounds_solid(), "{path} at {bound} m: {} triangles", l.mesh.triangles.len());
+            }
+        }
     }
 
     #[test]

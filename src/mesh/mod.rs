@@ -162,6 +162,110 @@ impl Mesh {
         self.edge_counts() == (0, 0)
     }
 
+    /// True when the triangles bound a solid: every edge is run along as
+    /// often in one direction as in the other. That holds for closed,
+    /// consistently oriented meshes, and still where two sheets touch along
+    /// an edge (which [`Mesh::is_closed`] rejects); it fails at holes, at
+    /// faces wound the wrong way and at folded-over flaps. Seen from
+    /// outside such a mesh, every back face is hidden behind a front face,
+    /// so a renderer may skip them.
+    pub fn bounds_solid(&self) -> bool {
+        let mut edges: Vec<(u64, i32)> = self
+            .triangles
+            .iter()
+            .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+            .map(|(a, b)| ((a.min(b) as u64) << 32 | a.max(b) as u64, if a < b { 1 } else { -1 }))
+            .collect();
+        edges.sort_unstable_by_key(|e| e.0);
+        !self.triangles.is_empty() && edges.chunk_by(|a, b| a.0 == b.0).all(|run| run.iter().map(|e| e.1).sum::<i32>() == 0)
+    }
+
+    /// Rewinds faces for rendering with back faces culled: every face of a
+    /// closed manifold mesh ([`Mesh::is_closed`]) agrees with its
+    /// neighbours and each shell faces outward (positive volume; a cavity's
+    /// wall, never seen from outside, is turned outward too), and a mesh
+    /// that bounds a solid inside out is turned round. Scans have patches
+    /// wound backwards (LM-O's eggbox), which culling would show as holes.
+    /// Returns whether the mesh now bounds a solid ([`Mesh::bounds_solid`]);
+    /// a mesh that is neither closed nor solid, or not orientable, is left
+    /// as is.
+    pub fn orient(&mut self) -> bool {
+        let solid = self.bounds_solid();
+        if solid || !self.is_closed() {
+            if solid && self.signed_volume(0..self.triangles.len()) < 0.0 {
+                self.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+            }
+            return solid;
+        }
+        // Each undirected edge's two faces (closed and manifold: exactly two).
+        let mut edges: Vec<(u64, u32)> = (0..self.triangles.len() as u32)
+            .flat_map(|f| {
+                let t = self.triangles[f as usize];
+                (0..3).map(move |k| ((t[k].min(t[(k + 1) % 3]) as u64) << 32 | t[k].max(t[(k + 1) % 3]) as u64, f))
+            })
+            .collect();
+        edges.sort_unstable();
+        let mut neighbours = vec![Vec::with_capacity(3); self.triangles.len()];
+        for pair in edges.chunks_exact(2) {
+            neighbours[pair[0].1 as usize].push((pair[1].1, pair[0].0));
+            neighbours[pair[1].1 as usize].push((pair[0].1, pair[0].0));
+        }
+        // Whether face f runs along edge key e from its smaller vertex.
+        let forward = |t: [u32; 3], e: u64| (0..3).any(|k| ((t[k] as u64) << 32 | t[(k + 1) % 3] as u64) == e);
+        // Walk each shell from a seed face: a neighbour agrees when the two
+        // run along their shared edge in opposite directions.
+        let mut flip: Vec<Option<bool>> = vec![None; self.triangles.len()];
+        let mut shells = Vec::new();
+        for seed in 0..self.triangles.len() {
+            if flip[seed].is_some() {
+                continue;
+            }
+            flip[seed] = Some(false);
+            let (mut shell, mut stack) = (vec![seed], vec![seed]);
+            while let Some(f) = stack.pop() {
+                let f_flip = flip[f] == Some(true);
+                for &(g, e) in &neighbours[f] {
+                    let g = g as usize;
+                    let want = forward(self.triangles[f], e) ^ f_flip == forward(self.triangles[g], e);
+                    match flip[g] {
+                        None => {
+                            flip[g] = Some(want);
+                            shell.push(g);
+                            stack.push(g);
+                        }
+                        Some(have) if have != want => return false, // not orientable
+                        Some(_) => {}
+                    }
+                }
+            }
+            shells.push(shell);
+        }
+        for shell in shells {
+            for &f in &shell {
+                if flip[f] == Some(true) {
+                    self.triangles[f].swap(1, 2);
+                }
+            }
+            if self.signed_volume(shell.iter().copied()) < 0.0 {
+                for &f in &shell {
+                    self.triangles[f].swap(1, 2);
+                }
+            }
+        }
+        self.bounds_solid()
+    }
+
+    /// Six times the volume the given faces enclose, signed: positive when
+    /// they are wound outward.
+    fn signed_volume(&self, faces: impl Iterator<Item = usize>) -> f64 {
+        faces
+            .map(|f| {
+                let [a, b, c] = self.corners(f);
+                a.dot(b.cross(c))
+            })
+            .sum()
+    }
+
     /// The three corners of triangle `i`.
     pub fn corners(&self, i: usize) -> [DVec3; 3] {
         let t = self.triangles[i];
@@ -326,6 +430,39 @@ fn validate_and_clean(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn bounds_solid_allows_touching_sheets_and_rejects_holes_flips_and_flaps() {
+        let v = |p: &[[f64; 3]]| p.iter().map(|&a| glam::DVec3::from(a)).collect::<Vec<_>>();
+        let tet = |o: u32| vec![[o, o + 2, o + 1], [o, o + 1, o + 3], [o + 1, o + 2, o + 3], [o, o + 3, o + 2]];
+        let corners = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let mesh = |pts: Vec<glam::DVec3>, tris: Vec<[u32; 3]>| Mesh::from_raw("t", pts, tris).unwrap().0;
+        let one = mesh(v(&corners), tet(0));
+        assert!(one.bounds_solid() && one.is_closed());
+        let mut flipped = tet(0);
+        flipped[0] = [0, 1, 2];
+        assert!(!mesh(v(&corners), flipped).bounds_solid());
+        assert!(!mesh(v(&corners), tet(0)[..3].to_vec()).bounds_solid());
+        // Two tetrahedra sharing the edge 0-1 (a pinch): solid, not closed.
+        let mut pts = corners.to_vec();
+        pts.extend([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]);
+        let other = tet(0).into_iter().map(|t| t.map(|k| [0, 1, 4, 5][k as usize])); // tet(0) turned 180° about x
+        let pinch = mesh(v(&pts), tet(0).into_iter().chain(other).collect());
+        assert!(pinch.bounds_solid() && !pinch.is_closed(), "{:?}", pinch.edge_counts());
+        // A face wound backwards is turned round, and a shell wound inside
+        // out as a whole is turned outward.
+        let mut flipped = tet(0);
+        flipped[2] = [1, 3, 2];
+        let mut m = mesh(v(&corners), flipped);
+        assert!(!m.bounds_solid() && m.orient());
+        assert_eq!(m.triangles, tet(0));
+        let mut inside_out = mesh(v(&corners), tet(0).into_iter().map(|[a, b, c]| [a, c, b]).collect());
+        assert!(inside_out.orient());
+        assert_eq!(inside_out.triangles, tet(0));
+        // A flap: one triangle twice on an edge of the tetrahedron.
+        let flap = mesh(v(&pts), [tet(0), vec![[1, 0, 4], [1, 0, 4]]].concat());
+        assert!(!flap.bounds_solid());
+    }
+
     use super::*;
 
     pub(crate) fn unit_cube() -> Mesh {
