@@ -217,12 +217,22 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
                 None => [bx0, by0, bx1, by1],
                 Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
             });
+            // The start pixel's edge functions; their signs (with the
+            // area's) say whether it is covered.
+            let edges = Vec3A::new((sc - sb).perp_dot(lo - sb), (sa - sc).perp_dot(lo - sc), (sb - sa).perp_dot(lo - sa));
+            if bx0 == bx1 && by0 == by1 && (edges * area.signum()).min_element() < -1e-30 * area.abs() {
+                // The only pixel of the bounds (most triangles of a
+                // full-size model at 128x128) lies outside: no setup.
+                // Its weight edges / area is then below -1e-30, a normal
+                // f32 that stays negative, so fill_row would reject it too.
+                continue;
+            }
             // The kernel's setup (setup_triangle in raster.wgsl).
             let inv = 1.0 / area;
             let iz = Vec3A::new(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
             let dw_dx = Vec3A::new(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
             let dw_dy = Vec3A::new(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
-            let w0 = Vec3A::new((sc - sb).perp_dot(lo - sb), (sa - sc).perp_dot(lo - sc), (sb - sa).perp_dot(lo - sa)) * inv;
+            let w0 = edges * inv;
             for (j, y) in (by0..=by1).enumerate() {
                 let row = y * w + bx0;
                 fill_row(w0 + dw_dy * j as f32, dw_dx, iz, &mut zbuf[row..=row + bx1 - bx0], &mut ids[row..=row + bx1 - bx0], t as u32);
