@@ -197,7 +197,65 @@ impl Mesh {
             }
             return solid;
         }
-        // Each undirected edge's two faces (closed and manifold: exactly two).
+        let Some((flip, shells)) = self.winding_flips() else {
+            return false; // not orientable
+        };
+        for shell in shells {
+            for &f in &shell {
+                if flip[f] {
+                    self.triangles[f].swap(1, 2);
+                }
+            }
+            if self.signed_volume(shell.iter().copied()) < 0.0 {
+                for &f in &shell {
+                    self.triangles[f].swap(1, 2);
+                }
+            }
+        }
+        self.bounds_solid()
+    }
+
+    /// For a closed manifold mesh: which faces to turn round so that each
+    /// agrees with its neighbours (the two run along their shared edge in
+    /// opposite directions), found by walking each shell from a seed face,
+    /// and the shells' faces; `None` when some shell cannot agree (not
+    /// orientable).
+    fn winding_flips(&self) -> Option<(Vec<bool>, Vec<Vec<usize>>)> {
+        let neighbours = self.face_neighbours();
+        // Whether face t runs along edge key e from its smaller vertex.
+        let forward = |t: [u32; 3], e: u64| (0..3).any(|k| ((t[k] as u64) << 32 | t[(k + 1) % 3] as u64) == e);
+        let mut flip: Vec<Option<bool>> = vec![None; self.triangles.len()];
+        let mut shells = Vec::new();
+        for seed in 0..self.triangles.len() {
+            if flip[seed].is_some() {
+                continue;
+            }
+            flip[seed] = Some(false);
+            let (mut shell, mut stack) = (vec![seed], vec![seed]);
+            while let Some(f) = stack.pop() {
+                for &(g, e) in &neighbours[f] {
+                    let g = g as usize;
+                    let want = forward(self.triangles[f], e) ^ (flip[f] == Some(true)) == forward(self.triangles[g], e);
+                    match flip[g] {
+                        None => {
+                            flip[g] = Some(want);
+                            shell.push(g);
+                            stack.push(g);
+                        }
+                        Some(have) if have != want => return None,
+                        Some(_) => {}
+                    }
+                }
+            }
+            shells.push(shell);
+        }
+        Some((flip.into_iter().map(|f| f == Some(true)).collect(), shells))
+    }
+
+    /// Each face's neighbours across its edges, with the edge's key
+    /// (smaller vertex in the high half), for a mesh whose every edge has
+    /// exactly two faces.
+    fn face_neighbours(&self) -> Vec<Vec<(u32, u64)>> {
         let mut edges: Vec<(u64, u32)> = (0..self.triangles.len() as u32)
             .flat_map(|f| {
                 let t = self.triangles[f as usize];
@@ -210,49 +268,7 @@ impl Mesh {
             neighbours[pair[0].1 as usize].push((pair[1].1, pair[0].0));
             neighbours[pair[1].1 as usize].push((pair[0].1, pair[0].0));
         }
-        // Whether face f runs along edge key e from its smaller vertex.
-        let forward = |t: [u32; 3], e: u64| (0..3).any(|k| ((t[k] as u64) << 32 | t[(k + 1) % 3] as u64) == e);
-        // Walk each shell from a seed face: a neighbour agrees when the two
-        // run along their shared edge in opposite directions.
-        let mut flip: Vec<Option<bool>> = vec![None; self.triangles.len()];
-        let mut shells = Vec::new();
-        for seed in 0..self.triangles.len() {
-            if flip[seed].is_some() {
-                continue;
-            }
-            flip[seed] = Some(false);
-            let (mut shell, mut stack) = (vec![seed], vec![seed]);
-            while let Some(f) = stack.pop() {
-                let f_flip = flip[f] == Some(true);
-                for &(g, e) in &neighbours[f] {
-                    let g = g as usize;
-                    let want = forward(self.triangles[f], e) ^ f_flip == forward(self.triangles[g], e);
-                    match flip[g] {
-                        None => {
-                            flip[g] = Some(want);
-                            shell.push(g);
-                            stack.push(g);
-                        }
-                        Some(have) if have != want => return false, // not orientable
-                        Some(_) => {}
-                    }
-                }
-            }
-            shells.push(shell);
-        }
-        for shell in shells {
-            for &f in &shell {
-                if flip[f] == Some(true) {
-                    self.triangles[f].swap(1, 2);
-                }
-            }
-            if self.signed_volume(shell.iter().copied()) < 0.0 {
-                for &f in &shell {
-                    self.triangles[f].swap(1, 2);
-                }
-            }
-        }
-        self.bounds_solid()
+        neighbours
     }
 
     /// Six times the volume the given faces enclose, signed: positive when
