@@ -252,10 +252,10 @@ impl Mesh {
         Some((flip.into_iter().map(|f| f == Some(true)).collect(), shells))
     }
 
-    /// Each face's neighbours across its edges, with the edge's key
+    /// Each face's three neighbours across its edges, with the edge's key
     /// (smaller vertex in the high half), for a mesh whose every edge has
-    /// exactly two faces.
-    fn face_neighbours(&self) -> Vec<Vec<(u32, u64)>> {
+    /// exactly two faces (one flat array: 2M-triangle scans pass here).
+    fn face_neighbours(&self) -> Vec<[(u32, u64); 3]> {
         let mut edges: Vec<(u64, u32)> = (0..self.triangles.len() as u32)
             .flat_map(|f| {
                 let t = self.triangles[f as usize];
@@ -263,10 +263,14 @@ impl Mesh {
             })
             .collect();
         edges.sort_unstable();
-        let mut neighbours = vec![Vec::with_capacity(3); self.triangles.len()];
+        let mut neighbours = vec![[(0u32, 0u64); 3]; self.triangles.len()];
+        let mut filled = vec![0u8; self.triangles.len()];
         for pair in edges.chunks_exact(2) {
-            neighbours[pair[0].1 as usize].push((pair[1].1, pair[0].0));
-            neighbours[pair[1].1 as usize].push((pair[0].1, pair[0].0));
+            for (f, g) in [(pair[0].1, pair[1].1), (pair[1].1, pair[0].1)] {
+                let slot = &mut filled[f as usize];
+                neighbours[f as usize][(*slot as usize).min(2)] = (g, pair[0].0);
+                *slot = slot.saturating_add(1);
+            }
         }
         neighbours
     }
