@@ -464,6 +464,28 @@ fn back_face_culling_changes_no_pixel_on_solid_models() {
     }
 }
 
+/// A mesh wound inside out is turned outward before rendering: with its
+/// back faces culled as given, the far side would show. It renders like
+/// the mesh itself, on the CPU twin and on the GPU.
+#[test]
+fn an_inside_out_mesh_renders_like_the_mesh() {
+    let ctx = test_context();
+    let k = Intrinsics { fx: 572.4, fy: 573.6, cx: 80.0, cy: 60.0, width: 160, height: 120 };
+    let mesh = duck();
+    let mut inside_out = mesh.clone();
+    inside_out.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+    let (a, b) = (RenderMesh::new(&mesh).unwrap(), RenderMesh::new(&inside_out).unwrap());
+    assert!(a.cull_back_faces && b.cull_back_faces);
+    let poses = around_and_random(&Pose::new(axis_angle(DVec3::new(0.2, 1.0, 0.1), 1.0), DVec3::new(0.0, 0.0, 0.5)), 8, 3);
+    let (ga, gb) = (render_gpu(&ctx, &a, &poses, &k).unwrap(), render_gpu(&ctx, &b, &poses, &k).unwrap());
+    for (i, p) in poses.iter().enumerate() {
+        let (ca, cb) = (render_cpu(&a, p, &k), render_cpu(&b, p, &k));
+        assert!(ca.depth.iter().filter(|&&d| d > 0.0).count() > 100, "pose {i} draws nothing");
+        assert_eq!(ca.depth, cb.depth, "CPU twin, pose {i}");
+        assert_eq!(ga[i].depth, gb[i].depth, "GPU, pose {i}");
+    }
+}
+
 /// The BVH ray caster (the CPU renderer for very large meshes) draws what
 /// the rasterizer twin draws: the same coverage within 1 % of the pixels
 /// (silhouette edges) and the same depth inside, for a closed scanned
