@@ -336,10 +336,11 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
         let matches = stable::match_analytic(&clusters, &analytic);
         writeln!(
             out,
-            "{source}  sha256 {}  seed {}  collider {}  drops {}/{}  settled {} ({:.1} %)",
+            "{source}  sha256 {}  seed {}  collider {} (revision {})  drops {}/{}  settled {} ({:.1} %)",
             &run.mesh_sha256[..12.min(run.mesh_sha256.len())],
             run.seed,
             run.collider,
+            run.collider_revision(),
             drops.len(),
             run.drops,
             settled,

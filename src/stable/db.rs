@@ -123,6 +123,18 @@ pub struct RunRecord {
     pub analytic_notes: Vec<String>,
 }
 
+impl RunRecord {
+    /// The collider revision its drops were made with (see
+    /// [`super::COLLIDER_REVISION`]); runs stored before the revision was
+    /// recorded are revision 1.
+    pub fn collider_revision(&self) -> u64 {
+        serde_json::from_str::<serde_json::Value>(&self.params)
+            .ok()
+            .and_then(|v| v.get("collider_revision").and_then(|r| r.as_u64()))
+            .unwrap_or(1)
+    }
+}
+
 /// An open stable-pose database.
 pub struct Db {
     conn: Connection,

@@ -56,7 +56,7 @@ pub struct SimParams {
     /// automatic sweeps of fast bodies (`max_ccd_substeps`) are off too:
     /// against the half-space, whose speculative contacts already stop the
     /// body, they changed no drop (bit-identical on the 19 meshes of
-    /// `../shared/data`), yet the thin support tetrahedra of large faces
+    /// `../shared/data`), yet the thin support pieces of large faces
     /// (see `collider_shapes`) made the body count as fast at most steps, and
     /// sweeping every collider (recomputing its mass properties) took up to
     /// 40 % of a step.

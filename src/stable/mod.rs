@@ -20,7 +20,8 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc;
 
 use glam::{DVec3, Vec3};
-use rapier3d::prelude::{Pose, SharedShape};
+use rapier3d::prelude::SharedShape;
+use rapier3d::parry::shape::ConvexPolyhedron;
 
 use self::analytic::{Analytic, AnalyticParams};
 use self::cluster::{Cluster, ClusterParams};
@@ -93,6 +94,21 @@ impl Default for RunParams {
             sim: SimParams::default(),
         }
     }
+}
+
+/// How [`collider_shapes`] builds the collider from the same parameters.
+/// It is part of the run key, so a database never resumes a run with drops
+/// made by another collider. 1: one support tetrahedron per corner of every
+/// face with more than four; 2: pyramids of four corners (same support
+/// polygons, fewer pieces).
+pub const COLLIDER_REVISION: u32 = 2;
+
+/// The run parameters as stored and hashed into the run key.
+#[derive(serde::Serialize)]
+struct KeyedParams<'a> {
+    collider_revision: u32,
+    #[serde(flatten)]
+    params: &'a RunParams,
 }
 
 /// Drop indices made at a time by [`run_into_db`] (8 MB).
@@ -211,55 +227,89 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
 /// parry's polyhedron-vs-plane contact uses at most four vertices of the
 /// touching face (its `local_support_feature` takes the face's first four
 /// vertices). A body resting on a face with more corners (a cylinder's end, a
-/// box scan's merged side) is then supported by a sliver of that face and
-/// topples. So every face with more than four corners also gets a fan of thin
-/// tetrahedra (face centre, two neighbouring corners, an apex inside the
-/// hull), each touching the plane with a whole triangle: together they
-/// support the full face. They lie inside the hull, so the shape is unchanged.
-/// The pieces are separate colliders on the body (not one compound shape:
-/// rapier's compound-vs-half-space path let a cylinder on its side sink and
-/// roll forever in our tests).
+/// box scan's merged side) would then be supported by a sliver of that face
+/// and topple. So the corners the hull leaves out (the fifth on) are given to
+/// [`support_pieces`]: thin pyramids inside the hull whose base faces have at
+/// most four corners, all on the face. Hull and pieces together touch the
+/// plane at every corner, so the support polygon is the whole face, and the
+/// shape is unchanged. Four corners per piece keeps the pieces few: every
+/// piece touching the plane is one more collider pair and contact
+/// constraint at every step (one thin tetrahedron per corner, collider
+/// revision 1, made steps 1.3-3.4× dearer). The pieces are separate
+/// colliders on the body (not one compound shape: rapier's
+/// compound-vs-half-space path let a cylinder on its side sink and roll
+/// forever in our tests).
 fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<SharedShape>> {
-    let mut shapes: Vec<(Pose, SharedShape)> = Vec::new();
+    let mut shapes = Vec::new();
     for part in parts {
         let pts: Vec<Vec3> = part.vertices.iter().map(|v| v.as_vec3()).collect();
         let hull = SharedShape::convex_hull(&pts).ok_or_else(|| {
             Error::InvalidInput(format!("{name}: rapier could not build a convex collider"))
         })?;
-        let mut fans = Vec::new();
-        if let Some(poly) = hull.as_convex_polyhedron() {
-            let points = poly.points();
-            let inside = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
-            let adj = poly.vertices_adj_to_face();
-            for face in poly.faces() {
-                let (first, n) = (
-                    face.first_vertex_or_edge as usize,
-                    face.num_vertices_or_edges as usize,
-                );
-                if n <= 4 || first + n > adj.len() {
-                    continue;
-                }
-                let corners: Vec<Vec3> = adj[first..first + n]
-                    .iter()
-                    .map(|&v| points[v as usize])
-                    .collect();
-                let centre = corners.iter().copied().sum::<Vec3>() / n as f32;
-                let apex = centre + (inside - centre) * 0.5;
-                for i in 0..n {
-                    let tet = [corners[i], corners[(i + 1) % n], centre, apex];
-                    if let Some(piece) = SharedShape::convex_hull(&tet) {
-                        fans.push((Pose::IDENTITY, piece));
-                    }
-                }
-            }
-        }
-        shapes.push((Pose::IDENTITY, hull));
-        shapes.extend(fans);
+        let pieces = hull.as_convex_polyhedron().map(support_pieces).unwrap_or_default();
+        shapes.push(hull);
+        shapes.extend(pieces);
     }
     if shapes.is_empty() {
         return Err(Error::InvalidInput(format!("{name}: empty collider")));
     }
-    Ok(shapes.into_iter().map(|s| s.1).collect())
+    Ok(shapes)
+}
+
+/// The pieces that make every corner of every face of `poly` a contact
+/// point (see [`collider_shapes`]): per face with more than four corners,
+/// its corners past the fourth in groups of four, each group the base of a
+/// pyramid whose apex lies halfway from the face's centre to the hull's.
+fn support_pieces(poly: &ConvexPolyhedron) -> Vec<SharedShape> {
+    let points = poly.points();
+    let inside = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
+    let adj = poly.vertices_adj_to_face();
+    let mut pieces = Vec::new();
+    for face in poly.faces() {
+        let (first, n) = (face.first_vertex_or_edge as usize, face.num_vertices_or_edges as usize);
+        if n <= 4 || first + n > adj.len() {
+            continue;
+        }
+        let corners: Vec<Vec3> = adj[first..first + n].iter().map(|&v| points[v as usize]).collect();
+        let centre = corners.iter().copied().sum::<Vec3>() / n as f32;
+        let apex = centre + (inside - centre) * 0.5;
+        for group in corners[4..].chunks(4) {
+            pieces.extend(pyramid(group, &corners, face.normal, apex));
+        }
+    }
+    pieces
+}
+
+/// Pyramids over `group` (1 to 4 corners of a convex face, in order) with
+/// apex `apex`: one whose base face is the group when parry keeps the base
+/// as one face of four corners, else two tetrahedra. A group of one or two
+/// corners is completed with corners the hull already touches with (the
+/// face's first and third), so the base is a proper triangle.
+fn pyramid(group: &[Vec3], corners: &[Vec3], normal: Vec3, apex: Vec3) -> Vec<SharedShape> {
+    let mut base = group.to_vec();
+    for extra in [corners[0], corners[2]] {
+        if base.len() < 3 {
+            base.push(extra);
+        }
+    }
+    let with_apex = |b: &[Vec3]| SharedShape::convex_hull(&[b, &[apex]].concat());
+    let whole = with_apex(&base).filter(|s| base.len() == 3 || base_kept(s, normal));
+    match (whole, base.as_slice()) {
+        (Some(s), _) => vec![s],
+        (None, &[a, b, c, d]) => [[a, b, c], [a, c, d]].iter().filter_map(|t| with_apex(t)).collect(),
+        (None, _) => Vec::new(),
+    }
+}
+
+/// Whether the piece's face along `normal` kept four corners (parry merges
+/// coplanar triangles into one face only within its tolerance).
+fn base_kept(piece: &SharedShape, normal: Vec3) -> bool {
+    piece.as_convex_polyhedron().is_some_and(|p| {
+        p.faces()
+            .iter()
+            .max_by(|a, b| a.normal.dot(normal).total_cmp(&b.normal.dot(normal)))
+            .is_some_and(|f| f.num_vertices_or_edges == 4)
+    })
 }
 
 /// Convex parts: connected components when there are several, else VHACD.
@@ -460,7 +510,8 @@ pub fn run_into_db(
             .unwrap_or_default(),
         warnings: prepared.warnings.clone(),
     })?;
-    let params_json = serde_json::to_string(params)
+    let keyed = KeyedParams { collider_revision: COLLIDER_REVISION, params };
+    let params_json = serde_json::to_string(&keyed)
         .map_err(|e| Error::InvalidInput(format!("cannot serialise run parameters: {e}")))?;
     let run_id = db.run_id(
         &prepared.sha256,
@@ -572,6 +623,56 @@ mod tests {
         m.triangles
             .extend(b.triangles.iter().map(|t| t.map(|i| i + off)));
         assert_eq!(components(&m).len(), 2);
+    }
+
+    /// Every corner of a face with more than four corners touches the plane
+    /// through the hull (its first four) or a piece (the rest), with one
+    /// piece per four corners left over, and the pieces lie inside the hull.
+    #[test]
+    fn support_pieces_cover_every_corner_of_large_faces() {
+        for sides in [5usize, 6, 8, 9, 12, 17, 32] {
+            let ring = |z: f32| (0..sides).map(move |i| {
+                let a = std::f32::consts::TAU * i as f32 / sides as f32;
+                Vec3::new(a.cos() * 0.05, a.sin() * 0.05, z)
+            });
+            let pts: Vec<Vec3> = ring(0.0).chain(ring(0.08)).collect();
+            let hull = SharedShape::convex_hull(&pts).unwrap();
+            let poly = hull.as_convex_polyhedron().unwrap();
+            let pieces = support_pieces(poly);
+            assert_eq!(pieces.len(), 2 * (sides - 4).div_ceil(4), "{sides} sides");
+            for face in poly.faces().iter().filter(|f| f.num_vertices_or_edges > 4) {
+                let first = face.first_vertex_or_edge as usize;
+                let corners: Vec<Vec3> = poly.vertices_adj_to_face()[first..first + sides]
+                    .iter()
+                    .map(|&v| poly.points()[v as usize])
+                    .collect();
+                // The points each shape touches a plane along `face.normal` with:
+                // the (up to) four parry takes of its best-aligned face.
+                let touching = |p: &ConvexPolyhedron| -> Vec<Vec3> {
+                    let f = p.faces().iter().max_by(|a, b| a.normal.dot(face.normal).total_cmp(&b.normal.dot(face.normal))).unwrap();
+                    let i = f.first_vertex_or_edge as usize;
+                    let n = (f.num_vertices_or_edges as usize).min(4);
+                    p.vertices_adj_to_face()[i..i + n].iter().map(|&v| p.points()[v as usize]).collect()
+                };
+                let mut touched = touching(poly);
+                for piece in &pieces {
+                    let p = piece.as_convex_polyhedron().unwrap();
+                    if p.faces().iter().any(|f| f.normal.dot(face.normal) > 0.999) {
+                        touched.extend(touching(p));
+                    }
+                    for v in p.points() {
+                        let inside = poly.faces().iter().all(|f| {
+                            let on = poly.points()[poly.vertices_adj_to_face()[f.first_vertex_or_edge as usize] as usize];
+                            f.normal.dot(*v - on) < 1e-5
+                        });
+                        assert!(inside, "{sides} sides: piece point {v} outside the hull");
+                    }
+                }
+                for c in &corners {
+                    assert!(touched.iter().any(|t| t.distance(*c) < 1e-6), "{sides} sides: corner {c} does not touch");
+                }
+            }
+        }
     }
 
     #[test]
