@@ -28,17 +28,20 @@ fn benches(c: &mut Criterion) {
     let cube = stable::prepare(shapes::cuboid(DVec3::splat(0.04)), "cube", &params).expect("cube");
     let duck =
         stable::prepare(asset("pybullet/duck_vhacd.obj"), "duck_vhacd", &params).expect("duck");
-    let mut index = 0u64;
-    c.bench_function("drop/cube", |b| {
+    // One world of drops (drop::DROPS_PER_WORLD) per iteration, the unit
+    // run_drops schedules; criterion reports the time per world.
+    let per = drop::DROPS_PER_WORLD;
+    let mut world = 0u64;
+    c.bench_function("drop_world/cube", |b| {
         b.iter(|| {
-            index += 1;
-            drop::simulate(&cube.body, &params.sim, &cube.sha256, 0, index)
+            world += 1;
+            drop::simulate_world(&cube.body, &params.sim, &cube.sha256, 0, world * per..(world + 1) * per)
         })
     });
-    c.bench_function("drop/duck_vhacd", |b| {
+    c.bench_function("drop_world/duck_vhacd", |b| {
         b.iter(|| {
-            index += 1;
-            drop::simulate(&duck.body, &params.sim, &duck.sha256, 0, index)
+            world += 1;
+            drop::simulate_world(&duck.body, &params.sim, &duck.sha256, 0, world * per..(world + 1) * per)
         })
     });
     let idx: Vec<u64> = (0..300).collect();

@@ -52,7 +52,7 @@ pub struct RunArgs {
     /// Seed of the random orientations (with the mesh hash and drop index).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Run only shard k of n (drops with index % n == k-1), e.g. 2/8.
+    /// Run only shard k of n (the worlds of 32 consecutive drops with world % n == k-1), e.g. 2/8.
     #[arg(long)]
     pub shard: Option<Shard>,
     /// Worker threads (default: all cores).
@@ -336,11 +336,11 @@ fn show(args: ShowArgs) -> anyhow::Result<()> {
         let matches = stable::match_analytic(&clusters, &analytic);
         writeln!(
             out,
-            "{source}  sha256 {}  seed {}  collider {} (revision {})  drops {}/{}  settled {} ({:.1} %)",
+            "{source}  sha256 {}  seed {}  collider {}  revision {}  drops {}/{}  settled {} ({:.1} %)",
             &run.mesh_sha256[..12.min(run.mesh_sha256.len())],
             run.seed,
             run.collider,
-            run.collider_revision(),
+            run.drop_revision(),
             drops.len(),
             run.drops,
             settled,
@@ -541,13 +541,15 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         let clusters = stable::cluster::cluster(&results, ClusterParams::default());
         let cluster_s = t_cluster.elapsed().as_secs_f64();
         // Where a drop's time goes: a single-threaded pass over the first
-        // drops again, timed by stage (same results as above).
-        let sample = args.drops.min(200);
-        let (mut stages, mut sample_steps) = (stable::drop::DropTimes::default(), 0u64);
-        for i in 0..sample {
-            let (r, t) = stable::drop::simulate_timed(&prepared.body, &params.sim, &prepared.sha256, params.seed, i);
+        // worlds again (about 200 drops), timed by stage (same results as
+        // above).
+        let (mut stages, mut sample_steps, mut sample) = (stable::drop::DropTimes::default(), 0u64, 0u64);
+        while sample < args.drops.min(200) {
+            let members = stable::drop::world_members(sample, args.drops);
+            let (rs, t) = stable::drop::simulate_world_timed(&prepared.body, &params.sim, &prepared.sha256, params.seed, members);
             stages += t;
-            sample_steps += r.steps as u64;
+            sample += rs.len() as u64;
+            sample_steps += rs.iter().map(|r| r.steps as u64).sum::<u64>();
         }
         let (poses, families) = stable::export::split(&clusters);
         let drops_s = args.drops as f64 / secs;

@@ -124,13 +124,12 @@ pub struct RunRecord {
 }
 
 impl RunRecord {
-    /// The collider revision its drops were made with (see
-    /// [`super::COLLIDER_REVISION`]); runs stored before the revision was
-    /// recorded are revision 1.
-    pub fn collider_revision(&self) -> u64 {
+    /// How its drops were made (see [`super::DROP_REVISION`]); runs stored
+    /// before the revision was recorded are revision 1.
+    pub fn drop_revision(&self) -> u64 {
         serde_json::from_str::<serde_json::Value>(&self.params)
             .ok()
-            .and_then(|v| v.get("collider_revision").and_then(|r| r.as_u64()))
+            .and_then(|v| v.get("drop_revision").and_then(|r| r.as_u64()))
             .unwrap_or(1)
     }
 }

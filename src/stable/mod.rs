@@ -96,17 +96,19 @@ impl Default for RunParams {
     }
 }
 
-/// How [`collider_shapes`] builds the collider from the same parameters.
-/// It is part of the run key, so a database never resumes a run with drops
-/// made by another collider. 1: one support tetrahedron per corner of every
-/// face with more than four; 2: pyramids of four corners (same support
-/// polygons, fewer pieces).
-pub const COLLIDER_REVISION: u32 = 2;
+/// How drops are made from the same parameters: the collider
+/// ([`collider_shapes`]) and the worlds they share
+/// ([`drop::DROPS_PER_WORLD`]). It is part of the run key, so a database
+/// never resumes a run with drops made another way. 1: one support
+/// tetrahedron per corner of every face with more than four, one drop per
+/// world; 2: support pyramids of four corners (same support polygons, fewer
+/// pieces); 3: 32 drops per world.
+pub const DROP_REVISION: u32 = 3;
 
 /// The run parameters as stored and hashed into the run key.
 #[derive(serde::Serialize)]
 struct KeyedParams<'a> {
-    collider_revision: u32,
+    drop_revision: u32,
     #[serde(flatten)]
     params: &'a RunParams,
 }
@@ -114,8 +116,9 @@ struct KeyedParams<'a> {
 /// Drop indices made at a time by [`run_into_db`] (8 MB).
 const PENDING_CHUNK: usize = 1 << 20;
 
-/// A subset of the drop indices: `--shard k/n` runs the drops with
-/// `index % n == k - 1`.
+/// A subset of the drop indices: `--shard k/n` runs the worlds (groups of
+/// [`drop::DROPS_PER_WORLD`] consecutive drops, simulated together) with
+/// `world % n == k - 1`, so every world runs whole in one shard.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Shard {
     /// 1-based shard number.
@@ -125,7 +128,29 @@ pub struct Shard {
 
 impl Shard {
     pub fn contains(&self, index: u64) -> bool {
-        index % self.n == self.k - 1
+        (index / drop::DROPS_PER_WORLD) % self.n == self.k - 1
+    }
+
+    /// This shard's drops of a run of `drops`, in order.
+    pub fn indices(self, drops: u64) -> impl Iterator<Item = u64> {
+        let per = drop::DROPS_PER_WORLD;
+        let n = usize::try_from(self.n).unwrap_or(usize::MAX);
+        (self.k - 1..drops.div_ceil(per))
+            .step_by(n)
+            .flat_map(move |w| w * per..(w * per).saturating_add(per).min(drops))
+    }
+
+    /// How many drops of a run of `drops` this shard holds.
+    pub fn count(&self, drops: u64) -> u64 {
+        let per = drop::DROPS_PER_WORLD;
+        let worlds = drops.div_ceil(per);
+        if worlds < self.k {
+            return 0;
+        }
+        let mine = (worlds - self.k) / self.n + 1;
+        let last = worlds - 1;
+        let short = if last % self.n == self.k - 1 { last * per + per - drops } else { 0 };
+        mine.saturating_mul(per) - short
     }
 }
 
@@ -234,8 +259,8 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
 /// plane at every corner, so the support polygon is the whole face, and the
 /// shape is unchanged. Four corners per piece keeps the pieces few: every
 /// piece touching the plane is one more collider pair and contact
-/// constraint at every step (one thin tetrahedron per corner, collider
-/// revision 1, made steps 1.3-3.4× dearer). The pieces are separate
+/// constraint at every step (one thin tetrahedron per corner, drop
+/// [`DROP_REVISION`] 1, made steps 1.3-3.4× dearer). The pieces are separate
 /// colliders on the body (not one compound shape: rapier's
 /// compound-vs-half-space path let a cylinder on its side sink and roll
 /// forever in our tests).
@@ -402,9 +427,13 @@ fn components(mesh: &Mesh) -> Vec<Vec<u32>> {
     out
 }
 
-/// Runs the drops with the given indices on `threads` workers (one fresh
-/// world per drop), calling `on_result` on the calling thread as results
-/// arrive (in completion order). Stops early when `on_result` errors.
+/// Runs the drops with the given indices of a run of `params.drops` drops on
+/// `threads` workers, calling `on_result` on the calling thread as results
+/// arrive (in completion order). Drops run by world
+/// ([`drop::world_members`]): a world with any drop asked for is simulated
+/// whole and only the drops asked for are reported, so a drop's result never
+/// depends on which others were asked for. Stops early when `on_result`
+/// errors.
 pub fn run_drops(
     prepared: &PreparedMesh,
     params: &RunParams,
@@ -412,7 +441,8 @@ pub fn run_drops(
     threads: usize,
     mut on_result: impl FnMut(DropResult) -> Result<()>,
 ) -> Result<()> {
-    let threads = threads.max(1).min(indices.len().max(1));
+    let worlds = worlds_of(indices, params.drops);
+    let threads = threads.max(1).min(worlds.len().max(1));
     // One span for the batch: a drop is too many to trace one by one.
     let _span = tracing::trace_span!("drop_tests", drops = indices.len(), threads).entered();
     let next = AtomicUsize::new(0);
@@ -421,21 +451,22 @@ pub fn run_drops(
     std::thread::scope(|s| {
         for _ in 0..threads {
             let tx = tx.clone();
-            let (next, stop) = (&next, &stop);
+            let (next, stop, worlds) = (&next, &stop, &worlds);
             s.spawn(move || loop {
                 if stop.load(Ordering::Relaxed) {
                     break;
                 }
                 let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&index) = indices.get(i) else { break };
-                let r = drop::simulate(
+                let Some((members, wanted)) = worlds.get(i) else { break };
+                let results = drop::simulate_world(
                     &prepared.body,
                     &params.sim,
                     &prepared.sha256,
                     params.seed,
-                    index,
+                    members.clone(),
                 );
-                if tx.send(r).is_err() {
+                let mut sent = results.into_iter().filter(|r| wanted.contains(&r.index));
+                if sent.try_for_each(|r| tx.send(r)).is_err() {
                     break;
                 }
             });
@@ -452,6 +483,22 @@ pub fn run_drops(
         }
         result
     })
+}
+
+/// The worlds holding `indices` (in a run of `drops` drops), each with the
+/// indices asked for in it, in order of first appearance.
+fn worlds_of(indices: &[u64], drops: u64) -> Vec<(std::ops::Range<u64>, Vec<u64>)> {
+    let mut worlds: Vec<(std::ops::Range<u64>, Vec<u64>)> = Vec::new();
+    let mut slot_of = std::collections::HashMap::new();
+    for &index in indices {
+        let members = drop::world_members(index, drops.max(index + 1));
+        let k = *slot_of.entry(members.start).or_insert_with(|| {
+            worlds.push((members, Vec::new()));
+            worlds.len() - 1
+        });
+        worlds[k].1.push(index);
+    }
+    worlds
 }
 
 /// What a database run did.
@@ -510,7 +557,7 @@ pub fn run_into_db(
             .unwrap_or_default(),
         warnings: prepared.warnings.clone(),
     })?;
-    let keyed = KeyedParams { collider_revision: COLLIDER_REVISION, params };
+    let keyed = KeyedParams { drop_revision: DROP_REVISION, params };
     let params_json = serde_json::to_string(&keyed)
         .map_err(|e| Error::InvalidInput(format!("cannot serialise run parameters: {e}")))?;
     let run_id = db.run_id(
@@ -525,8 +572,7 @@ pub fn run_into_db(
     let done = db.finished_drops(run_id)?;
     drop(record);
     let shard = shard.unwrap_or(Shard { k: 1, n: 1 });
-    // This shard's drops: k-1, k-1+n, ... below `drops`.
-    let total = if params.drops > shard.k - 1 { (params.drops - shard.k) / shard.n + 1 } else { 0 };
+    let total = shard.count(params.drops);
     let reused = done.iter().filter(|&&i| i < params.drops && shard.contains(i)).count() as u64;
     let mut finished = reused;
     let mut simulated = 0u64;
@@ -535,15 +581,9 @@ pub fn run_into_db(
     let mut last_commit = std::time::Instant::now();
     // The pending indices are made a chunk at a time, so memory stays
     // bounded however many drops are asked for.
-    let mut next = shard.k - 1;
-    while next < params.drops {
-        let mut pending = Vec::with_capacity(PENDING_CHUNK);
-        while next < params.drops && pending.len() < PENDING_CHUNK {
-            if !done.contains(&next) {
-                pending.push(next);
-            }
-            next = next.saturating_add(shard.n);
-        }
+    let mut todo = shard.indices(params.drops).filter(|i| !done.contains(i)).peekable();
+    while todo.peek().is_some() {
+        let pending: Vec<u64> = todo.by_ref().take(PENDING_CHUNK).collect();
         simulated += pending.len() as u64;
         run_drops(prepared, params, &pending, threads, |r| {
             batch.push(r);
@@ -606,7 +646,23 @@ mod tests {
     #[test]
     fn shard_parsing_and_membership() {
         let s: Shard = "2/3".parse().unwrap();
-        assert!(s.contains(1) && s.contains(4) && !s.contains(0));
+        let per = drop::DROPS_PER_WORLD;
+        assert!(s.contains(per) && s.contains(2 * per - 1) && s.contains(4 * per) && !s.contains(0) && !s.contains(2 * per));
+        // Every drop of a run is in exactly one shard, listed and counted.
+        for drops in [0, 1, per - 1, per, per + 1, 5 * per + 3, 7 * per] {
+            for n in 1..=4 {
+                let mut all = Vec::new();
+                for k in 1..=n {
+                    let shard = Shard { k, n };
+                    let mine: Vec<u64> = shard.indices(drops).collect();
+                    assert_eq!(mine.len() as u64, shard.count(drops), "{k}/{n} of {drops}");
+                    assert!(mine.iter().all(|&i| shard.contains(i) && i < drops));
+                    all.extend(mine);
+                }
+                all.sort_unstable();
+                assert_eq!(all, (0..drops).collect::<Vec<_>>(), "{n} shards of {drops}");
+            }
+        }
         assert!("0/3".parse::<Shard>().is_err());
         assert!("4/3".parse::<Shard>().is_err());
         assert!("x".parse::<Shard>().is_err());
