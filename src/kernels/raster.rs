@@ -181,6 +181,14 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     // camera lies on the inner side of its plane.
     let cam = pose.inverse_translation();
     let mut proj = [(Vec3::ZERO, Vec2::ZERO); 256];
+    // Per meshlet vertex, its pixel coordinates rounded both ways as
+    // (ceil x, ceil y, -floor x, -floor y): rounding is monotonic, so a
+    // triangle's clipped bounds (lo = ceil of the corners' minimum, hi =
+    // floor of their maximum) are two 4-wide minimums of its corners' and
+    // one maximum with the rectangle, the same values as rounding each
+    // triangle's extremes.
+    let mut snap = [Vec4::ZERO; 256];
+    let clip = Vec4::new(first.0, first.1, -last.0, -last.1);
     for m in &mesh.meshlets {
         if !meshlet_visible(m, pose, cam, mesh.cull_back_faces, k, first, last) {
             continue;
@@ -189,23 +197,27 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
         // f32 operations the kernel does per corner, so the values are
         // identical).
         let verts = &mesh.meshlet_vertices[m.first_vertex as usize..][..m.vertex_count as usize];
-        for (slot, &v) in proj.iter_mut().zip(verts) {
+        for ((slot, rounded), &v) in proj.iter_mut().zip(snap.iter_mut()).zip(verts) {
             let p = pose.transform(mesh.vertices[v as usize]);
-            *slot = (p, Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy));
+            let s = Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy);
+            *slot = (p, s);
+            *rounded = Vec4::new(R::ceil(s.x), R::ceil(s.y), -R::floor(s.x), -R::floor(s.y));
         }
         for t in m.first as usize..(m.first + m.count) as usize {
             let tri = &mesh.triangles[t];
             if mesh.cull_back_faces && Vec3::from_slice(&tri.plane[..3]).dot(cam) <= tri.plane[3] {
                 continue;
             }
-            let [ia, ib, ic] = mesh.corners[t];
-            let ((a, sa), (b, sb), (c, sc)) = (proj[ia as usize], proj[ib as usize], proj[ic as usize]);
-            if a.z.min(b.z).min(c.z) < NEAR_M {
+            let [ia, ib, ic] = mesh.corners[t].map(|i| i as usize);
+            // Empty bounds first (most triangles of a full-size model): a
+            // triangle crossing the near plane is skipped either way.
+            let bounds = snap[ia].min(snap[ib]).min(snap[ic]).max(clip);
+            let (lo, hi) = (Vec2::new(bounds.x, bounds.y), Vec2::new(-bounds.z, -bounds.w));
+            if lo.x > hi.x || lo.y > hi.y {
                 continue;
             }
-            let lo = Vec2::new(R::ceil(sa.x.min(sb.x).min(sc.x)).max(first.0), R::ceil(sa.y.min(sb.y).min(sc.y)).max(first.1));
-            let hi = Vec2::new(R::floor(sa.x.max(sb.x).max(sc.x)).min(last.0), R::floor(sa.y.max(sb.y).max(sc.y)).min(last.1));
-            if lo.x > hi.x || lo.y > hi.y {
+            let ((a, sa), (b, sb), (c, sc)) = (proj[ia], proj[ib], proj[ic]);
+            if a.z.min(b.z).min(c.z) < NEAR_M {
                 continue;
             }
             let area = (sb - sa).perp_dot(sc - sa);
