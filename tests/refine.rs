@@ -79,6 +79,15 @@ fn a_killed_run_resumes_and_shards_merge_into_the_single_run() {
     let text = refine(&init, &partial, &["--method", "sir"]);
     assert!(text.contains("refined 11 images"), "{text}");
     assert_eq!(rows(&partial), rows(&single));
+    // The settings are recorded beside the output: resuming with others
+    // is refused and names them (the kept images would not match the
+    // rest); the same settings resume.
+    assert!(d.path().join("single.csv.settings.json").is_file());
+    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&single).args(["--method", "sir", "--lod", "auto", "--quiet", "--device", "cpu"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("other settings (lod;"), "{err}");
+    refine(&init, &single, &["--method", "sir"]);
+    assert_eq!(rows(&partial), rows(&single));
     // Shards 1/3..3/3 concatenated = the single run.
     let merged = d.path().join("merged.csv");
     let mut all = String::from("scene_id,im_id,obj_id,score,R,t,time\n");

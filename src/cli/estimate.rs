@@ -10,7 +10,7 @@ use plausible::bop::Dataset;
 use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
 use plausible::refine::{Method, RefineParams};
 
-use super::refine::{shard_of, skip_done, ResultsAppender};
+use super::refine::{check_settings, file_digest, path_setting, shard_of, skip_done, ResultsAppender};
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
@@ -113,6 +113,22 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         bail!("no targets in the chosen scenes and images");
     }
     let mut jobs: Vec<((u32, u32), Vec<_>)> = shard_of(by_image.into_iter().collect(), shard);
+    // What decides an image's estimates (not which images: those may be
+    // added to one output by scene, image or shard).
+    let settings = serde_json::json!({
+        "command": "estimate",
+        "dataset": path_setting(&a.dataset),
+        "split": a.split,
+        "stable": a.stable.as_deref().map(file_digest).transpose()?,
+        "yaw_steps": a.yaw_steps,
+        "top": a.top,
+        "method": a.method,
+        "steps": a.steps,
+        "no_physics": a.no_physics,
+        "lod": a.lod.to_string(),
+        "masks": a.run.masks_setting(),
+    });
+    check_settings(&a.out, &settings)?;
     skip_done(&mut jobs, &a.out, |(k, _)| *k, |(_, ts)| ts.iter().map(|t| t.inst_count as usize).sum())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();

@@ -100,6 +100,16 @@ impl ImageRunArgs {
         Ok((self.shard.as_deref().map(parse_shard).transpose()?, parse_masks(&self.masks)?))
     }
 
+    /// `--masks` as recorded in an output's settings: `oracle` or the
+    /// folder's absolute path.
+    pub fn masks_setting(&self) -> String {
+        if self.masks == "oracle" {
+            self.masks.clone()
+        } else {
+            path_setting(std::path::Path::new(&self.masks))
+        }
+    }
+
     /// Checks that `--summary` can be written and makes the `--explain`
     /// folder, before any work, so a bad path fails fast.
     pub fn prepare_outputs(&self) -> Result<()> {
@@ -200,6 +210,68 @@ pub fn shard_of<T>(jobs: Vec<T>, shard: Option<(usize, usize)>) -> Vec<T> {
     }
 }
 
+/// The file beside `out` that records the settings its results were made
+/// with.
+pub fn settings_path(out: &std::path::Path) -> PathBuf {
+    let mut name = out.as_os_str().to_owned();
+    name.push(".settings.json");
+    PathBuf::from(name)
+}
+
+/// SHA-256 of a file's contents (an input whose path may stay the same
+/// while it is rebuilt, like a stable-pose database).
+pub fn file_digest(path: &std::path::Path) -> Result<String> {
+    use sha2::{Digest, Sha256};
+    let mut file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut hash = Sha256::new();
+    std::io::copy(&mut file, &mut hash).with_context(|| format!("cannot read {}", path.display()))?;
+    Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// A path as recorded in the settings: absolute where it resolves.
+pub fn path_setting(path: &std::path::Path) -> String {
+    std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string()
+}
+
+/// Refuses to resume into `out` when it was written with other settings
+/// (another --stable, --lod, shard, ...): its images would be kept and the
+/// rest made differently, a silently mixed result. The settings are kept in
+/// `OUT.settings.json`, written when the output starts. An output without
+/// one (from an older version) is resumed with a warning.
+pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Result<()> {
+    let resumable = std::fs::metadata(out).is_ok_and(|m| m.is_file());
+    let started = resumable && std::fs::metadata(out).is_ok_and(|m| m.len() > 0);
+    let stamp = settings_path(out);
+    if started {
+        match std::fs::read_to_string(&stamp) {
+            Ok(text) => {
+                let before: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{}: not a settings record", stamp.display()))?;
+                let differ: Vec<&str> = settings
+                    .as_object()
+                    .into_iter()
+                    .flatten()
+                    .filter(|(k, v)| before.get(k.as_str()) != Some(*v))
+                    .map(|(k, _)| k.as_str())
+                    .collect();
+                if !differ.is_empty() {
+                    bail!(
+                        "{} was written with other settings ({}; recorded in {}): resuming would mix two kinds of results. Give another --out, or delete both files to start again",
+                        out.display(),
+                        differ.join(", "),
+                        stamp.display()
+                    );
+                }
+                return Ok(());
+            }
+            Err(_) => eprintln!("warning: {} has no settings record ({}): resuming without checking that its images were made with the same settings", out.display(), stamp.display()),
+        }
+    } else if !resumable && out.exists() {
+        return Ok(()); // a pipe or device: nothing to resume
+    }
+    let text = serde_json::to_string_pretty(settings)? + "\n";
+    std::fs::write(&stamp, text).with_context(|| format!("cannot write {}", stamp.display()))
+}
+
 /// Drops the images already complete in `out` (see [`resume_from`]);
 /// `key` gives a job's (scene, image) and `expected` its estimate count.
 pub fn skip_done<T>(jobs: &mut Vec<T>, out: &std::path::Path, key: impl Fn(&T) -> (u32, u32), expected: impl Fn(&T) -> usize) -> Result<()> {
@@ -237,6 +309,23 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let init = read_results(&a.init).context("--init")?;
     let mut jobs = shard_of(image_jobs(&init), shard);
+    // What decides an image's refined poses (not which images).
+    let settings = serde_json::json!({
+        "command": "refine",
+        "dataset": path_setting(&a.dataset),
+        "split": a.split,
+        "init": file_digest(&a.init)?,
+        "method": a.method,
+        "no_physics": a.no_physics,
+        "lod": a.lod.to_string(),
+        "steps": a.steps,
+        "budget": a.budget,
+        "icp_iterations": a.icp_iterations,
+        "exploration": a.exploration,
+        "discount": a.discount,
+        "masks": a.run.masks_setting(),
+    });
+    check_settings(&a.out, &settings)?;
     skip_done(&mut jobs, &a.out, |j| (j.scene_id, j.im_id), |j| j.estimates.len())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id)).collect();
     objs.sort_unstable();
