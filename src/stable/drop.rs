@@ -366,23 +366,9 @@ fn run_until_settled(world: &mut PhysicsWorld, slots: &mut [Slot], body: &DropBo
         }
         for slot in slots.iter_mut().filter(|s| s.result.is_none()) {
             let Some(b) = world.bodies.get(slot.handle) else { continue };
-            if b.linvel().length() >= lin_tol || b.angvel().length() >= ang_tol {
-                slot.calm = 0;
-                continue;
-            }
-            slot.calm += 1;
-            if slot.calm < calm_needed {
-                continue;
-            }
-            // Still for long enough: accept only a statically stable pose
-            // (centre of mass above the support polygon), not a body
-            // balanced on an edge that has not started to tip yet.
-            let (q, t) = body_pose(b);
-            if supported(body, q, t) {
+            if still_and_supported(slot, b, body, calm_needed, (lin_tol, ang_tol)) {
                 slot.result = Some(outcome(slot.index, true, steps, b));
                 world.remove_body(slot.handle);
-            } else {
-                slot.calm = 0;
             }
         }
         let dt = lap();
@@ -403,6 +389,28 @@ fn run_until_settled(world: &mut PhysicsWorld, slots: &mut [Slot], body: &DropBo
             },
         });
     }
+}
+
+/// The rest test of one body after a step: it has been still (speeds below
+/// `tol` = (linear, angular)) for `calm_needed` steps in a statically
+/// stable pose (centre of mass above the support polygon), not balanced on
+/// an edge that has not started to tip yet. Counts the still steps in the
+/// slot.
+fn still_and_supported(slot: &mut Slot, b: &RigidBody, body: &DropBody, calm_needed: u32, tol: (f32, f32)) -> bool {
+    if b.linvel().length() >= tol.0 || b.angvel().length() >= tol.1 {
+        slot.calm = 0;
+        return false;
+    }
+    slot.calm += 1;
+    if slot.calm < calm_needed {
+        return false;
+    }
+    let (q, t) = body_pose(b);
+    let supported = supported(body, q, t);
+    if !supported {
+        slot.calm = 0;
+    }
+    supported
 }
 
 /// A rigid body's pose in f64.
