@@ -221,11 +221,8 @@ pub fn settings_path(out: &std::path::Path) -> PathBuf {
 /// SHA-256 of a file's contents (an input whose path may stay the same
 /// while it is rebuilt, like a stable-pose database).
 pub fn file_digest(path: &std::path::Path) -> Result<String> {
-    use sha2::{Digest, Sha256};
-    let mut file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut hash = Sha256::new();
-    std::io::copy(&mut file, &mut hash).with_context(|| format!("cannot read {}", path.display()))?;
-    Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    let file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
+    plausible::stable::db::sha256_hex_reader(file).with_context(|| format!("cannot read {}", path.display()))
 }
 
 /// A path as recorded in the settings: absolute where it resolves.
@@ -234,13 +231,14 @@ pub fn path_setting(path: &std::path::Path) -> String {
 }
 
 /// Refuses to resume into `out` when it was written with other settings
-/// (another --stable, --lod, shard, ...): its images would be kept and the
+/// (another --stable, --lod, method, ...): its images would be kept and the
 /// rest made differently, a silently mixed result. The settings are kept in
 /// `OUT.settings.json`, written when the output starts. An output without
 /// one (from an older version) is resumed with a warning.
 pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Result<()> {
-    let resumable = std::fs::metadata(out).is_ok_and(|m| m.is_file());
-    let started = resumable && std::fs::metadata(out).is_ok_and(|m| m.len() > 0);
+    let meta = std::fs::metadata(out).ok();
+    let resumable = meta.as_ref().is_some_and(|m| m.is_file());
+    let started = resumable && meta.as_ref().is_some_and(|m| m.len() > 0);
     let stamp = settings_path(out);
     if started {
         match std::fs::read_to_string(&stamp) {
@@ -265,7 +263,7 @@ pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Re
             }
             Err(_) => eprintln!("warning: {} has no settings record ({}): resuming without checking that its images were made with the same settings", out.display(), stamp.display()),
         }
-    } else if !resumable && out.exists() {
+    } else if meta.is_some() && !resumable {
         return Ok(()); // a pipe or device: nothing to resume
     }
     let text = serde_json::to_string_pretty(settings)? + "\n";

@@ -491,7 +491,7 @@ fn worlds_of(indices: &[u64], drops: u64) -> Vec<(std::ops::Range<u64>, Vec<u64>
     let mut worlds: Vec<(std::ops::Range<u64>, Vec<u64>)> = Vec::new();
     let mut slot_of = std::collections::HashMap::new();
     for &index in indices {
-        let members = drop::world_members(index, drops.max(index + 1));
+        let members = drop::world_members(index, drops.max(index.saturating_add(1)));
         let k = *slot_of.entry(members.start).or_insert_with(|| {
             worlds.push((members, Vec::new()));
             worlds.len() - 1
