@@ -293,17 +293,27 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
                 big_list[atomicAdd(&big_count, 1u)] = t;
                 continue;
             }
-            let key_t = t;
-            for (var j = 0u; j < ny; j++) {
-                let w_row = s.w0 + s.dw_dy * f32(j);
-                let row = base + (u32(s.lo.y) + j) * params.width + u32(s.lo.x);
-                for (var i = 0u; i < nx; i++) {
-                    let w = w_row + s.dw_dx * f32(i);
-                    if (min(w.x, min(w.y, w.z)) < 0.0) {
-                        continue;
-                    }
+            // One loop over the bounds' pixels, row by row, rather than
+            // two nested ones: on a SIMD CPU (lavapipe) the invocations of
+            // a vector then run max(nx * ny) iterations, not max(ny) *
+            // max(nx) (render 6 % faster on the duck). Same weights as the
+            // twin: w0 + dw_dy * j + dw_dx * i.
+            var i = 0u;
+            var j = 0u;
+            var w_row = s.w0;
+            var row = base + u32(s.lo.y) * params.width + u32(s.lo.x);
+            for (var q = nx * ny; q > 0u; q--) {
+                let w = w_row + s.dw_dx * f32(i);
+                if (min(w.x, min(w.y, w.z)) >= 0.0) {
                     let code = u32(clamp((dot(w, s.iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
-                    atomicMax(&vis[row + i], (code << params.id_bits) | key_t);
+                    atomicMax(&vis[row + i], (code << params.id_bits) | t);
+                }
+                i += 1u;
+                if (i == nx) {
+                    i = 0u;
+                    j += 1u;
+                    w_row = s.w0 + s.dw_dy * f32(j);
+                    row += params.width;
                 }
             }
         }
