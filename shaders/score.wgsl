@@ -45,9 +45,30 @@ fn score_main(
 // (the whole workgroup calls it, in uniform control flow).
 fn score_hypothesis(h: u32, slot: u32, lid: u32) {
     let base = slot * params.width * params.height;
+    let p = poses[h];
+    reduce_slot(h, p, base, raster_slot(p, base, lid), lid);
+}
+
+// The score of a visibility slot already filled by raycast.wgsl (one
+// workgroup per hypothesis of the wave, after the ray-casting dispatch):
+// every pixel of the hypothesis' screen rectangle is visited.
+@compute @workgroup_size(WG)
+fn score_traced_main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let h = params.first + wid.x;
+    if (h >= params.n_hyp) {
+        return;
+    }
+    let p = poses[h];
+    reduce_slot(h, p, wid.x * params.width * params.height, screen_rect(p), lid);
+}
+
+// Scores hypothesis h from its slot at `base` (keys inside `rect` only),
+// emptying the slot, and writes its record.
+fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, lid: u32) {
     {
-        let p = poses[h];
-        let rect = raster_slot(p, base, lid);
         var sum = vec2<f32>(0.0);
         var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
         var behind = 0u;

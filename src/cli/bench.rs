@@ -72,10 +72,10 @@ pub struct BenchScoreArgs {
     /// triangle count; every configuration is measured with each.
     #[arg(long, default_value = "off")]
     pub lod: Vec<LodChoice>,
-    /// CPU renderers to measure (repeatable): `auto` (the ray caster above
-    /// a few triangles per region pixel), `raster` (the GPU kernel's twin)
-    /// or `bvh` (ray casting through a CWBVH); the GPU is measured once per
-    /// level of detail, with the first.
+    /// Renderers to measure (repeatable), on the GPU and the CPU alike:
+    /// `auto` (the ray caster above a few triangles per region pixel on the
+    /// CPU, above the rasterizer's meshlet budget on the GPU), `raster` or
+    /// `bvh` (ray casting through a CWBVH).
     #[arg(long, default_value = "auto")]
     pub renderer: Vec<plausible::kernels::RendererChoice>,
     #[command(flatten)]
@@ -93,8 +93,10 @@ pub struct ScoreBenchRow {
     pub lod: String,
     /// Geometric error of the scored mesh against the full one (mm).
     pub lod_error_mm: f64,
-    /// The CPU twin's renderer (`raster` or `bvh`) and how it was chosen.
+    /// The CPU twin's and the GPU's renderer (`raster` or `bvh`) and how
+    /// they were chosen.
     pub cpu_renderer: String,
+    pub gpu_renderer: String,
     pub renderer_choice: String,
     pub n: usize,
     pub width: u32,
@@ -184,8 +186,8 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         println!("machine: {}", machine.line());
         println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
         print!(
-            "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
-            "mesh", "lod", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "cpu ren", "gpu/cpu", "upload", "render", "reduce", "readback"
+            "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
+            "mesh", "lod", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu ren", "cpu ren", "gpu/cpu", "upload", "render", "reduce", "readback"
         );
         if a.physics {
             print!(" {:>13} {:>13}", "gpu+phys h/s", "cpu+phys h/s");
@@ -211,7 +213,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
             let ti: Intrinsics = target.intrinsics;
             for &lod in &a.lod {
                 let scoring = scoring_mesh(&mesh, lod, &target)?;
-                for (r, &renderer) in a.renderer.iter().enumerate() {
+                for &renderer in &a.renderer {
                     let mut rmesh = RenderMesh::new(&scoring.mesh)?;
                     rmesh.renderer = renderer;
                     let mut row = ScoreBenchRow {
@@ -223,6 +225,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                         lod: lod.to_string(),
                         lod_error_mm: scoring.error_m * 1e3,
                         cpu_renderer: cpu_renderer_at(&rmesh, &truth, &ti).to_string(),
+                        gpu_renderer: rmesh.gpu_renderer(ti.pixels()).to_string(),
                         renderer_choice: format!("{renderer:?}").to_lowercase(),
                         n,
                         width: ti.width,
@@ -240,10 +243,14 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                         timing: "wall clock",
                         machine: machine.clone(),
                     };
-                    if let (Device::Gpu(ctx), 0) = (&device, r) {
+                    if let Device::Gpu(ctx) = &device {
                         // A mesh past the kernels' loop budget is refused, not
                         // benchmarked: the row keeps its CPU figures.
-                        match plausible::kernels::check_loop_budget(&rmesh, ti.pixels()) {
+                        let budget = match rmesh.gpu_renderer(ti.pixels()) {
+                            plausible::kernels::CpuRenderer::RayCast => plausible::kernels::check_pixel_budget(ti.pixels()),
+                            plausible::kernels::CpuRenderer::Raster => plausible::kernels::check_loop_budget(&rmesh, ti.pixels()),
+                        };
+                        match budget {
                             Ok(()) => tracing::trace_span!("gpu")
                                 .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?,
                             Err(e) => eprintln!("{name}: GPU not measured: {e}"),
@@ -301,11 +308,13 @@ fn measure_gpu(
     }
     runs.sort_by_key(|r| r.0);
     let (total, st) = runs[runs.len() / 2];
-    let render = median((0..repeat).map(|_| scorer.raster_only(poses)).collect::<Result<Vec<_>, _>>()?);
+    let render = (0..repeat).map(|_| scorer.raster_only(poses)).collect::<Result<Option<Vec<_>>, _>>()?.map(median);
     row.gpu_hyps_per_s = Some(n as f64 / total.as_secs_f64());
     row.upload_ms = Some(ms(st.upload));
-    row.render_ms = Some(ms(render.min(st.compute)));
-    row.reduce_ms = Some(ms(st.compute.saturating_sub(render)));
+    // The ray caster's render and reduce are separate dispatches, not
+    // timed apart: its whole pass counts as render.
+    row.render_ms = Some(ms(render.map_or(st.compute, |r| r.min(st.compute))));
+    row.reduce_ms = render.map(|r| ms(st.compute.saturating_sub(r)));
     row.readback_ms = Some(ms(st.readback));
     // Timestamps in a separate run, so their readback does not
     // disturb the wall-clock figures.
@@ -388,7 +397,7 @@ fn print_row(row: &ScoreBenchRow, physics: bool) {
         _ => "-".into(),
     };
     print!(
-        "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
         row.mesh,
         row.lod,
         row.triangles,
@@ -396,6 +405,7 @@ fn print_row(row: &ScoreBenchRow, physics: bool) {
         format!("{}x{}", row.width, row.height),
         f(row.gpu_hyps_per_s, 0),
         f(row.cpu_hyps_per_s, 0),
+        row.gpu_renderer,
         row.cpu_renderer,
         ratio,
         f(row.upload_ms, 2),

@@ -104,6 +104,13 @@ impl RayCaster {
         drawn
     }
 
+    /// The tree and primitive order as the GPU ray caster reads them
+    /// (`shaders/raycast.wgsl`): obvhs's nodes word by word.
+    pub fn gpu_layout(&self) -> super::raycast::GpuBvh {
+        const _: () = assert!(std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>() == 4 * super::raycast::NODE_WORDS);
+        super::raycast::GpuBvh { nodes: bytemuck::cast_slice(&self.bvh.nodes).to_vec(), prims: self.ids.clone() }
+    }
+
     /// The nearest hit beyond the near plane: (depth, triangle id).
     fn nearest(&self, origin: Vec3A, dir: Vec3A) -> Option<(f32, u32)> {
         let ray = Ray::new(origin, dir, NEAR_M, f32::INFINITY);

@@ -24,6 +24,7 @@ pub mod contacts;
 pub mod depth;
 pub mod plane_contacts;
 pub mod raster;
+pub mod raycast;
 pub mod render;
 pub mod score;
 
@@ -53,7 +54,7 @@ pub const MAX_TRIANGLES: usize = 1 << 24;
 pub const MAX_GPU_MESHLETS: usize = 8192;
 pub const MAX_GPU_PIXELS: usize = 1 << 20;
 
-/// Refuses work that would exceed a GPU kernel's loop budget.
+/// Refuses work that would exceed the rasterizing kernels' loop budget.
 pub fn check_loop_budget(mesh: &RenderMesh, pixels: usize) -> Result<()> {
     if mesh.meshlets.len() > MAX_GPU_MESHLETS {
         return Err(Error::InvalidInput(format!(
@@ -62,6 +63,11 @@ pub fn check_loop_budget(mesh: &RenderMesh, pixels: usize) -> Result<()> {
             mesh.meshlets.len()
         )));
     }
+    check_pixel_budget(pixels)
+}
+
+/// Refuses regions larger than the GPU kernels' loop budget allows.
+pub fn check_pixel_budget(pixels: usize) -> Result<()> {
     if pixels > MAX_GPU_PIXELS {
         return Err(Error::InvalidInput(format!(
             "the region has {pixels} pixels; the GPU kernels take at most {MAX_GPU_PIXELS} (1024x1024): use a lower resolution or the CPU twin"
@@ -253,7 +259,8 @@ impl std::str::FromStr for RendererChoice {
     }
 }
 
-/// The CPU renderer [`RenderMesh::cpu_renderer`] picked.
+/// The renderer [`RenderMesh::cpu_renderer`] or
+/// [`RenderMesh::gpu_renderer`] picked.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CpuRenderer {
     Raster,
@@ -324,6 +331,23 @@ impl RenderMesh {
         if wanted && self.ray_caster().is_some() { CpuRenderer::RayCast } else { CpuRenderer::Raster }
     }
 
+    /// The GPU renderer for a region of `pixels` pixels: the rasterizer
+    /// (`raster.wgsl`), or the BVH ray caster (`raycast.wgsl`) when asked
+    /// for or, with `Auto`, when the mesh has more meshlets than the
+    /// rasterizer takes ([`MAX_GPU_MESHLETS`]) or more than
+    /// [`GPU_RAY_CAST_TRIANGLES_PER_PIXEL`] triangles per region pixel; the
+    /// ray caster needs a BVH shallow enough to traverse.
+    pub fn gpu_renderer(&self, pixels: usize) -> CpuRenderer {
+        let wanted = match self.renderer {
+            RendererChoice::Raster => false,
+            RendererChoice::RayCast => true,
+            RendererChoice::Auto => {
+                self.meshlets.len() > MAX_GPU_MESHLETS || self.triangles.len() as f64 > GPU_RAY_CAST_TRIANGLES_PER_PIXEL * pixels as f64
+            }
+        };
+        if wanted && self.ray_caster().is_some() { CpuRenderer::RayCast } else { CpuRenderer::Raster }
+    }
+
     /// The ray caster, its BVH built on first use (`None` when the tree is
     /// too deep to traverse safely).
     pub fn ray_caster(&self) -> Option<&bvh::RayCaster> {
@@ -382,11 +406,15 @@ fn build_meshlets(mesh: &Mesh, vertices: &[Vec3], closed: bool) -> Built {
 /// the README's design notes).
 pub const RAY_CAST_TRIANGLES_PER_PIXEL: f64 = 40.0;
 
+/// Triangles per region pixel above which `Auto` ray-casts on the GPU.
+pub const GPU_RAY_CAST_TRIANGLES_PER_PIXEL: f64 = f64::INFINITY;
+
 /// Every WGSL source as the pipelines compile it: `(name, source)`.
 pub fn shader_sources() -> Vec<(&'static str, String)> {
     vec![
         ("render", render::render_wgsl()),
         ("score", score::SCORE_WGSL.to_string()),
+        ("raycast", raycast::RAYCAST_WGSL.to_string()),
         ("depth", depth::depth_wgsl()),
         ("contacts", contacts::CONTACTS_WGSL.to_string()),
         ("plane_contacts", plane_contacts::SCORE_PHYSICS_WGSL.to_string()),

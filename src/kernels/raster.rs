@@ -440,6 +440,56 @@ impl RasterBuffers {
         n: usize,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
+        let waves = self.write_wave_params(ctx, params, n);
+        let groups: Vec<wgpu::BindGroup> = (0..waves).map(|w| self.wave_group(ctx, pipeline, w, extra, true)).collect();
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("waves"), timestamp_writes: timestamps });
+        pass.set_pipeline(pipeline);
+        for (w, group) in groups.iter().enumerate() {
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(self.wave_len(n, w), 1, 1);
+        }
+    }
+
+    /// Like [`dispatch_waves`](Self::dispatch_waves) for the ray caster:
+    /// per wave, `raycast` fills the slots (one workgroup per 8x8 tile of
+    /// the region and hypothesis), then `reduce` consumes them (one
+    /// workgroup per hypothesis); `traced` and `reduced` are each one's own
+    /// bindings.
+    #[allow(clippy::too_many_arguments)] // one call site; a struct would only rename them
+    pub fn dispatch_traced_waves(
+        &self,
+        ctx: &Context,
+        enc: &mut wgpu::CommandEncoder,
+        (raycast, traced): (&wgpu::ComputePipeline, &[wgpu::BindGroupEntry<'_>]),
+        (reduce, reduced): (&wgpu::ComputePipeline, &[wgpu::BindGroupEntry<'_>]),
+        params: RasterParams,
+        n: usize,
+        k: &Intrinsics,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let waves = self.write_wave_params(ctx, params, n);
+        let groups: Vec<(wgpu::BindGroup, wgpu::BindGroup)> =
+            (0..waves).map(|w| (self.wave_group(ctx, raycast, w, traced, false), self.wave_group(ctx, reduce, w, reduced, false))).collect();
+        let tiles = k.width.div_ceil(8) * k.height.div_ceil(8);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("traced waves"), timestamp_writes: timestamps });
+        for (w, (trace, score)) in groups.iter().enumerate() {
+            pass.set_pipeline(raycast);
+            pass.set_bind_group(0, trace, &[]);
+            pass.dispatch_workgroups(tiles, self.wave_len(n, w), 1);
+            pass.set_pipeline(reduce);
+            pass.set_bind_group(0, score, &[]);
+            pass.dispatch_workgroups(self.wave_len(n, w), 1, 1);
+        }
+    }
+
+    /// Hypotheses in wave `w` of `n`.
+    fn wave_len(&self, n: usize, w: usize) -> u32 {
+        (n - w * self.slots as usize).min(self.slots as usize) as u32
+    }
+
+    /// Writes one parameter block per wave of `n` hypotheses; returns the
+    /// number of waves.
+    fn write_wave_params(&self, ctx: &Context, params: RasterParams, n: usize) -> usize {
         let slots = self.slots as usize;
         let waves = n.div_ceil(slots);
         let mut blocks = vec![0u8; waves * PARAMS_STRIDE as usize];
@@ -449,33 +499,31 @@ impl RasterBuffers {
             blocks[at..at + std::mem::size_of::<RasterParams>()].copy_from_slice(bytemuck::bytes_of(&p));
         }
         ctx.queue.write_buffer(&self.params, 0, &blocks);
-        let layout = pipeline.get_bind_group_layout(0);
-        let groups: Vec<wgpu::BindGroup> = (0..waves)
-            .map(|w| {
-                let mut entries = vec![
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                            buffer: &self.params,
-                            offset: w as u64 * PARAMS_STRIDE,
-                            size: std::num::NonZeroU64::new(std::mem::size_of::<RasterParams>() as u64),
-                        }),
-                    },
-                    wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: MESHLETS_BINDING, resource: self.meshlets.as_entire_binding() },
-                ];
-                entries.extend(extra.iter().cloned());
-                ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("wave"), layout: &layout, entries: &entries })
-            })
-            .collect();
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("waves"), timestamp_writes: timestamps });
-        pass.set_pipeline(pipeline);
-        for (w, group) in groups.iter().enumerate() {
-            pass.set_bind_group(0, group, &[]);
-            pass.dispatch_workgroups((n - w * slots).min(slots) as u32, 1, 1);
+        waves
+    }
+
+    /// The bind group of wave `w` for `pipeline`: the shared bindings 0-3,
+    /// the meshlet table when the kernel rasterizes, and `extra`.
+    fn wave_group(&self, ctx: &Context, pipeline: &wgpu::ComputePipeline, w: usize, extra: &[wgpu::BindGroupEntry<'_>], meshlets: bool) -> wgpu::BindGroup {
+        let mut entries = vec![
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &self.params,
+                    offset: w as u64 * PARAMS_STRIDE,
+                    size: std::num::NonZeroU64::new(std::mem::size_of::<RasterParams>() as u64),
+                }),
+            },
+            wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
+        ];
+        if meshlets {
+            entries.push(wgpu::BindGroupEntry { binding: MESHLETS_BINDING, resource: self.meshlets.as_entire_binding() });
         }
+        entries.extend(extra.iter().cloned());
+        let layout = pipeline.get_bind_group_layout(0);
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("wave"), layout: &layout, entries: &entries })
     }
 }
 

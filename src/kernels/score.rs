@@ -211,7 +211,45 @@ pub struct GpuScorer {
     timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
     /// The fused physical stage against a support plane, when asked for.
     plane: Option<PlaneStage>,
+    /// The ray-casting path, when the mesh is scored by ray casting.
+    traced: Option<TracedStage>,
 }
+
+/// The GPU ray caster's buffers and pipelines: `raycast_main`
+/// (`shaders/raycast.wgsl`) fills the visibility slots, then
+/// `score_traced_main` scores them.
+struct TracedStage {
+    nodes: wgpu::Buffer,
+    prims: wgpu::Buffer,
+    /// One word, set by a ray that ran out of budget or stack.
+    overflow: wgpu::Buffer,
+    raycast: std::sync::Arc<wgpu::ComputePipeline>,
+    reduce: std::sync::Arc<wgpu::ComputePipeline>,
+}
+
+impl TracedStage {
+    fn new(ctx: &Context, bvh: &super::raycast::GpuBvh) -> Result<Self> {
+        use wgpu::util::DeviceExt;
+        let limit = ctx.limits.max_storage_binding.min(ctx.limits.max_buffer);
+        if (bvh.nodes.len() * 4) as u64 > limit {
+            return Err(Error::Gpu(format!("the mesh's BVH needs {} bytes but the adapter binds at most {limit}", bvh.nodes.len() * 4)));
+        }
+        let init = |label, words: &[u32], usage| {
+            ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(words), usage })
+        };
+        let read = wgpu::BufferUsages::STORAGE;
+        Ok(TracedStage {
+            nodes: init("bvh nodes", &bvh.nodes, read),
+            prims: init("bvh primitives", &bvh.prims, read),
+            overflow: init("ray overflow", &[0], read | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC),
+            raycast: ctx.pipeline("raycast", super::raycast::RAYCAST_WGSL, "raycast_main"),
+            reduce: ctx.pipeline("score/traced", SCORE_WGSL, "score_traced_main"),
+        })
+    }
+}
+
+/// The error of a chunk in which a ray ran out of its budget.
+const RAY_OVERFLOW: &str = "a ray through the mesh's BVH ran out of its step budget or stack (a degenerate tree)";
 
 /// Target of the GPU-time events in a `--trace` (see [`trace_gpu_time`]).
 pub const GPU_TIME_TARGET: &str = "plausible::gpu";
@@ -297,7 +335,20 @@ impl GpuScorer {
         use wgpu::util::DeviceExt;
         let _span = tracing::trace_span!("gpu_setup").entered();
         let k = target.intrinsics;
-        super::check_loop_budget(mesh, k.pixels())?;
+        let traced = match physics {
+            None if mesh.gpu_renderer(k.pixels()) == super::CpuRenderer::RayCast => {
+                let caster = mesh.ray_caster().expect("chosen only when built");
+                Some(TracedStage::new(ctx, &caster.gpu_layout())?)
+            }
+            _ => {
+                super::check_loop_budget(mesh, k.pixels())?;
+                None
+            }
+        };
+        if traced.is_some() {
+            super::check_pixel_budget(k.pixels())?;
+            tracing::info!("GPU renderer: the BVH ray caster ({} triangles)", mesh.triangles.len());
+        }
         let words = physics.map_or(0, |(p, _)| p.words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
@@ -337,6 +388,7 @@ impl GpuScorer {
             raster_pipeline,
             timestamps: None,
             plane,
+            traced,
         })
     }
 
@@ -446,14 +498,24 @@ impl GpuScorer {
         Ok((out, phys, times))
     }
 
+    /// Whether this scorer renders by ray casting through the mesh's BVH
+    /// (else it rasterizes).
+    pub fn ray_casts(&self) -> bool {
+        self.traced.is_some()
+    }
+
     /// Runs rasterization alone over `poses` and returns its wall time (for
-    /// the benchmark's render/reduce split).
-    pub fn raster_only(&self, poses: &[Pose]) -> Result<Duration> {
+    /// the benchmark's render/reduce split; `None` for a scorer that ray
+    /// casts, whose render and reduce are separate dispatches).
+    pub fn raster_only(&self, poses: &[Pose]) -> Result<Option<Duration>> {
+        if self.traced.is_some() {
+            return Ok(None);
+        }
         let mut total = Duration::ZERO;
         for chunk in poses.chunks(self.bufs.chunk) {
             total += self.run_chunk(chunk, true, self.timestamps.as_ref())?.2.compute;
         }
-        Ok(total)
+        Ok(Some(total))
     }
 
     /// One chunk: the score records, the plane stage's output when the
@@ -464,6 +526,24 @@ impl GpuScorer {
         &self,
         chunk: &[Pose],
         raster_only: bool,
+        timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
+    ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
+        match self.run_chunk_with(chunk, raster_only, self.traced.as_ref(), timestamps) {
+            // A ray out of budget (a pathological tree) leaves its pixels
+            // empty: the chunk is rasterized instead where the mesh allows.
+            Err(Error::Gpu(m)) if m == RAY_OVERFLOW && super::check_loop_budget(&self.mesh, self.target_intrinsics.pixels()).is_ok() => {
+                tracing::warn!("{RAY_OVERFLOW}: rasterizing these {} hypotheses instead", chunk.len());
+                self.run_chunk_with(chunk, raster_only, None, timestamps)
+            }
+            r => r,
+        }
+    }
+
+    fn run_chunk_with(
+        &self,
+        chunk: &[Pose],
+        raster_only: bool,
+        traced: Option<&TracedStage>,
         timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
     ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
         let ctx = &self.ctx;
@@ -495,6 +575,27 @@ impl GpuScorer {
         });
         if raster_only {
             self.bufs.dispatch_waves(ctx, &mut enc, &self.raster_pipeline, &[], params, chunk.len(), timestamp_writes);
+        } else if let Some(st) = traced {
+            ctx.queue.write_buffer(&st.overflow, 0, bytemuck::bytes_of(&0u32));
+            let traced_entries = [
+                wgpu::BindGroupEntry { binding: 11, resource: st.nodes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 12, resource: st.prims.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 13, resource: st.overflow.as_entire_binding() },
+            ];
+            let reduced = [
+                wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
+            ];
+            self.bufs.dispatch_traced_waves(
+                ctx,
+                &mut enc,
+                (&st.raycast, &traced_entries),
+                (&st.reduce, &reduced),
+                params,
+                chunk.len(),
+                &self.target_intrinsics,
+                timestamp_writes,
+            );
         } else {
             let mut extra = vec![
                 wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
@@ -535,6 +636,12 @@ impl GpuScorer {
 
         let _readback = tracing::trace_span!("readback", hypotheses = chunk.len()).entered();
         let t2 = Instant::now();
+        if let Some(st) = traced {
+            let flag = ctx.read_buffer(&st.overflow, 4)?;
+            if bytemuck::cast_slice::<u8, u32>(&flag)[0] != 0 {
+                return Err(Error::Gpu(RAY_OVERFLOW.into()));
+            }
+        }
         let size = (chunk.len() * std::mem::size_of::<ScoreRecord>()) as u64;
         let bytes = ctx.read_through(&self.records, &self.staging, size)?;
         let recs: Vec<ScoreRecord> = bytemuck::cast_slice(&bytes).to_vec();

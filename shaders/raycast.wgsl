@@ -1,0 +1,196 @@
+// raycast: the visibility buffer of each hypothesis by casting one ray per
+// pixel through the mesh's compressed wide BVH (CWBVH, built by obvhs, in
+// its 80-byte node layout), the alternative to raster.wgsl's rasterizer for
+// meshes with many triangles per pixel: its cost grows with the pixels and
+// the tree's depth, not with the triangle count. Prefixed with raster.wgsl
+// (parameters, poses, triangles, the visibility slots and screen_rect).
+//
+// One workgroup per (8x8 tile of the region, hypothesis of the wave), one
+// ray per invocation, so an invocation's loops never approach lavapipe's
+// 65,535-iteration cap: each ray counts its iterations and gives up at
+// STEP_BUDGET, raising `overflow` so the host rasterizes instead (never a
+// silent miss). The key written is the rasterizer's: quantized inverse
+// depth over the hypothesis' range, then the triangle id, so the score
+// kernel's reduction (score_traced_main) consumes it unchanged.
+//
+// Rays are cast in model space: from the camera centre -Rᵀt along
+// Rᵀ (dx, dy, 1), so the hit distance is the camera depth. Closed meshes
+// see front faces only; nothing nearer than params.near is hit.
+//
+// CPU twin: src/kernels/raycast.rs (cast_ids).
+
+// CwBvhNode words: 0-2 p (f32), 3 e[0..3] | imask << 24, 4 child_base_idx,
+// 5 primitive_base_idx, 6-7 child_meta[8], 8-9 child_min_x[8],
+// 10-11 child_max_x, 12-13 child_min_y, 14-15 child_max_y, 16-17 child_min_z,
+// 18-19 child_max_z (bytes little-endian).
+@group(0) @binding(11) var<storage, read> nodes: array<u32>;
+// The render mesh's triangle id of each BVH primitive.
+@group(0) @binding(12) var<storage, read> prims: array<u32>;
+// Set to 1 when a ray ran out of budget or stack (the host then rasterizes).
+@group(0) @binding(13) var<storage, read_write> overflow: array<atomic<u32>>;
+
+const NODE_WORDS: u32 = 20u;
+const TILE: u32 = 8u;
+// Loop iterations one ray may take (nodes, children and triangles tested).
+const STEP_BUDGET: u32 = 60000u;
+// Pending nodes: near-first depth-first order keeps at most 7 per level,
+// and the host refuses trees deeper than 24 levels.
+const STACK: u32 = 176u;
+// Relative slack on a child box's exit distance, so rounding never prunes
+// a box the hit lies on (flat boxes, rays along a face).
+const BOX_SLACK: f32 = 1.0001;
+
+// Byte b of the two words starting at w of node n.
+fn node_byte(n: u32, w: u32, b: u32) -> u32 {
+    return (nodes[n * NODE_WORDS + w + b / 4u] >> ((b % 4u) * 8u)) & 0xffu;
+}
+
+// Nearest hit of the ray (o, d) with triangle t beyond near and before
+// best: its distance, or best (Möller–Trumbore in obvhs's edge layout:
+// e1 = v0 - v1, e2 = v2 - v0, ng = e1 x e2, front faces have det > 0).
+fn hit_triangle(t: u32, o: vec3<f32>, d: vec3<f32>, best: f32) -> f32 {
+    let v0 = tris[t].v0.xyz;
+    let e1 = v0 - tris[t].v1.xyz;
+    let e2 = tris[t].v2.xyz - v0;
+    let ng = cross(e1, e2);
+    let c = v0 - o;
+    let r = cross(d, c);
+    let det = dot(ng, d);
+    if (det == 0.0 || (params.cull != 0u && det < 0.0)) {
+        return best;
+    }
+    let inv = 1.0 / det;
+    let u = dot(r, e2) * inv;
+    let v = dot(r, e1) * inv;
+    if (u < 0.0 || v < 0.0 || u + v > 1.0) {
+        return best;
+    }
+    let dist = dot(ng, c) * inv;
+    if (dist >= params.near && dist < best) {
+        return dist;
+    }
+    return best;
+}
+
+// obvhs's safe reciprocal: ±1/EPSILON for components too close to zero.
+fn safe_inverse(x: f32) -> f32 {
+    if (abs(x) <= 1.1920929e-7) {
+        return sign(x) / 1.1920929e-7;
+    }
+    return 1.0 / x;
+}
+
+@compute @workgroup_size(64)
+fn raycast_main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let h = params.first + wid.y;
+    if (h >= params.n_hyp) {
+        return;
+    }
+    let p = poses[h];
+    let rect = screen_rect(p);
+    let tiles_x = (params.width + TILE - 1u) / TILE;
+    let x = i32((wid.x % tiles_x) * TILE + lid % TILE);
+    let y = i32((wid.x / tiles_x) * TILE + lid / TILE);
+    if (x < rect.x || x > rect.z || y < rect.y || y > rect.w) {
+        return;
+    }
+    let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
+    let o = -(p.r0.xyz * tr.x + p.r1.xyz * tr.y + p.r2.xyz * tr.z);
+    let dx = (f32(x) - params.cx) / params.fx;
+    let dy = (f32(y) - params.cy) / params.fy;
+    let d = p.r0.xyz * dx + p.r1.xyz * dy + p.r2.xyz;
+    let inv = vec3<f32>(safe_inverse(d.x), safe_inverse(d.y), safe_inverse(d.z));
+    // Children are laid out so that visiting slot k ^ oct, k = 7 down to
+    // 0, goes near to far for this ray's octant.
+    let oct = select(0u, 4u, d.x >= 0.0) | select(0u, 2u, d.y >= 0.0) | select(0u, 1u, d.z >= 0.0);
+
+    var stack: array<u32, STACK>;
+    var sp = 1u;
+    stack[0] = 0u;
+    var best = 3.4e38;
+    var best_id = 0xffffffffu;
+    var steps = 0u;
+    var failed = false;
+    while (sp > 0u && !failed) {
+        sp -= 1u;
+        let n = stack[sp];
+        let at = n * NODE_WORDS;
+        let np = vec3<f32>(bitcast<f32>(nodes[at]), bitcast<f32>(nodes[at + 1u]), bitcast<f32>(nodes[at + 2u]));
+        let w3 = nodes[at + 3u];
+        let scale = vec3<f32>(bitcast<f32>((w3 & 0xffu) << 23u), bitcast<f32>(((w3 >> 8u) & 0xffu) << 23u), bitcast<f32>(((w3 >> 16u) & 0xffu) << 23u));
+        let imask = w3 >> 24u;
+        let child_base = nodes[at + 4u];
+        let prim_base = nodes[at + 5u];
+        // Bit k: the child in slot k ^ oct is an inner node the ray enters.
+        var enter = 0u;
+        for (var k = 8u; k > 0u; k--) {
+            steps += 1u;
+            let c = (k - 1u) ^ oct;
+            let info = node_byte(n, 6u, c);
+            if (info == 0u) {
+                continue;
+            }
+            let qlo = vec3<f32>(f32(node_byte(n, 8u, c)), f32(node_byte(n, 12u, c)), f32(node_byte(n, 16u, c)));
+            let qhi = vec3<f32>(f32(node_byte(n, 10u, c)), f32(node_byte(n, 14u, c)), f32(node_byte(n, 18u, c)));
+            let t0 = (np + scale * qlo - o) * inv;
+            let t1 = (np + scale * qhi - o) * inv;
+            let tn = min(t0, t1);
+            let tf = max(t0, t1);
+            let t_in = max(max(tn.x, tn.y), max(tn.z, params.near));
+            let t_out = min(min(tf.x, tf.y), min(tf.z, best)) * BOX_SLACK;
+            if (t_in > t_out) {
+                continue;
+            }
+            if ((imask & (1u << c)) != 0u) {
+                enter |= 1u << (k - 1u);
+                continue;
+            }
+            // Leaf: up to three primitives from prim_base + (info & 31).
+            let first = prim_base + (info & 31u);
+            let count = countOneBits(info & 0xe0u);
+            for (var q = 0u; q < count; q++) {
+                steps += 1u;
+                let id = prims[first + q];
+                let hit = hit_triangle(id, o, d, best);
+                if (hit < best) {
+                    best = hit;
+                    best_id = id;
+                }
+            }
+        }
+        // Far children first, so the nearest is popped next.
+        while (enter != 0u) {
+            steps += 1u;
+            let k = firstTrailingBit(enter);
+            enter &= enter - 1u;
+            let c = k ^ oct;
+            if (sp == STACK) {
+                failed = true;
+                break;
+            }
+            stack[sp] = child_base + countOneBits(imask & ((1u << c) - 1u));
+            sp += 1u;
+        }
+        steps += 1u;
+        if (steps > STEP_BUDGET) {
+            failed = true;
+        }
+    }
+    if (failed) {
+        atomicStore(&overflow[0], 1u);
+        return;
+    }
+    if (best_id == 0xffffffffu) {
+        return;
+    }
+    let zr = depth_range(p);
+    let max_code = f32((1u << (32u - params.id_bits)) - 1u);
+    let izfar = 1.0 / zr.y;
+    let izscale = (max_code - 1.0) / max(1.0 / zr.x - izfar, 1e-9);
+    let code = u32(clamp((1.0 / best - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
+    let base = wid.y * params.width * params.height;
+    atomicStore(&vis[base + u32(y) * params.width + u32(x)], (code << params.id_bits) | best_id);
+}
