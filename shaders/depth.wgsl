@@ -29,7 +29,8 @@ fn depth_main(
     }
     let base = wid.x * params.width * params.height;
     let p = poses[h];
-    let drawn = raster_slot(p, base, lid);
+    let d = raster_slot(p, base, lid);
+    let drawn = d.rect;
     let tile = tiles[h];
     let t = vec4<i32>(tile.x0, tile.y0, tile.x1, tile.y1);
     let tw = u32(t.z - t.x + 1);
@@ -41,7 +42,9 @@ fn depth_main(
         if (in_rect(drawn, x, y)) {
             key = take_key(base + u32(y) * params.width + u32(x));
         }
-        depths[tile.offset + j] = resolve(p, key, f32(x), f32(y)).w;
+        // -1 in a tile's first pixel: over budget, the host renders the
+        // tile on the CPU.
+        depths[tile.offset + j] = select(resolve(p, key, f32(x), f32(y)).w, -1.0, j == 0u && d.over);
     }
     // The host's tile and the kernel's own rectangle are the same f32
     // formula, but may round apart by a pixel: empty whatever was drawn

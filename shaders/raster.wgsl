@@ -29,6 +29,7 @@ struct RasterParams {
     width: u32, height: u32, n_hyp: u32, n_meshlets: u32,
     id_bits: u32, cull: u32, radius: f32, tau: f32,
     alpha: f32, near: f32, n_obs: u32, first: u32,
+    draw_budget: u32, pad0: u32, pad1: u32, pad2: u32,
 }
 
 struct GpuTriangle { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
@@ -215,6 +216,18 @@ fn shade(s: Setup, t: u32, i: u32, j: u32, base: u32, izfar: f32, izscale: f32, 
     atomicMax(&vis[at], (code << params.id_bits) | t);
 }
 
+// params.draw_budget: pixel-loop iterations (and queued big triangles) one
+// invocation may spend drawing a hypothesis. Everything else an invocation
+// loops over is bounded by the mesh and region caps (kernels/mod.rs: at
+// most 8,192 meshlets and 1M region pixels), but drawing is not: a mesh
+// whose triangles overlap many times over could need millions. A
+// workgroup that would spend more stops drawing and reports the hypothesis
+// as over budget (the host then renders it on the CPU). The host sets the
+// budget (kernels/raster.rs draw_budget) so that a SIMD vector of a
+// software adapter stays under lavapipe's 65,535 loop iterations; on
+// hardware it is unlimited.
+var<workgroup> over_budget: atomic<u32>;
+
 // Triangles whose bounds exceed this many pixels are rasterized by the
 // whole workgroup together. Besides balancing the work this keeps every
 // invocation's loop trip count small: lavapipe (llvmpipe) stops a shader's
@@ -230,14 +243,21 @@ var<workgroup> big_list: array<u32, 64u * PER_ROUND>;
 // Bit k: meshlet k of the round may draw.
 var<workgroup> keep: array<atomic<u32>, 2>;
 
+// What raster_slot drew: the tight rectangle of the drawn triangles, and
+// whether the workgroup ran out of params.draw_budget (then the slot holds only
+// part of the image: the consumer must still empty `rect`, and report the
+// hypothesis as over budget instead of using it).
+struct Drawn { rect: vec4<i32>, over: bool }
+
 // Rasterizes hypothesis p into the slot at `base`; returns (after a barrier,
-// so every invocation sees it) the tight rectangle of the drawn triangles.
+// so every invocation sees it) what was drawn.
 // Meshlets are taken in rounds of PER_ROUND: each invocation tests one, then
 // the workgroup steps through the kept ones, one triangle per invocation
 // (meshlets hold at most WG triangles). Small triangles are drawn by the
 // invocation that set them up, big ones queued and drawn cooperatively.
-fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
+fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
     if (lid == 0u) {
+        atomicStore(&over_budget, 0u);
         atomicStore(&drawn[0], BIG);
         atomicStore(&drawn[1], BIG);
         atomicStore(&drawn[2], -1);
@@ -255,6 +275,7 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
     var lo_all = vec2<i32>(BIG);
     var hi_all = vec2<i32>(-1);
+    var spent = 0u;
     // Camera centre in model coordinates, -Rᵀt: back faces are culled with
     // one dot product, before any vertex is transformed.
     let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
@@ -293,6 +314,11 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
                 big_list[atomicAdd(&big_count, 1u)] = t;
                 continue;
             }
+            if (spent + nx * ny > params.draw_budget) {
+                atomicStore(&over_budget, 1u);
+                continue;
+            }
+            spent += nx * ny;
             // One loop over the bounds' pixels, row by row, rather than
             // two nested ones: on a SIMD CPU (lavapipe) the invocations of
             // a vector then run max(nx * ny) iterations, not max(ny) *
@@ -323,6 +349,13 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
             let s = setup_triangle(p, tb, cam, first, last);
             let nx = u32(s.hi.x - s.lo.x) + 1u;
             let n = nx * (u32(s.hi.y - s.lo.y) + 1u);
+            // This invocation's share of the pixels, and the queue entry.
+            let cost = n / WG + 2u;
+            if (spent + cost > params.draw_budget) {
+                atomicStore(&over_budget, 1u);
+                break;
+            }
+            spent += cost;
             for (var q = lid; q < n; q += WG) {
                 shade(s, tb, q % nx, q / nx, base, izfar, izscale, max_code);
             }
@@ -336,7 +369,8 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> vec4<i32> {
     }
     storageBarrier();
     workgroupBarrier();
-    return vec4<i32>(atomicLoad(&drawn[0]), atomicLoad(&drawn[1]), atomicLoad(&drawn[2]), atomicLoad(&drawn[3]));
+    let tight = vec4<i32>(atomicLoad(&drawn[0]), atomicLoad(&drawn[1]), atomicLoad(&drawn[2]), atomicLoad(&drawn[3]));
+    return Drawn(tight, atomicLoad(&over_budget) != 0u);
 }
 
 // Exact depth and camera-facing unit normal at pixel (x, y) from the winning

@@ -6,10 +6,12 @@
 // (parameters, poses, triangles, the visibility slots and screen_rect).
 //
 // One workgroup per (8x8 tile of the region, hypothesis of the wave), one
-// ray per invocation, so an invocation's loops never approach lavapipe's
-// 65,535-iteration cap: each ray counts its iterations and gives up at
-// STEP_BUDGET, raising `overflow` so the host rasterizes instead (never a
-// silent miss). The key written is the rasterizer's: quantized inverse
+// ray per invocation. lavapipe ends a shader's loops after 65,535
+// iterations in total per SIMD vector (a loop runs while any lane is in
+// it): each node visited costs a vector at most 41 iterations (the node,
+// 8 children, up to 3 triangles each, up to 8 pushes), so a ray gives up
+// after MAX_NODES nodes, raising `overflow` so the host rasterizes
+// instead (never a silent miss). The key written is the rasterizer's: quantized inverse
 // depth over the hypothesis' range, then the triangle id, so the score
 // kernel's reduction (score_traced_main) consumes it unchanged.
 //
@@ -31,8 +33,8 @@
 
 const NODE_WORDS: u32 = 20u;
 const TILE: u32 = 8u;
-// Loop iterations one ray may take (nodes, children and triangles tested).
-const STEP_BUDGET: u32 = 60000u;
+// Nodes one ray may visit: 1,400 * 41 = 57,400 iterations.
+const MAX_NODES: u32 = 1400u;
 // Pending nodes: near-first depth-first order keeps at most 7 per level,
 // and the host refuses trees deeper than 24 levels.
 const STACK: u32 = 176u;
@@ -112,9 +114,14 @@ fn raycast_main(
     stack[0] = 0u;
     var best = 3.4e38;
     var best_id = 0xffffffffu;
-    var steps = 0u;
+    var visited = 0u;
     var failed = false;
     while (sp > 0u && !failed) {
+        visited += 1u;
+        if (visited > MAX_NODES) {
+            failed = true;
+            break;
+        }
         sp -= 1u;
         let n = stack[sp];
         let at = n * NODE_WORDS;
@@ -127,7 +134,6 @@ fn raycast_main(
         // Bit k: the child in slot k ^ oct is an inner node the ray enters.
         var enter = 0u;
         for (var k = 8u; k > 0u; k--) {
-            steps += 1u;
             let c = (k - 1u) ^ oct;
             let info = node_byte(n, 6u, c);
             if (info == 0u) {
@@ -152,7 +158,6 @@ fn raycast_main(
             let first = prim_base + (info & 31u);
             let count = countOneBits(info & 0xe0u);
             for (var q = 0u; q < count; q++) {
-                steps += 1u;
                 let id = prims[first + q];
                 let hit = hit_triangle(id, o, d, best);
                 if (hit < best) {
@@ -163,7 +168,6 @@ fn raycast_main(
         }
         // Far children first, so the nearest is popped next.
         while (enter != 0u) {
-            steps += 1u;
             let k = firstTrailingBit(enter);
             enter &= enter - 1u;
             let c = k ^ oct;
@@ -173,10 +177,6 @@ fn raycast_main(
             }
             stack[sp] = child_base + countOneBits(imask & ((1u << c) - 1u));
             sp += 1u;
-        }
-        steps += 1u;
-        if (steps > STEP_BUDGET) {
-            failed = true;
         }
     }
     if (failed) {

@@ -18,7 +18,8 @@ fn render_main(
     let npix = params.width * params.height;
     let base = wid.x * npix;
     let p = poses[h];
-    let rect = raster_slot(p, base, lid);
+    let drawn = raster_slot(p, base, lid);
+    let rect = drawn.rect;
     for (var i = lid; i < npix; i += WG) {
         let x = i32(i % params.width);
         let y = i32(i / params.width);
@@ -26,6 +27,10 @@ fn render_main(
         if (x >= rect.x && x <= rect.z && y >= rect.y && y <= rect.w) {
             key = take_key(base + i);
         }
-        images[h * npix + i] = resolve(p, key, f32(x), f32(y));
+        var out = resolve(p, key, f32(x), f32(y));
+        if (i == 0u && drawn.over) {
+            out = vec4<f32>(-1.0); // over budget: the host renders it on the CPU
+        }
+        images[h * npix + i] = out;
     }
 }

@@ -23,6 +23,9 @@ struct ScoreRecord {
 @group(0) @binding(4) var<storage, read> observed: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> records: array<ScoreRecord>;
 
+// `valid` of a hypothesis the rasterizer could not draw within its budget.
+const OVER_BUDGET: u32 = 0xffffffffu;
+
 var<workgroup> s_sum: array<vec2<f32>, WG>;
 var<workgroup> s_cnt: array<vec4<u32>, WG>;
 var<workgroup> s_behind: array<u32, WG>;
@@ -46,7 +49,8 @@ fn score_main(
 fn score_hypothesis(h: u32, slot: u32, lid: u32) {
     let base = slot * params.width * params.height;
     let p = poses[h];
-    reduce_slot(h, p, base, raster_slot(p, base, lid), lid);
+    let drawn = raster_slot(p, base, lid);
+    reduce_slot(h, p, base, drawn.rect, drawn.over, lid);
 }
 
 // The score of a visibility slot already filled by raycast.wgsl (one
@@ -62,12 +66,13 @@ fn score_traced_main(
         return;
     }
     let p = poses[h];
-    reduce_slot(h, p, wid.x * params.width * params.height, screen_rect(p), lid);
+    reduce_slot(h, p, wid.x * params.width * params.height, screen_rect(p), false, lid);
 }
 
 // Scores hypothesis h from its slot at `base` (keys inside `rect` only),
-// emptying the slot, and writes its record.
-fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, lid: u32) {
+// emptying the slot, and writes its record; one drawn `over` budget is
+// marked with valid = OVER_BUDGET for the host to score on the CPU.
+fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: u32) {
     {
         var sum = vec2<f32>(0.0);
         var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
@@ -135,6 +140,9 @@ fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, lid: u32) {
                 rec.mean_an = 0.0;
                 rec.score = 0.0;
             }
+            if (over) {
+                rec.valid = OVER_BUDGET;
+            }
             records[h] = rec;
         }
     }
@@ -152,7 +160,7 @@ fn raster_main(
         return;
     }
     let base = wid.x * params.width * params.height;
-    let rect = raster_slot(poses[h], base, lid);
+    let rect = raster_slot(poses[h], base, lid).rect;
     let n = rect_pixels(rect);
     for (var j = lid; j < n; j += WG) {
         atomicStore(&vis[base + rect_index(rect, j)], 0u);

@@ -189,6 +189,14 @@ pub fn score_poses_with_physics(
     mut done: impl FnMut(usize),
 ) -> Result<(Vec<ScoreRecord>, Vec<Evaluation>, StageTimes)> {
     match device {
+        // A mesh past the rasterizer's budget is ray-cast on the GPU, which
+        // has no fused physical stage: the physical terms come from the
+        // CPU twins beside it.
+        Device::Gpu(ctx) if mesh.gpu_renderer() == crate::kernels::CpuRenderer::RayCast => {
+            let (records, times) = GpuScorer::new(ctx, mesh, target, params, poses.len())?.score_with_progress(poses, done)?;
+            let evals = tracing::trace_span!("cpu_twin", hypotheses = poses.len()).in_scope(|| physics.evaluate_cpu(poses));
+            Ok((records, evals, times))
+        }
         Device::Gpu(ctx) => {
             let scorer = physics.gpu_scorer(ctx, mesh, target, params, poses.len())?;
             let (records, contacts, times) = scorer.score_with_physics(poses, done)?;

@@ -31,18 +31,28 @@ fn gpu_loop_budget_is_refused_not_returned_as_zeros() {
     assert!(e.contains("meshlets") && e.contains("CPU twin"), "{e}");
 }
 
-/// `--device auto` scores a mesh past the GPU's loop budget on the CPU twin
-/// (saying so) instead of failing; `gpu` keeps the refusal.
+/// `--device auto` keeps a mesh past the rasterizer's loop budget on the
+/// GPU (its BVH ray caster takes it), and scores on the CPU twin (saying
+/// so) instead of failing what no GPU renderer takes: a region past the
+/// pixel budget, or such a mesh made to rasterize; `gpu` keeps the refusal.
 #[test]
 fn gpu_auto_device_moves_an_oversized_mesh_to_the_cpu() {
     use plausible::gpu::{test_context, Device, DeviceChoice};
+    use plausible::kernels::{CpuRenderer, RendererChoice, MAX_GPU_PIXELS};
+    let gpu = || Device::Gpu(Box::new(test_context()));
     let mut mesh = RenderMesh::new(&plausible::shapes::cuboid(glam::DVec3::splat(0.1))).unwrap();
-    let (d, note) = Device::Gpu(Box::new(test_context())).for_mesh(DeviceChoice::Auto, &mesh, 1000);
+    let (d, note) = gpu().for_mesh(DeviceChoice::Auto, &mesh, 1000);
     assert!(matches!(d, Device::Gpu(_)) && note.is_none());
     mesh.meshlets.resize(MAX_GPU_MESHLETS + 1, GpuMeshlet::default());
-    let (d, note) = Device::Gpu(Box::new(test_context())).for_mesh(DeviceChoice::Auto, &mesh, 1000);
+    assert_eq!(mesh.gpu_renderer(), CpuRenderer::RayCast);
+    let (d, note) = gpu().for_mesh(DeviceChoice::Auto, &mesh, 1000);
+    assert!(matches!(d, Device::Gpu(_)) && note.is_none());
+    let (d, note) = gpu().for_mesh(DeviceChoice::Auto, &mesh, MAX_GPU_PIXELS + 1);
     assert!(matches!(d, Device::Cpu) && note.unwrap().contains("CPU twin"));
-    let (d, _) = Device::Gpu(Box::new(test_context())).for_mesh(DeviceChoice::Gpu, &mesh, 1000);
+    mesh.renderer = RendererChoice::Raster;
+    let (d, note) = gpu().for_mesh(DeviceChoice::Auto, &mesh, 1000);
+    assert!(matches!(d, Device::Cpu) && note.unwrap().contains("CPU twin"));
+    let (d, _) = gpu().for_mesh(DeviceChoice::Gpu, &mesh, 1000);
     assert!(matches!(d, Device::Gpu(_)));
 }
 

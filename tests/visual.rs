@@ -339,7 +339,7 @@ fn gpu_scene_level_score_hides_pixels_behind_other_objects_like_the_cpu_twin() {
     }
     // A scorer built alone and given the scene's observation afterwards
     // (one buffer write) scores as one built on it; another region is refused.
-    let reused = GpuScorer::new(&ctx, &duck, &alone, params, poses.len()).unwrap();
+    let mut reused = GpuScorer::new(&ctx, &duck, &alone, params, poses.len()).unwrap();
     reused.set_observation(&scene).unwrap();
     assert_eq!(reused.score(&poses).unwrap().0, gpu);
     let other = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(64), DEFAULT_ROI_MARGIN).unwrap();
@@ -370,7 +370,7 @@ fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
     rasterized.renderer = plausible::kernels::RendererChoice::Raster;
     let e = score_poses(&gpu, &rasterized, &target, &poses, params).unwrap_err().to_string();
     assert!(e.contains(&format!("{} triangles", big.triangles.len())) && e.contains("at most 8192 meshlets"), "{e}");
-    assert_eq!(full.gpu_renderer(target.intrinsics.pixels()), plausible::kernels::CpuRenderer::RayCast);
+    assert_eq!(full.gpu_renderer(), plausible::kernels::CpuRenderer::RayCast);
     let (g_full, _) = score_poses(&gpu, &full, &target, &poses, params).unwrap();
 
     let lod = scoring_mesh(&big, LodChoice::Auto, &target).unwrap();
@@ -586,4 +586,62 @@ fn ray_caster_renders_like_the_rasterizer() {
             }
         }
     }
+}
+
+/// Triangles that overlap many times over (50,000 stacked in one plane)
+/// would need far more loop iterations than lavapipe allows an invocation.
+/// The ray caster's rays give up (kernel and twin alike) and the scorer
+/// rasterizes instead; the rasterizing kernels (score, render, depth) stop
+/// at their draw budget and hand those hypotheses to the CPU twin. Every
+/// path returns the twin's result, never a partial image.
+#[test]
+fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
+    use plausible::kernels::depth::{depth_tiles_cpu, GpuDepth};
+    use plausible::kernels::raycast::cast_ids;
+    use plausible::kernels::{GpuPose, RendererChoice};
+    let ctx = test_context();
+    let mut rng = 12345u64;
+    let mut jitter = || {
+        rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((rng >> 33) as f64 / (1u64 << 31) as f64 - 0.5) * 0.004
+    };
+    let mut stack = Mesh { vertices: Vec::new(), triangles: Vec::new(), source: None };
+    for i in 0..50_000u32 {
+        let (dx, dy) = (jitter(), jitter());
+        for (x, y) in [(-0.03, -0.03), (-0.03, 0.04), (0.04, -0.03)] {
+            stack.vertices.push(DVec3::new(x + dx, y + dy, 0.0));
+        }
+        stack.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
+    }
+    let truth = Pose::new(axis_angle(DVec3::X, 0.0), DVec3::new(0.0, 0.0, 0.5));
+    let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
+    let mut rays = RenderMesh::new(&stack).unwrap();
+    rays.renderer = RendererChoice::RayCast;
+    let mut raster = rays.clone();
+    raster.renderer = RendererChoice::Raster;
+    let (obs, mask) = observe(&raster, &truth, &k, SensorNoise::default(), 3);
+    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(16), DEFAULT_ROI_MARGIN).unwrap();
+    let poses = around_and_random(&truth, 4, 5);
+    let params = ScoreParams::default();
+
+    let ti = target.intrinsics;
+    let (mut z, mut ids) = (vec![0.0; ti.pixels()], vec![u32::MAX; ti.pixels()]);
+    let cast = cast_ids(&rays, &rays.ray_caster().unwrap().gpu_layout(), &GpuPose::from(&truth), &ti, &mut z, &mut ids);
+    assert!(cast.overflow);
+
+    for mesh in [&raster, &rays] {
+        let scorer = GpuScorer::new(&ctx, mesh, &target, params, poses.len()).unwrap();
+        assert_eq!(scorer.ray_casts(), mesh.renderer == RendererChoice::RayCast);
+        let (gpu, _) = scorer.score(&poses).unwrap();
+        let cpu = score_cpu(mesh, &target, &poses, &params);
+        assert!(cpu[0].rendered > 0);
+        for (i, (c, g)) in cpu.iter().zip(&gpu).enumerate() {
+            assert!((c.score - g.score).abs() < 1e-6 && c.rendered == g.rendered, "hypothesis {i}: cpu {c:?} gpu {g:?}");
+        }
+    }
+    for (p, img) in poses.iter().zip(render_gpu(&ctx, &raster, &poses, &ti).unwrap()) {
+        assert_eq!(img, render_cpu(&raster, p, &ti));
+    }
+    let tiles = GpuDepth::new(&ctx, &raster, &k).unwrap().render(&poses).unwrap();
+    assert_eq!(tiles, depth_tiles_cpu(&raster, &poses, &k));
 }

@@ -225,7 +225,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                         lod: lod.to_string(),
                         lod_error_mm: scoring.error_m * 1e3,
                         cpu_renderer: cpu_renderer_at(&rmesh, &truth, &ti).to_string(),
-                        gpu_renderer: rmesh.gpu_renderer(ti.pixels()).to_string(),
+                        gpu_renderer: rmesh.gpu_renderer().to_string(),
                         renderer_choice: format!("{renderer:?}").to_lowercase(),
                         n,
                         width: ti.width,
@@ -246,10 +246,10 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                     if let Device::Gpu(ctx) = &device {
                         // A mesh past the kernels' loop budget is refused, not
                         // benchmarked: the row keeps its CPU figures.
-                        let budget = match rmesh.gpu_renderer(ti.pixels()) {
+                        let budget = plausible::kernels::raster::check_mesh_bindings(ctx, &rmesh).and_then(|()| match rmesh.gpu_renderer() {
                             plausible::kernels::CpuRenderer::RayCast => plausible::kernels::check_pixel_budget(ti.pixels()),
                             plausible::kernels::CpuRenderer::Raster => plausible::kernels::check_loop_budget(&rmesh, ti.pixels()),
-                        };
+                        });
                         match budget {
                             Ok(()) => tracing::trace_span!("gpu")
                                 .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?,

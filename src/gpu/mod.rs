@@ -109,14 +109,23 @@ pub struct Opened {
 }
 
 impl Device {
-    /// Under `auto`, a mesh past the GPU kernels' loop budget (more than
-    /// [`MAX_GPU_MESHLETS`](crate::kernels::MAX_GPU_MESHLETS) meshlets) is
-    /// scored by the CPU twin, whose ray caster takes any size, instead of
-    /// being refused; `gpu` keeps the refusal. Returns the device and, when
-    /// it changed, why.
+    /// Under `auto`, a mesh the GPU cannot score (past the rasterizer's
+    /// loop budget, more than
+    /// [`MAX_GPU_MESHLETS`](crate::kernels::MAX_GPU_MESHLETS) meshlets, with
+    /// a BVH too deep for the GPU ray caster; or a region past the pixel
+    /// budget; or triangles past what the adapter binds) is scored by the
+    /// CPU twin instead of being refused; `gpu`
+    /// keeps the refusal. Returns the device and, when it changed, why.
     pub fn for_mesh(self, choice: DeviceChoice, mesh: &crate::kernels::RenderMesh, pixels: usize) -> (Device, Option<String>) {
+        let budget = |ctx: &Context| {
+            crate::kernels::raster::check_mesh_bindings(ctx, mesh)?;
+            match mesh.gpu_renderer() {
+                crate::kernels::CpuRenderer::RayCast => crate::kernels::check_pixel_budget(pixels),
+                crate::kernels::CpuRenderer::Raster => crate::kernels::check_loop_budget(mesh, pixels),
+            }
+        };
         match (&self, choice) {
-            (Device::Gpu(_), DeviceChoice::Auto) => match crate::kernels::check_loop_budget(mesh, pixels) {
+            (Device::Gpu(ctx), DeviceChoice::Auto) => match budget(ctx) {
                 Ok(()) => (self, None),
                 Err(e) => (Device::Cpu, Some(format!("{e}; device auto: scoring on the CPU twin"))),
             },
@@ -149,6 +158,23 @@ impl Device {
             }
             Err(e) => Err(e),
         }
+    }
+}
+
+/// Lanes of 32 bits in the vector width an adapter name states ("N bits"),
+/// 16 when it states none.
+fn simd_lanes(name: &str) -> u32 {
+    let bits = name.split(" bits").next().filter(|_| name.contains(" bits")).and_then(|s| s.rsplit([' ', ',', '(']).next()).and_then(|n| n.parse::<u32>().ok());
+    bits.map_or(16, |b| (b / 32).clamp(1, 64))
+}
+
+#[cfg(test)]
+mod lanes_tests {
+    #[test]
+    fn simd_lanes_read_from_the_adapter_name() {
+        assert_eq!(super::simd_lanes("llvmpipe (LLVM 15.0.6, 256 bits)"), 8);
+        assert_eq!(super::simd_lanes("llvmpipe (LLVM 17.0.6, 128 bits)"), 4);
+        assert_eq!(super::simd_lanes("SwiftShader Device (Subzero)"), 16);
     }
 }
 
@@ -257,6 +283,13 @@ impl Context {
     /// True for software adapters (lavapipe/llvmpipe, WARP, SwiftShader).
     pub fn is_software(&self) -> bool {
         self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// Lanes per SIMD vector of a software adapter: llvmpipe names its
+    /// vector width ("llvmpipe (LLVM 15.0.6, 256 bits)": 8 lanes of 32
+    /// bits); 16 (512 bits) when the name does not say.
+    pub fn simd_lanes(&self) -> u32 {
+        simd_lanes(&self.info.name)
     }
 
     /// Compiles (once) the compute pipeline `entry` of `source`.

@@ -234,11 +234,25 @@ impl<'a> GpuDepth<'a> {
         ctx.queue.submit([enc.finish()]);
         let bytes = ctx.read_buffer(&self.out, offset.max(1) as u64 * 4)?;
         let depths: &[f32] = bytemuck::cast_slice(&bytes);
+        let mut over = Vec::new();
         for (&i, t) in batch.iter().zip(&tiles) {
             let rect = [t.x0 as usize, t.y0 as usize, t.x1 as usize, t.y1 as usize];
             let n = (rect[2] - rect[0] + 1) * (rect[3] - rect[1] + 1);
             let at = t.offset as usize;
+            // -1 first: the pose overdraws past the rasterizer's loop
+            // budget (`raster::draw_budget`); the twin renders it.
+            if depths[at] < 0.0 {
+                over.push(i);
+                continue;
+            }
             out[i] = Some(DepthTile { rect, depth: depths[at..at + n].to_vec() });
+        }
+        if !over.is_empty() {
+            tracing::warn!("{} poses overdraw past the GPU rasterizer's loop budget: rendered on the CPU", over.len());
+            let cpu: Vec<Pose> = over.iter().map(|&i| poses[i]).collect();
+            for (i, t) in over.into_iter().zip(depth_tiles_cpu(self.mesh, &cpu, &self.k)) {
+                out[i] = t;
+            }
         }
         Ok(())
     }

@@ -177,8 +177,14 @@ pub struct RasterParams {
     pub n_obs: u32,
     /// First hypothesis of this dispatch's wave.
     pub first: u32,
+    /// Pixel-loop iterations one invocation may spend drawing a
+    /// hypothesis ([`raster::draw_budget`]; set per dispatch).
+    pub draw_budget: u32,
+    pub pad0: u32,
+    pub pad1: u32,
+    pub pad2: u32,
 }
-const _: () = assert!(std::mem::size_of::<RasterParams>() == 64);
+const _: () = assert!(std::mem::size_of::<RasterParams>() == 80);
 
 /// One meshlet as the GPU sees it (`GpuMeshlet` in raster.wgsl): up to
 /// [`MESHLET_TRIANGLES`] neighbouring triangles, stored contiguously from
@@ -331,19 +337,20 @@ impl RenderMesh {
         if wanted && self.ray_caster().is_some() { CpuRenderer::RayCast } else { CpuRenderer::Raster }
     }
 
-    /// The GPU renderer for a region of `pixels` pixels: the rasterizer
+    /// The GPU renderer: the rasterizer
     /// (`raster.wgsl`), or the BVH ray caster (`raycast.wgsl`) when asked
     /// for or, with `Auto`, when the mesh has more meshlets than the
-    /// rasterizer takes ([`MAX_GPU_MESHLETS`]) or more than
-    /// [`GPU_RAY_CAST_TRIANGLES_PER_PIXEL`] triangles per region pixel; the
-    /// ray caster needs a BVH shallow enough to traverse.
-    pub fn gpu_renderer(&self, pixels: usize) -> CpuRenderer {
+    /// rasterizer takes ([`MAX_GPU_MESHLETS`], about 500,000 triangles);
+    /// the ray caster needs a BVH shallow enough to traverse. On lavapipe
+    /// the rasterizer was faster at every size it takes (the LM-O can
+    /// from 1,000 to 182,664 triangles at 128x128: 6,402 to 427 hyp/s
+    /// against 294 to 119), so `Auto` ray-casts only past its budget (no
+    /// hardware GPU has been lent to measure a crossover there).
+    pub fn gpu_renderer(&self) -> CpuRenderer {
         let wanted = match self.renderer {
             RendererChoice::Raster => false,
             RendererChoice::RayCast => true,
-            RendererChoice::Auto => {
-                self.meshlets.len() > MAX_GPU_MESHLETS || self.triangles.len() as f64 > GPU_RAY_CAST_TRIANGLES_PER_PIXEL * pixels as f64
-            }
+            RendererChoice::Auto => self.meshlets.len() > MAX_GPU_MESHLETS,
         };
         if wanted && self.ray_caster().is_some() { CpuRenderer::RayCast } else { CpuRenderer::Raster }
     }
@@ -405,9 +412,6 @@ fn build_meshlets(mesh: &Mesh, vertices: &[Vec3], closed: bool) -> Built {
 /// 640x480 regions alike (LM-O can subdivided to 45k-2.9M triangles, see
 /// the README's design notes).
 pub const RAY_CAST_TRIANGLES_PER_PIXEL: f64 = 40.0;
-
-/// Triangles per region pixel above which `Auto` ray-casts on the GPU.
-pub const GPU_RAY_CAST_TRIANGLES_PER_PIXEL: f64 = f64::INFINITY;
 
 /// Every WGSL source as the pipelines compile it: `(name, source)`.
 pub fn shader_sources() -> Vec<(&'static str, String)> {
@@ -488,7 +492,7 @@ mod tests {
         macro_rules! same {
             ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
         }
-        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_meshlets, id_bits, cull, radius, tau, alpha, near, n_obs, first));
+        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_meshlets, id_bits, cull, radius, tau, alpha, near, n_obs, first, draw_budget, pad0, pad1, pad2));
         wgsl_layout::assert_layout(src, "GpuMeshlet", size_of::<GpuMeshlet>(), same!(GpuMeshlet, sphere, cone, first, count, first_vertex, vertex_count));
         wgsl_layout::assert_layout(src, "GpuTriangle", size_of::<GpuTriangle>(), same!(GpuTriangle, v0, v1, v2, plane));
         let rows = offset_of!(GpuPose, rows);

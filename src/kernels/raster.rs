@@ -337,7 +337,47 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
         near: NEAR_M,
         n_obs,
         first: 0,
+        draw_budget: u32::MAX,
+        pad0: 0,
+        pad1: 0,
+        pad2: 0,
     }
+}
+
+/// lavapipe (llvmpipe) ends every loop of a shader after this many
+/// iterations in total, counted per SIMD vector of invocations: a loop
+/// runs as long as any of the vector's lanes is in it.
+pub const SOFTWARE_LOOP_CAP: u32 = 65_535;
+
+/// Pixel-loop iterations one invocation may spend drawing a hypothesis
+/// (`params.draw_budget` in raster.wgsl). Unlimited on hardware GPUs. On a
+/// software adapter, a vector of W lanes runs at most W times what its
+/// busiest lane spends (each of its pixel loops runs as long as its
+/// longest lane), on top of the loops every kernel has anyway (meshlet
+/// rounds, the consumer's pass over the region); so the budget is what
+/// the cap leaves of those, over W. The duck at 128x128 spends about 200
+/// per invocation against about 8,000 allowed.
+pub fn draw_budget(ctx: &Context, n_meshlets: u32, pixels: u32) -> u32 {
+    if !ctx.is_software() {
+        return u32::MAX;
+    }
+    let fixed = n_meshlets.div_ceil(64) * 65 + 2 * pixels.div_ceil(64) + 1_064;
+    SOFTWARE_LOOP_CAP.saturating_sub(fixed) / ctx.simd_lanes()
+}
+
+/// Refuses a mesh whose triangle or meshlet table is larger than the
+/// adapter can bind.
+pub fn check_mesh_bindings(ctx: &Context, mesh: &RenderMesh) -> Result<()> {
+    let lim = ctx.limits;
+    let tri_bytes = (mesh.triangles.len() * std::mem::size_of::<GpuTriangle>()) as u64;
+    let meshlet_bytes = (mesh.meshlets.len() * std::mem::size_of::<GpuMeshlet>()) as u64;
+    if tri_bytes.max(meshlet_bytes) > lim.max_storage_binding.min(lim.max_buffer) {
+        return Err(Error::Gpu(format!(
+            "mesh needs {tri_bytes} bytes of triangles but the adapter binds at most {} bytes: decimate it",
+            lim.max_storage_binding
+        )));
+    }
+    Ok(())
 }
 
 /// GPU buffers a visual kernel needs for one mesh and image size.
@@ -364,14 +404,7 @@ impl RasterBuffers {
         use wgpu::util::DeviceExt;
         let lim = ctx.limits;
         let pix = k.pixels() as u64;
-        let tri_bytes = (mesh.triangles.len() * std::mem::size_of::<GpuTriangle>()) as u64;
-        let meshlet_bytes = (mesh.meshlets.len() * std::mem::size_of::<GpuMeshlet>()) as u64;
-        if tri_bytes.max(meshlet_bytes) > lim.max_storage_binding.min(lim.max_buffer) {
-            return Err(Error::Gpu(format!(
-                "mesh needs {tri_bytes} bytes of triangles but the adapter binds at most {} bytes: decimate it",
-                lim.max_storage_binding
-            )));
-        }
+        check_mesh_bindings(ctx, mesh)?;
         if pix * 16 > lim.max_storage_binding.min(lim.max_buffer) {
             return Err(Error::Gpu(format!("a {}x{} region is too large for this adapter", k.width, k.height)));
         }
@@ -494,7 +527,12 @@ impl RasterBuffers {
         let waves = n.div_ceil(slots);
         let mut blocks = vec![0u8; waves * PARAMS_STRIDE as usize];
         for w in 0..waves {
-            let p = RasterParams { n_hyp: n as u32, first: (w * slots) as u32, ..params };
+            let p = RasterParams {
+                n_hyp: n as u32,
+                first: (w * slots) as u32,
+                draw_budget: draw_budget(ctx, params.n_meshlets, params.width * params.height),
+                ..params
+            };
             let at = w * PARAMS_STRIDE as usize;
             blocks[at..at + std::mem::size_of::<RasterParams>()].copy_from_slice(bytemuck::bytes_of(&p));
         }

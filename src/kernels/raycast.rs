@@ -7,7 +7,7 @@
 //! The twin walks the tree exactly as the kernel does, in plain Rust:
 //! near-first depth first (children in the slot order obvhs lays out per
 //! ray octant), the same quantized child boxes with the same slack, the
-//! same triangle test as the CPU ray caster, and the same iteration budget
+//! same triangle test as the CPU ray caster, and the same node budget
 //! and stack size, so a ray the kernel would give up on is given up on
 //! here too ([`Cast::overflow`]). Its hits are the nearest hits, so they
 //! equal obvhs's own traversal's (tested) and the kernel's up to f32
@@ -24,9 +24,10 @@ pub const RAYCAST_WGSL: &str = concat!(include_str!("../../shaders/raster.wgsl")
 
 /// u32 words per CWBVH node (obvhs's `CwBvhNode`, 80 bytes).
 pub const NODE_WORDS: usize = 20;
-/// Loop iterations one ray may take (`STEP_BUDGET` in raycast.wgsl): under
-/// lavapipe's 65,535 per invocation.
-pub const STEP_BUDGET: u32 = 60_000;
+/// Nodes one ray may visit (`MAX_NODES` in raycast.wgsl): each costs a
+/// SIMD vector of lavapipe at most 41 loop iterations, and 1,400 * 41 stays
+/// under its 65,535 per vector.
+pub const MAX_NODES: u32 = 1_400;
 /// Pending nodes per ray (`STACK` in raycast.wgsl).
 pub const STACK: usize = 176;
 /// Relative slack on a child box's exit distance (`BOX_SLACK`).
@@ -95,15 +96,18 @@ fn trace(mesh: &RenderMesh, bvh: &GpuBvh, o: Vec3, d: Vec3, near: f32) -> Result
     let oct = (if d.x >= 0.0 { 4 } else { 0 }) | (if d.y >= 0.0 { 2 } else { 0 }) | (if d.z >= 0.0 { 1 } else { 0 });
     let mut stack = vec![0u32];
     let (mut best, mut best_id) = (3.4e38f32, u32::MAX);
-    let mut steps = 0u32;
+    let mut visited = 0u32;
     while let Some(n) = stack.pop() {
+        visited += 1;
+        if visited > MAX_NODES {
+            return Err(());
+        }
         let node = &bvh.nodes[n as usize * NODE_WORDS..][..NODE_WORDS];
         let np = Vec3::new(f32::from_bits(node[0]), f32::from_bits(node[1]), f32::from_bits(node[2]));
         let scale = Vec3::new(f32::from_bits((node[3] & 0xff) << 23), f32::from_bits(((node[3] >> 8) & 0xff) << 23), f32::from_bits(((node[3] >> 16) & 0xff) << 23));
         let imask = node[3] >> 24;
         let mut enter = 0u32;
         for k in (0..8).rev() {
-            steps += 1;
             let c = k ^ oct;
             let meta = byte(node, 6, c);
             if meta == 0 {
@@ -123,7 +127,6 @@ fn trace(mesh: &RenderMesh, bvh: &GpuBvh, o: Vec3, d: Vec3, near: f32) -> Result
             }
             let first = node[5] + (meta & 31);
             for q in 0..(meta & 0xe0).count_ones() {
-                steps += 1;
                 let id = bvh.prims[(first + q) as usize];
                 let hit = hit_triangle(&mesh.triangles[id as usize], o, d, near, best, mesh.cull_back_faces);
                 if hit < best {
@@ -132,7 +135,6 @@ fn trace(mesh: &RenderMesh, bvh: &GpuBvh, o: Vec3, d: Vec3, near: f32) -> Result
             }
         }
         while enter != 0 {
-            steps += 1;
             let k = enter.trailing_zeros() as usize;
             enter &= enter - 1;
             if stack.len() == STACK {
@@ -140,10 +142,6 @@ fn trace(mesh: &RenderMesh, bvh: &GpuBvh, o: Vec3, d: Vec3, near: f32) -> Result
             }
             let c = k ^ oct;
             stack.push(node[4] + (imask & ((1 << c) - 1)).count_ones());
-        }
-        steps += 1;
-        if steps > STEP_BUDGET {
-            return Err(());
         }
     }
     Ok((best_id != u32::MAX).then_some((best, best_id)))

@@ -73,6 +73,13 @@ pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsi
         let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
         for h in 0..chunk.len() {
             let img = &px[h * pix..(h + 1) * pix];
+            // Marked over the rasterizer's loop budget (raster.wgsl's
+            // draw_budget): rendered by the twin instead.
+            if img[0][3] < 0.0 {
+                tracing::warn!("a hypothesis overdraws past the GPU rasterizer's loop budget: rendered on the CPU");
+                out.push(render_cpu(mesh, &chunk[h], k));
+                continue;
+            }
             out.push(RenderImage {
                 width: k.width,
                 height: k.height,

@@ -199,6 +199,9 @@ pub struct GpuScorer {
     ctx: Context,
     mesh: RenderMesh,
     target_intrinsics: crate::camera::Intrinsics,
+    /// The observation, for hypotheses the rasterizer hands back over its
+    /// loop budget (scored by the twin).
+    target: ScoreTarget,
     n_obs: u32,
     params: ScoreParams,
     bufs: RasterBuffers,
@@ -248,8 +251,12 @@ impl TracedStage {
     }
 }
 
+/// `valid` of a record the rasterizer could not draw within its loop budget
+/// (`OVER_BUDGET` in score.wgsl).
+const OVER_BUDGET: u32 = u32::MAX;
+
 /// The error of a chunk in which a ray ran out of its budget.
-const RAY_OVERFLOW: &str = "a ray through the mesh's BVH ran out of its step budget or stack (a degenerate tree)";
+const RAY_OVERFLOW: &str = "a ray through the mesh's BVH visited more nodes than the GPU allows (surfaces overlapping many times over)";
 
 /// Target of the GPU-time events in a `--trace` (see [`trace_gpu_time`]).
 pub const GPU_TIME_TARGET: &str = "plausible::gpu";
@@ -336,7 +343,7 @@ impl GpuScorer {
         let _span = tracing::trace_span!("gpu_setup").entered();
         let k = target.intrinsics;
         let traced = match physics {
-            None if mesh.gpu_renderer(k.pixels()) == super::CpuRenderer::RayCast => {
+            None if mesh.gpu_renderer() == super::CpuRenderer::RayCast => {
                 let caster = mesh.ray_caster().expect("chosen only when built");
                 Some(TracedStage::new(ctx, &caster.gpu_layout())?)
             }
@@ -378,6 +385,7 @@ impl GpuScorer {
             ctx: ctx.clone(),
             mesh: mesh.clone(),
             target_intrinsics: k,
+            target: target.clone(),
             n_obs: target.observed_pixels() as u32,
             params,
             bufs,
@@ -413,11 +421,12 @@ impl GpuScorer {
     /// region with the same observed pixels and may differ only in the
     /// other objects' depth ([`ScoreTarget::set_occluders`]): one buffer
     /// write, the mesh and pipeline stay.
-    pub fn set_observation(&self, target: &ScoreTarget) -> Result<()> {
+    pub fn set_observation(&mut self, target: &ScoreTarget) -> Result<()> {
         if target.intrinsics != self.target_intrinsics || target.observed_pixels() as u32 != self.n_obs {
             return Err(Error::InvalidInput("a scorer's observation can only change its occluders, not its region or observed pixels".into()));
         }
         self.ctx.queue.write_buffer(&self.observed, 0, bytemuck::cast_slice(&target.packed()));
+        self.target = target.clone();
         Ok(())
     }
 
@@ -528,7 +537,7 @@ impl GpuScorer {
         raster_only: bool,
         timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
     ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
-        match self.run_chunk_with(chunk, raster_only, self.traced.as_ref(), timestamps) {
+        let mut out = match self.run_chunk_with(chunk, raster_only, self.traced.as_ref(), timestamps) {
             // A ray out of budget (a pathological tree) leaves its pixels
             // empty: the chunk is rasterized instead where the mesh allows.
             Err(Error::Gpu(m)) if m == RAY_OVERFLOW && super::check_loop_budget(&self.mesh, self.target_intrinsics.pixels()).is_ok() => {
@@ -536,7 +545,18 @@ impl GpuScorer {
                 self.run_chunk_with(chunk, raster_only, None, timestamps)
             }
             r => r,
+        }?;
+        // Hypotheses the rasterizer marked over its loop budget (triangles
+        // overlapping many times over): scored by the twin instead.
+        let over: Vec<usize> = (0..out.0.len()).filter(|&i| out.0[i].valid == OVER_BUDGET).collect();
+        if !over.is_empty() {
+            tracing::warn!("{} hypotheses overdraw past the GPU rasterizer's loop budget: scored on the CPU", over.len());
+            let poses: Vec<Pose> = over.iter().map(|&i| chunk[i]).collect();
+            for (i, rec) in over.into_iter().zip(score_cpu(&self.mesh, &self.target, &poses, &self.params)) {
+                out.0[i] = rec;
+            }
         }
+        Ok(out)
     }
 
     fn run_chunk_with(
