@@ -42,15 +42,16 @@ pub const RASTER_WGSL: &str = include_str!("../../shaders/raster.wgsl");
 /// of the 32-bit visibility key, leaving at least 8 bits of depth.
 pub const MAX_TRIANGLES: usize = 1 << 24;
 
-/// Most meshlets the GPU visual kernels take (about 500,000 triangles:
+/// Most meshlets the GPU rasterizer takes (about 500,000 triangles:
 /// meshlets hold up to 64), and most region pixels of the score and render
-/// kernels. lavapipe silently ends every loop of an invocation after 65,535
-/// iterations in total: each of a workgroup's 64 invocations sets up one
-/// triangle per meshlet (about three loop iterations with its pixels) and
-/// visits pixels/64 region pixels (twice), so these caps keep one
-/// hypothesis under ~57,000 iterations. Larger inputs are refused with an
-/// error (or, for evaluation renders, drawn by the CPU twin), never
-/// returned as silent zeros.
+/// kernels. lavapipe silently ends a shader's loops after 65,535 iterations
+/// in total per SIMD vector: each of a workgroup's 64 invocations steps
+/// through every meshlet (one triangle each) and visits pixels/64 region
+/// pixels (twice), so these caps bound those loops to about 25,000
+/// iterations; drawing the pixels has its own budget
+/// ([`raster::draw_budget`]). Larger meshes are ray-cast on the GPU
+/// ([`raycast`]) or, for evaluation renders, drawn by the CPU twin; larger
+/// regions are refused with an error; never silent zeros.
 pub const MAX_GPU_MESHLETS: usize = 8192;
 pub const MAX_GPU_PIXELS: usize = 1 << 20;
 

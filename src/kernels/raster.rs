@@ -354,14 +354,16 @@ pub const SOFTWARE_LOOP_CAP: u32 = 65_535;
 /// software adapter, a vector of W lanes runs at most W times what its
 /// busiest lane spends (each of its pixel loops runs as long as its
 /// longest lane), on top of the loops every kernel has anyway (meshlet
-/// rounds, the consumer's pass over the region); so the budget is what
-/// the cap leaves of those, over W. The duck at 128x128 spends about 200
-/// per invocation against about 8,000 allowed.
+/// rounds and steps, the consumer's passes over the region, at most two;
+/// the fused plane stage's samples, at most 850 for 50,000 samples; a
+/// margin of 1,000); so the budget is what the cap leaves of those, over
+/// W. The duck at 128x128 spends about 200 per invocation against about
+/// 7,800 allowed.
 pub fn draw_budget(ctx: &Context, n_meshlets: u32, pixels: u32) -> u32 {
     if !ctx.is_software() {
         return u32::MAX;
     }
-    let fixed = n_meshlets.div_ceil(64) * 65 + 2 * pixels.div_ceil(64) + 1_064;
+    let fixed = n_meshlets.div_ceil(64) * 65 + 2 * pixels.div_ceil(64) + 850 + 1_000 + 64;
     SOFTWARE_LOOP_CAP.saturating_sub(fixed) / ctx.simd_lanes()
 }
 
