@@ -1,6 +1,7 @@
 //! Criterion benchmark of the visual score: the GPU kernel and its CPU twin
 //! on the same inputs (duck, 4212 triangles, 128x128 region, 256 poses).
-//! With the physical terms against a support plane (the fused kernel) too.
+//! With the physical terms against a support plane (the fused kernel) too,
+//! and the BVH ray caster (GPU kernel, twin, obvhs's CPU walk).
 //! `plausible bench score [--physics]` covers more sizes and prints a table / JSON.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -55,6 +56,28 @@ fn bench(c: &mut Criterion) {
     g.bench_function("cpu_twin", |b| b.iter(|| run(&Device::Cpu)));
     if let Some(dev) = &gpu {
         g.bench_function(format!("gpu ({})", dev.describe()), |b| b.iter(|| run(dev)));
+    }
+    g.finish();
+
+    // The BVH ray caster (the renderer of meshes past the rasterizer's
+    // budget), same inputs, 64 poses: GPU kernel, its CPU twin (the plain
+    // walk the kernel mirrors) and the CPU's own renderer (obvhs's walk).
+    let mut rays = rmesh.clone();
+    rays.renderer = plausible::kernels::RendererChoice::RayCast;
+    let few = &poses[..64];
+    let bvh = rays.ray_caster().unwrap().gpu_layout();
+    let mut g = c.benchmark_group("raycast/duck/128x128");
+    g.throughput(Throughput::Elements(few.len() as u64));
+    g.sample_size(10);
+    let k = target.intrinsics;
+    g.bench_function("cpu_twin", |b| {
+        let (mut z, mut ids) = (vec![0.0; k.pixels()], vec![u32::MAX; k.pixels()]);
+        b.iter(|| few.iter().map(|p| plausible::kernels::raycast::cast_ids(&rays, &bvh, &p.into(), &k, &mut z, &mut ids).drawn).count())
+    });
+    g.bench_function("cpu_obvhs_score", |b| b.iter(|| score_cpu(&rays, &target, few, &params)));
+    if let Some(Device::Gpu(ctx)) = &gpu {
+        let scorer = GpuScorer::new(ctx, &rays, &target, params, few.len()).unwrap();
+        g.bench_function(format!("gpu_score ({})", ctx.info.name), |b| b.iter(|| scorer.score(few).unwrap()));
     }
     g.finish();
 }

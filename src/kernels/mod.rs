@@ -59,7 +59,7 @@ pub const MAX_GPU_PIXELS: usize = 1 << 20;
 pub fn check_loop_budget(mesh: &RenderMesh, pixels: usize) -> Result<()> {
     if mesh.meshlets.len() > MAX_GPU_MESHLETS {
         return Err(Error::InvalidInput(format!(
-            "the mesh has {} triangles in {} meshlets; the GPU kernels take at most {MAX_GPU_MESHLETS} meshlets of {MESHLET_TRIANGLES} triangles (software adapters stop long loops silently): decimate it (--lod) or use the CPU twin",
+            "the mesh has {} triangles in {} meshlets; the GPU kernels take at most {MAX_GPU_MESHLETS} meshlets of {MESHLET_TRIANGLES} triangles (software adapters stop long loops silently): decimate it (--lod), let the GPU ray-cast it (the auto renderer) or use the CPU twin",
             mesh.triangles.len(),
             mesh.meshlets.len()
         )));
