@@ -6,7 +6,8 @@
 // (parameters, poses, triangles, the visibility slots and screen_rect).
 //
 // One workgroup per (8x8 tile of the region, hypothesis of the wave), one
-// ray per invocation. lavapipe ends a shader's loops after 65,535
+// ray per invocation; tiles run along x and, past the adapter's workgroups
+// per dimension, on along z. lavapipe ends a shader's loops after 65,535
 // iterations in total per SIMD vector (a loop runs while any lane is in
 // it): each node visited costs a vector at most 41 iterations (the node,
 // 8 children, up to 3 triangles each, up to 8 pushes), so a ray gives up
@@ -85,6 +86,7 @@ fn safe_inverse(x: f32) -> f32 {
 @compute @workgroup_size(64)
 fn raycast_main(
     @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
     let h = params.first + wid.y;
@@ -94,8 +96,9 @@ fn raycast_main(
     let p = poses[h];
     let rect = screen_rect(p);
     let tiles_x = (params.width + TILE - 1u) / TILE;
-    let x = i32((wid.x % tiles_x) * TILE + lid % TILE);
-    let y = i32((wid.x / tiles_x) * TILE + lid / TILE);
+    let tile = wid.x + wid.z * nwg.x;
+    let x = i32((tile % tiles_x) * TILE + lid % TILE);
+    let y = i32((tile / tiles_x) * TILE + lid / TILE);
     if (x < rect.x || x > rect.z || y < rect.y || y > rect.w) {
         return;
     }

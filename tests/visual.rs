@@ -122,6 +122,19 @@ fn gpu_forced_small_limits_split_batches_with_same_results() {
         assert!((x.score - y.score).abs() < 1e-6);
         assert!((x.score - z.score).abs() < 1e-3);
     }
+
+    // The ray caster under the same limits: a 16x16 region's 4 tiles run
+    // 3 along x and on along z; 32x32 (16 tiles) needs more than 3 x 3
+    // workgroups and is refused, not cut short.
+    let mut rays = mesh.clone();
+    rays.renderer = plausible::kernels::RendererChoice::RayCast;
+    let target16 = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(16), DEFAULT_ROI_MARGIN).unwrap();
+    let few = &poses[..200];
+    let (r, _) = GpuScorer::new(&small, &rays, &target16, params, few.len()).unwrap().score(few).unwrap();
+    for (i, (g, c)) in r.iter().zip(score_cpu(&rays, &target16, few, &params)).enumerate() {
+        assert!((g.score - c.score).abs() < 1e-3, "hypothesis {i}: gpu {g:?} cpu {c:?}");
+    }
+    assert!(GpuScorer::new(&small, &rays, &target, params, 10).is_err());
 }
 
 /// Regression: lavapipe stops an invocation's loops after 65535 iterations

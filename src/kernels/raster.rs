@@ -505,12 +505,16 @@ impl RasterBuffers {
         let waves = self.write_wave_params(ctx, params, n);
         let groups: Vec<(wgpu::BindGroup, wgpu::BindGroup)> =
             (0..waves).map(|w| (self.wave_group(ctx, raycast, w, traced, false), self.wave_group(ctx, reduce, w, reduced, false))).collect();
+        // Tiles along x, and on along z past the workgroups per dimension
+        // (the kernel skips the ones past the region).
         let tiles = k.width.div_ceil(8) * k.height.div_ceil(8);
+        let per_row = tiles.min(ctx.limits.max_workgroups.max(1));
+        let rows = tiles.div_ceil(per_row);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("traced waves"), timestamp_writes: timestamps });
         for (w, (trace, score)) in groups.iter().enumerate() {
             pass.set_pipeline(raycast);
             pass.set_bind_group(0, trace, &[]);
-            pass.dispatch_workgroups(tiles, self.wave_len(n, w), 1);
+            pass.dispatch_workgroups(per_row, self.wave_len(n, w), rows);
             pass.set_pipeline(reduce);
             pass.set_bind_group(0, score, &[]);
             pass.dispatch_workgroups(self.wave_len(n, w), 1, 1);

@@ -354,6 +354,10 @@ impl GpuScorer {
         };
         if traced.is_some() {
             super::check_pixel_budget(k.pixels())?;
+            let tiles = k.width.div_ceil(8) * k.height.div_ceil(8);
+            if tiles.div_ceil(ctx.limits.max_workgroups.max(1)) > ctx.limits.max_workgroups {
+                return Err(Error::Gpu(format!("the adapter dispatches too few workgroups for {tiles} tiles of 8x8 pixels")));
+            }
             tracing::info!("GPU renderer: the BVH ray caster ({} triangles)", mesh.triangles.len());
         }
         let words = physics.map_or(0, |(p, _)| p.words as usize);
