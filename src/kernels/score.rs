@@ -542,11 +542,19 @@ impl GpuScorer {
         timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
     ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
         let mut out = match self.run_chunk_with(chunk, raster_only, self.traced.as_ref(), timestamps) {
-            // A ray out of budget (a pathological tree) leaves its pixels
-            // empty: the chunk is rasterized instead where the mesh allows.
-            Err(Error::Gpu(m)) if m == RAY_OVERFLOW && super::check_loop_budget(&self.mesh, self.target_intrinsics.pixels()).is_ok() => {
-                tracing::warn!("{RAY_OVERFLOW}: rasterizing these {} hypotheses instead", chunk.len());
-                self.run_chunk_with(chunk, raster_only, None, timestamps)
+            // A ray out of budget leaves its pixels empty: the chunk is
+            // rasterized instead where the mesh allows, else scored by the
+            // twin.
+            Err(Error::Gpu(m)) if m == RAY_OVERFLOW => {
+                if super::check_loop_budget(&self.mesh, self.target_intrinsics.pixels()).is_ok() {
+                    tracing::warn!("{RAY_OVERFLOW}: rasterizing these {} hypotheses instead", chunk.len());
+                    self.run_chunk_with(chunk, raster_only, None, timestamps)
+                } else {
+                    tracing::warn!("{RAY_OVERFLOW}: scoring these {} hypotheses on the CPU", chunk.len());
+                    let t = Instant::now();
+                    let records = score_cpu(&self.mesh, &self.target, chunk, &self.params);
+                    Ok((records, None, StageTimes { compute: t.elapsed(), ..Default::default() }))
+                }
             }
             r => r,
         }?;
