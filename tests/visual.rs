@@ -618,14 +618,18 @@ fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
         rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((rng >> 33) as f64 / (1u64 << 31) as f64 - 0.5) * 0.004
     };
-    let mut stack = Mesh { vertices: Vec::new(), triangles: Vec::new(), source: None };
-    for i in 0..50_000u32 {
-        let (dx, dy) = (jitter(), jitter());
-        for (x, y) in [(-0.03, -0.03), (-0.03, 0.04), (0.04, -0.03)] {
-            stack.vertices.push(DVec3::new(x + dx, y + dy, 0.0));
+    let mut stack_of = |n: u32| {
+        let mut stack = Mesh { vertices: Vec::new(), triangles: Vec::new(), source: None };
+        for i in 0..n {
+            let (dx, dy) = (jitter(), jitter());
+            for (x, y) in [(-0.03, -0.03), (-0.03, 0.04), (0.04, -0.03)] {
+                stack.vertices.push(DVec3::new(x + dx, y + dy, 0.0));
+            }
+            stack.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
         }
-        stack.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
-    }
+        stack
+    };
+    let stack = stack_of(50_000);
     let truth = Pose::new(axis_angle(DVec3::X, 0.0), DVec3::new(0.0, 0.0, 0.5));
     let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
     let mut rays = RenderMesh::new(&stack).unwrap();
@@ -657,4 +661,18 @@ fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
     }
     let tiles = GpuDepth::new(&ctx, &raster, &k).unwrap().render(&poses).unwrap();
     assert_eq!(tiles, depth_tiles_cpu(&raster, &poses, &k));
+
+    // Past the rasterizer's meshlet budget too (530,000 stacked triangles,
+    // ray-cast by default): rays out of budget, no rasterizer to fall back
+    // on, so the twin scores them.
+    let huge = RenderMesh::new(&stack_of(530_000)).unwrap();
+    assert!(huge.meshlets.len() > plausible::kernels::MAX_GPU_MESHLETS);
+    let target8 = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(8), DEFAULT_ROI_MARGIN).unwrap();
+    let two = &poses[..2];
+    let scorer = GpuScorer::new(&ctx, &huge, &target8, params, two.len()).unwrap();
+    assert!(scorer.ray_casts());
+    let (gpu, _) = scorer.score(two).unwrap();
+    let cpu = score_cpu(&huge, &target8, two, &params);
+    assert!(cpu[0].rendered > 0);
+    assert_eq!(gpu, cpu);
 }
