@@ -405,6 +405,26 @@ fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
     }
 }
 
+/// Meshes the renderers are compared on: a scanned LM-O model (closed,
+/// back faces culled), the duck, and an open box (one face missing).
+fn renderer_meshes() -> [Mesh; 3] {
+    let ape = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_000001.ply");
+    let ape = Mesh::load(ape, MeshUnits::Millimetres).unwrap().0;
+    [ape, duck(), open_box()]
+}
+
+fn open_box() -> Mesh {
+    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
+    open.triangles.truncate(10);
+    open
+}
+
+/// A 128x128 crop of the LineMOD camera, and the full frame.
+fn crop_and_full() -> [Intrinsics; 2] {
+    let full = linemod_camera();
+    [full.crop(220.0, 140.0, 200.0, 200.0, 128, 128), full]
+}
+
 /// The GPU ray caster's CPU twin walks obvhs's CWBVH as the kernel does
 /// and finds what obvhs's own traversal finds: the same triangle at every
 /// pixel but at most 0.1 % (rounding at triangle edges), and never runs
@@ -414,17 +434,11 @@ fn gpu_two_million_triangles_are_simplified_or_refused_never_wrong() {
 fn ray_caster_twin_hits_what_obvhs_hits() {
     use plausible::kernels::raycast::cast_ids;
     use plausible::kernels::GpuPose;
-    let ape = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_000001.ply");
-    let ape = Mesh::load(ape, MeshUnits::Millimetres).unwrap().0;
-    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
-    open.triangles.truncate(10);
-    let full = linemod_camera();
-    let crop = full.crop(220.0, 140.0, 200.0, 200.0, 128, 128);
-    for mesh in [ape, duck(), open] {
+    for mesh in renderer_meshes() {
         let rm = RenderMesh::new(&mesh).unwrap();
         let caster = rm.ray_caster().unwrap();
         let bvh = caster.gpu_layout();
-        for k in [crop, full] {
+        for k in crop_and_full() {
             let n = k.pixels();
             let (mut hits, mut differ) = (0, 0);
             for p in around_and_random(&true_pose(), 12, 23) {
@@ -453,11 +467,9 @@ fn ray_caster_twin_hits_what_obvhs_hits() {
 fn score_gpu_ray_caster_matches_cpu() {
     let ctx = test_context();
     let target = demo_target(&RenderMesh::new(&duck()).unwrap(), SensorNoise::default());
-    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
-    open.triangles.truncate(10);
     let poses = around_and_random(&true_pose(), 96, 11);
     let params = ScoreParams::default();
-    for mesh in [duck(), open] {
+    for mesh in [duck(), open_box()] {
         let mut rm = RenderMesh::new(&mesh).unwrap();
         rm.renderer = plausible::kernels::RendererChoice::RayCast;
         let scorer = GpuScorer::new(&ctx, &rm, &target, params, poses.len()).unwrap();
@@ -481,12 +493,8 @@ fn score_gpu_ray_caster_matches_cpu() {
 #[test]
 fn meshlet_culling_changes_no_pixel() {
     let ctx = test_context();
-    let ape = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_000001.ply");
-    let ape = Mesh::load(ape, MeshUnits::Millimetres).unwrap().0;
-    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
-    open.triangles.truncate(10); // one face missing: no back-face culling
     let k = Intrinsics { fx: 572.4, fy: 573.6, cx: 325.3, cy: 242.0, width: 160, height: 120 };
-    for mesh in [ape, duck(), open] {
+    for mesh in renderer_meshes() {
         let culled = RenderMesh::new(&mesh).unwrap();
         assert!(culled.meshlets.len() > 1 || mesh.triangles.len() <= 64);
         // The same meshlets with culling switched off: a cone cutoff above 1
@@ -581,19 +589,13 @@ fn an_inside_out_mesh_renders_like_the_mesh() {
 #[test]
 fn ray_caster_renders_like_the_rasterizer() {
     use plausible::kernels::RendererChoice;
-    let ape = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_000001.ply");
-    let ape = Mesh::load(ape, MeshUnits::Millimetres).unwrap().0;
-    let mut open = shapes::cuboid(DVec3::new(0.1, 0.08, 0.06));
-    open.triangles.truncate(10);
-    let full = linemod_camera();
-    let crop = full.crop(220.0, 140.0, 200.0, 200.0, 128, 128);
-    for mesh in [ape, duck(), open] {
+    for mesh in renderer_meshes() {
         let mut raster = RenderMesh::new(&mesh).unwrap();
         raster.renderer = RendererChoice::Raster;
         let mut rays = raster.clone();
         rays.renderer = RendererChoice::RayCast;
         assert!(rays.ray_caster().is_some());
-        for k in [crop, full] {
+        for k in crop_and_full() {
             for p in around_and_random(&true_pose(), 12, 23) {
                 assert_renders_match(&render_cpu(&raster, &p, &k), &render_cpu(&rays, &p, &k));
             }
