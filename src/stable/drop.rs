@@ -109,6 +109,8 @@ pub struct DropResult {
 #[derive(Clone)]
 pub struct DropBody {
     pub shapes: Vec<SharedShape>,
+    /// Per shape: whether it is a support piece (else a hull part).
+    pub is_piece: Vec<bool>,
     /// Vertices of the collider (model frame) used to place the body.
     pub support: Vec<DVec3>,
     pub mass: MassProperties,
@@ -237,6 +239,8 @@ struct Slot {
     /// Its release orientation, for the record of a body rapier lost.
     q0: DQuat,
     handle: RigidBodyHandle,
+    /// The body's support pieces and whether each is switched on.
+    pieces: Vec<(ColliderHandle, bool)>,
     /// Consecutive still steps.
     calm: u32,
     result: Option<DropResult>,
@@ -258,8 +262,8 @@ fn run_world(
         .map(|(j, index)| {
             let (q0, z0, v0) = release(body, params, mesh_sha256, seed, index);
             let x = j as f64 * SLOT_SPACING_DIAG * body.diagonal;
-            let handle = insert_drop(&mut world, body, params, q0, DVec3::new(x, 0.0, z0), v0);
-            Slot { index, q0, handle, calm: 0, result: None }
+            let (handle, pieces) = insert_drop(&mut world, body, params, q0, DVec3::new(x, 0.0, z0), v0);
+            Slot { index, q0, handle, pieces, calm: 0, result: None }
         })
         .collect();
     if let (Some(t), Some(start)) = (times.as_deref_mut(), t_setup) {
@@ -299,7 +303,16 @@ fn empty_world(body: &DropBody, params: &SimParams) -> PhysicsWorld {
 }
 
 /// Adds one dropped body at `at` with orientation `q0`, falling at `v0`.
-fn insert_drop(world: &mut PhysicsWorld, body: &DropBody, params: &SimParams, q0: DQuat, at: DVec3, v0: f64) -> RigidBodyHandle {
+/// Inserts one drop's body; returns it and its support pieces (switched off:
+/// drops start above the ground).
+fn insert_drop(
+    world: &mut PhysicsWorld,
+    body: &DropBody,
+    params: &SimParams,
+    q0: DQuat,
+    at: DVec3,
+    v0: f64,
+) -> (RigidBodyHandle, Vec<(ColliderHandle, bool)>) {
     let mprops = body.mass.to_rapier(params.density);
     let rb = RigidBodyBuilder::dynamic()
         .pose(Pose::from_parts(
@@ -311,17 +324,50 @@ fn insert_drop(world: &mut PhysicsWorld, body: &DropBody, params: &SimParams, q0
         .can_sleep(false)
         .ccd_enabled(params.ccd);
     let handle = world.insert_body(rb);
-    for shape in &body.shapes {
+    let mut pieces = Vec::new();
+    for (shape, &piece) in body.shapes.iter().zip(&body.is_piece) {
         let collider = ColliderBuilder::new(shape.clone())
             .density(0.0)
             .friction(params.friction as f32)
             .restitution(params.restitution as f32)
-            .collision_groups(groups(false));
-        world
-            .colliders
-            .insert_with_parent(collider, handle, &mut world.bodies);
+            .collision_groups(groups(false))
+            .enabled(!piece);
+        let c = world.colliders.insert_with_parent(collider, handle, &mut world.bodies);
+        if piece {
+            pieces.push((c, false));
+        }
     }
-    handle
+    (handle, pieces)
+}
+
+/// How near the ground (in bounding diagonals) a support piece's lowest
+/// corner must come for the piece to take part in collisions: far more
+/// than the contact prediction distance plus a step's motion.
+const PIECE_REACH_DIAG: f64 = 0.1;
+
+/// Switches on the support pieces of the slots' bodies whose lowest corner
+/// is within `reach` of the ground, and off the others. A piece switched
+/// off could not have touched the ground this step (it is convex, so its
+/// lowest point is a corner), so the contacts are those of the whole
+/// collider; the pieces away from the ground (most of them, most of the
+/// time) just stop costing narrow-phase pairs (lego brick: 12-23 % more
+/// drops/s).
+fn update_pieces(world: &mut PhysicsWorld, slots: &mut [Slot], reach: f32) {
+    for slot in slots.iter_mut().filter(|s| s.result.is_none() && !s.pieces.is_empty()) {
+        let Some(b) = world.bodies.get(slot.handle) else { continue };
+        let pose = *b.position();
+        for (c, on) in &mut slot.pieces {
+            let Some(col) = world.colliders.get_mut(*c) else { continue };
+            let Some(poly) = col.shape().as_convex_polyhedron() else { continue };
+            let at = pose * col.position_wrt_parent().copied().unwrap_or_default();
+            let low = poly.points().iter().map(|p| (at * *p).z).fold(f32::INFINITY, f32::min);
+            let want = low < reach;
+            if want != *on {
+                col.set_enabled(want);
+                *on = want;
+            }
+        }
+    }
 }
 
 /// The result of a drop whose body is `b` after `steps` steps.
@@ -357,7 +403,9 @@ fn run_until_settled(world: &mut PhysicsWorld, slots: &mut [Slot], body: &DropBo
         })
     };
     let mut steps = 0;
+    let reach = (PIECE_REACH_DIAG * body.diagonal) as f32;
     while steps < max_steps && slots.iter().any(|s| s.result.is_none()) {
+        update_pieces(world, slots, reach);
         world.step();
         steps += 1;
         let dt = lap();

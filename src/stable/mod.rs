@@ -102,8 +102,9 @@ impl Default for RunParams {
 /// never resumes a run with drops made another way. 1: one support
 /// tetrahedron per corner of every face with more than four, one drop per
 /// world; 2: support pyramids of four corners (same support polygons, fewer
-/// pieces); 3: 32 drops per world.
-pub const DROP_REVISION: u32 = 3;
+/// pieces); 3: 32 drops per world; 4: a support piece takes part in
+/// collisions only while it is near the ground (`drop::update_pieces`).
+pub const DROP_REVISION: u32 = 4;
 
 /// The run parameters as stored and hashed into the run key.
 #[derive(serde::Serialize)]
@@ -227,7 +228,7 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     for p in &parts {
         support.extend(p.vertices.iter().copied());
     }
-    let shapes = collider_shapes(name, &parts)?;
+    let (shapes, is_piece): (Vec<SharedShape>, Vec<bool>) = collider_shapes(name, &parts)?.into_iter().unzip();
     let collider_points = support.len();
     Ok(PreparedMesh {
         name: name.to_string(),
@@ -235,6 +236,7 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
         mesh,
         body: DropBody {
             shapes,
+            is_piece,
             support,
             mass: mass.clone(),
             diagonal,
@@ -259,12 +261,13 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
 /// plane at every corner, so the support polygon is the whole face, and the
 /// shape is unchanged. Four corners per piece keeps the pieces few: every
 /// piece touching the plane is one more collider pair and contact
-/// constraint at every step (one thin tetrahedron per corner, drop
+/// constraint at every step (and pieces are switched on only near the
+/// ground: `drop::update_pieces`) (one thin tetrahedron per corner, drop
 /// [`DROP_REVISION`] 1, made steps 1.3-3.4× dearer). The pieces are separate
 /// colliders on the body (not one compound shape: rapier's
 /// compound-vs-half-space path let a cylinder on its side sink and roll
 /// forever in our tests).
-fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<SharedShape>> {
+fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<(SharedShape, bool)>> {
     let mut shapes = Vec::new();
     for part in parts {
         let pts: Vec<Vec3> = part.vertices.iter().map(|v| v.as_vec3()).collect();
@@ -272,8 +275,8 @@ fn collider_shapes(name: &str, parts: &[Hull]) -> Result<Vec<SharedShape>> {
             Error::InvalidInput(format!("{name}: rapier could not build a convex collider"))
         })?;
         let pieces = hull.as_convex_polyhedron().map(support_pieces).unwrap_or_default();
-        shapes.push(hull);
-        shapes.extend(pieces);
+        shapes.push((hull, false));
+        shapes.extend(pieces.into_iter().map(|p| (p, true)));
     }
     if shapes.is_empty() {
         return Err(Error::InvalidInput(format!("{name}: empty collider")));
