@@ -205,15 +205,33 @@ fn setup_triangle(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: ve
     return s;
 }
 
+// How a hypothesis' keys quantize inverse depth (affine in screen space,
+// no division per pixel; larger = nearer) over its depth range: the
+// inverse depth of the far end, the scale to codes, the number of codes.
+struct KeyScale { izfar: f32, izscale: f32, max_code: f32 }
+
+fn key_scale(p: GpuPose) -> KeyScale {
+    let zr = depth_range(p);
+    let max_code = f32((1u << (32u - params.id_bits)) - 1u);
+    let izfar = 1.0 / zr.y;
+    return KeyScale(izfar, (max_code - 1.0) / max(1.0 / zr.x - izfar, 1e-9), max_code);
+}
+
+// The visibility key of triangle t at inverse depth iz (code 0 is reserved
+// for "nothing drawn").
+fn depth_key(ks: KeyScale, iz: f32, t: u32) -> u32 {
+    let code = u32(clamp((iz - ks.izfar) * ks.izscale, 0.0, ks.max_code - 1.0)) + 1u;
+    return (code << params.id_bits) | t;
+}
+
 // Depth test of pixel (i, j) of the triangle's bounds.
-fn shade(s: Setup, t: u32, i: u32, j: u32, base: u32, izfar: f32, izscale: f32, max_code: f32) {
+fn shade(s: Setup, t: u32, i: u32, j: u32, base: u32, ks: KeyScale) {
     let w = s.w0 + s.dw_dx * f32(i) + s.dw_dy * f32(j);
     if (min(w.x, min(w.y, w.z)) < 0.0) {
         return;
     }
-    let code = u32(clamp((dot(w, s.iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
     let at = base + (u32(s.lo.y) + j) * params.width + u32(s.lo.x) + i;
-    atomicMax(&vis[at], (code << params.id_bits) | t);
+    atomicMax(&vis[at], depth_key(ks, dot(w, s.iz), t));
 }
 
 // params.draw_budget: pixel-loop iterations (and queued big triangles) one
@@ -264,13 +282,7 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
         atomicStore(&drawn[3], -1);
     }
     let rect = screen_rect(p);
-    // Keys quantize inverse depth (affine in screen space, no division per
-    // pixel; larger = nearer) over the hypothesis' range. Code 0 is reserved
-    // for "nothing drawn".
-    let zr = depth_range(p);
-    let max_code = f32((1u << (32u - params.id_bits)) - 1u);
-    let izfar = 1.0 / zr.y;
-    let izscale = (max_code - 1.0) / max(1.0 / zr.x - izfar, 1e-9);
+    let ks = key_scale(p);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
     var lo_all = vec2<i32>(BIG);
@@ -331,8 +343,7 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
             for (var q = nx * ny; q > 0u; q--) {
                 let w = w_row + s.dw_dx * f32(i);
                 if (min(w.x, min(w.y, w.z)) >= 0.0) {
-                    let code = u32(clamp((dot(w, s.iz) - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
-                    atomicMax(&vis[row + i], (code << params.id_bits) | t);
+                    atomicMax(&vis[row + i], depth_key(ks, dot(w, s.iz), t));
                 }
                 i += 1u;
                 if (i == nx) {
@@ -357,7 +368,7 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
             }
             spent += cost;
             for (var q = lid; q < n; q += WG) {
-                shade(s, tb, q % nx, q / nx, base, izfar, izscale, max_code);
+                shade(s, tb, q % nx, q / nx, base, ks);
             }
         }
     }

@@ -189,11 +189,6 @@ fn raycast_main(
     if (best_id == 0xffffffffu) {
         return;
     }
-    let zr = depth_range(p);
-    let max_code = f32((1u << (32u - params.id_bits)) - 1u);
-    let izfar = 1.0 / zr.y;
-    let izscale = (max_code - 1.0) / max(1.0 / zr.x - izfar, 1e-9);
-    let code = u32(clamp((1.0 / best - izfar) * izscale, 0.0, max_code - 1.0)) + 1u;
     let base = wid.y * params.width * params.height;
-    atomicStore(&vis[base + u32(y) * params.width + u32(x)], (code << params.id_bits) | best_id);
+    atomicStore(&vis[base + u32(y) * params.width + u32(x)], depth_key(key_scale(p), 1.0 / best, best_id));
 }

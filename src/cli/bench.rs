@@ -246,11 +246,7 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
                     if let Device::Gpu(ctx) = &device {
                         // A mesh past the kernels' loop budget is refused, not
                         // benchmarked: the row keeps its CPU figures.
-                        let budget = plausible::kernels::raster::check_mesh_bindings(ctx, &rmesh).and_then(|()| match rmesh.gpu_renderer() {
-                            plausible::kernels::CpuRenderer::RayCast => plausible::kernels::check_pixel_budget(ti.pixels()),
-                            plausible::kernels::CpuRenderer::Raster => plausible::kernels::check_loop_budget(&rmesh, ti.pixels()),
-                        });
-                        match budget {
+                        match plausible::kernels::check_gpu_budget(ctx, &rmesh, ti.pixels()) {
                             Ok(()) => tracing::trace_span!("gpu")
                                 .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?,
                             Err(e) => eprintln!("{name}: GPU not measured: {e}"),

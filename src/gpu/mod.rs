@@ -117,15 +117,8 @@ impl Device {
     /// CPU twin instead of being refused; `gpu`
     /// keeps the refusal. Returns the device and, when it changed, why.
     pub fn for_mesh(self, choice: DeviceChoice, mesh: &crate::kernels::RenderMesh, pixels: usize) -> (Device, Option<String>) {
-        let budget = |ctx: &Context| {
-            crate::kernels::raster::check_mesh_bindings(ctx, mesh)?;
-            match mesh.gpu_renderer() {
-                crate::kernels::CpuRenderer::RayCast => crate::kernels::check_pixel_budget(pixels),
-                crate::kernels::CpuRenderer::Raster => crate::kernels::check_loop_budget(mesh, pixels),
-            }
-        };
         match (&self, choice) {
-            (Device::Gpu(ctx), DeviceChoice::Auto) => match budget(ctx) {
+            (Device::Gpu(ctx), DeviceChoice::Auto) => match crate::kernels::check_gpu_budget(ctx, mesh, pixels) {
                 Ok(()) => (self, None),
                 Err(e) => (Device::Cpu, Some(format!("{e}; device auto: scoring on the CPU twin"))),
             },
@@ -164,7 +157,7 @@ impl Device {
 /// Lanes of 32 bits in the vector width an adapter name states ("N bits"),
 /// 16 when it states none.
 fn simd_lanes(name: &str) -> u32 {
-    let bits = name.split(" bits").next().filter(|_| name.contains(" bits")).and_then(|s| s.rsplit([' ', ',', '(']).next()).and_then(|n| n.parse::<u32>().ok());
+    let bits = name.split_once(" bits").and_then(|(head, _)| head.rsplit([' ', ',', '(']).next()?.parse::<u32>().ok());
     bits.map_or(16, |b| (b / 32).clamp(1, 64))
 }
 

@@ -67,6 +67,18 @@ pub fn check_loop_budget(mesh: &RenderMesh, pixels: usize) -> Result<()> {
     check_pixel_budget(pixels)
 }
 
+/// Refuses what the GPU cannot score with the mesh's renderer
+/// ([`RenderMesh::gpu_renderer`]) over a region of `pixels`: triangles past
+/// what the adapter binds, and the rasterizer's loop budget (meshlets and
+/// pixels) or the ray caster's (pixels).
+pub fn check_gpu_budget(ctx: &crate::gpu::Context, mesh: &RenderMesh, pixels: usize) -> Result<()> {
+    raster::check_mesh_bindings(ctx, mesh)?;
+    match mesh.gpu_renderer() {
+        CpuRenderer::RayCast => check_pixel_budget(pixels),
+        CpuRenderer::Raster => check_loop_budget(mesh, pixels),
+    }
+}
+
 /// Refuses regions larger than the GPU kernels' loop budget allows.
 pub fn check_pixel_budget(pixels: usize) -> Result<()> {
     if pixels > MAX_GPU_PIXELS {

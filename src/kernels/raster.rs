@@ -487,9 +487,10 @@ impl RasterBuffers {
 
     /// Like [`dispatch_waves`](Self::dispatch_waves) for the ray caster:
     /// per wave, `raycast` fills the slots (one workgroup per 8x8 tile of
-    /// the region and hypothesis), then `reduce` consumes them (one
-    /// workgroup per hypothesis); `traced` and `reduced` are each one's own
-    /// bindings.
+    /// the region and hypothesis, laid out by `grid`, see
+    /// [`tile_grid`](super::raycast::tile_grid)), then `reduce` consumes
+    /// them (one workgroup per hypothesis); `traced` and `reduced` are each
+    /// one's own bindings.
     #[allow(clippy::too_many_arguments)] // one call site; a struct would only rename them
     pub fn dispatch_traced_waves(
         &self,
@@ -499,17 +500,12 @@ impl RasterBuffers {
         (reduce, reduced): (&wgpu::ComputePipeline, &[wgpu::BindGroupEntry<'_>]),
         params: RasterParams,
         n: usize,
-        k: &Intrinsics,
+        (per_row, rows): (u32, u32),
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
         let waves = self.write_wave_params(ctx, params, n);
         let groups: Vec<(wgpu::BindGroup, wgpu::BindGroup)> =
             (0..waves).map(|w| (self.wave_group(ctx, raycast, w, traced, false), self.wave_group(ctx, reduce, w, reduced, false))).collect();
-        // Tiles along x, and on along z past the workgroups per dimension
-        // (the kernel skips the ones past the region).
-        let tiles = k.width.div_ceil(8) * k.height.div_ceil(8);
-        let per_row = tiles.min(ctx.limits.max_workgroups.max(1));
-        let rows = tiles.div_ceil(per_row);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("traced waves"), timestamp_writes: timestamps });
         for (w, (trace, score)) in groups.iter().enumerate() {
             pass.set_pipeline(raycast);
@@ -532,13 +528,9 @@ impl RasterBuffers {
         let slots = self.slots as usize;
         let waves = n.div_ceil(slots);
         let mut blocks = vec![0u8; waves * PARAMS_STRIDE as usize];
+        let budget = draw_budget(ctx, params.n_meshlets, params.width * params.height);
         for w in 0..waves {
-            let p = RasterParams {
-                n_hyp: n as u32,
-                first: (w * slots) as u32,
-                draw_budget: draw_budget(ctx, params.n_meshlets, params.width * params.height),
-                ..params
-            };
+            let p = RasterParams { n_hyp: n as u32, first: (w * slots) as u32, draw_budget: budget, ..params };
             let at = w * PARAMS_STRIDE as usize;
             blocks[at..at + std::mem::size_of::<RasterParams>()].copy_from_slice(bytemuck::bytes_of(&p));
         }

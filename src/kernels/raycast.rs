@@ -33,6 +33,19 @@ pub const STACK: usize = 176;
 /// Relative slack on a child box's exit distance (`BOX_SLACK`).
 const BOX_SLACK: f32 = 1.0001;
 
+/// Side of the pixel tiles `raycast_main` takes per workgroup (`TILE`).
+pub const TILE: u32 = 8;
+
+/// The ray caster's workgroup grid for region `k`: (tiles along x, rows of
+/// them along z) so that neither passes `max_workgroups` per dimension, or
+/// `None` when the region has more tiles than the adapter can dispatch.
+pub fn tile_grid(k: &Intrinsics, max_workgroups: u32) -> Option<(u32, u32)> {
+    let tiles = k.width.div_ceil(TILE) * k.height.div_ceil(TILE);
+    let per_row = tiles.min(max_workgroups.max(1));
+    let rows = tiles.div_ceil(per_row);
+    (rows <= max_workgroups).then_some((per_row, rows))
+}
+
 /// A mesh's CWBVH as the kernel reads it.
 #[derive(Clone, Debug, Default)]
 pub struct GpuBvh {

@@ -222,6 +222,8 @@ pub struct GpuScorer {
 /// (`shaders/raycast.wgsl`) fills the visibility slots, then
 /// `score_traced_main` scores them.
 struct TracedStage {
+    /// Workgroups of a wave's ray-casting dispatch (`raycast::tile_grid`).
+    grid: (u32, u32),
     nodes: wgpu::Buffer,
     prims: wgpu::Buffer,
     /// One word, set by a ray that ran out of budget or stack.
@@ -231,7 +233,9 @@ struct TracedStage {
 }
 
 impl TracedStage {
-    fn new(ctx: &Context, bvh: &super::raycast::GpuBvh) -> Result<Self> {
+    fn new(ctx: &Context, bvh: &super::raycast::GpuBvh, k: &crate::camera::Intrinsics) -> Result<Self> {
+        let grid = super::raycast::tile_grid(k, ctx.limits.max_workgroups)
+            .ok_or_else(|| Error::Gpu(format!("the adapter dispatches too few workgroups for a {}x{} region in tiles of 8x8 pixels", k.width, k.height)))?;
         use wgpu::util::DeviceExt;
         let limit = ctx.limits.max_storage_binding.min(ctx.limits.max_buffer);
         if (bvh.nodes.len() * 4) as u64 > limit {
@@ -242,6 +246,7 @@ impl TracedStage {
         };
         let read = wgpu::BufferUsages::STORAGE;
         Ok(TracedStage {
+            grid,
             nodes: init("bvh nodes", &bvh.nodes, read),
             prims: init("bvh primitives", &bvh.prims, read),
             overflow: init("ray overflow", &[0], read | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC),
@@ -255,7 +260,11 @@ impl TracedStage {
 /// (`OVER_BUDGET` in score.wgsl).
 const OVER_BUDGET: u32 = u32::MAX;
 
-/// The error of a chunk in which a ray ran out of its budget.
+/// What one chunk gives: the score records, the plane stage's output when
+/// the scorer has one, and the stage times.
+type ChunkOut = (Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes);
+
+/// Why a ray-cast chunk is drawn another way.
 const RAY_OVERFLOW: &str = "a ray through the mesh's BVH visited more nodes than the GPU allows (surfaces overlapping many times over)";
 
 /// Target of the GPU-time events in a `--trace` (see [`trace_gpu_time`]).
@@ -345,21 +354,16 @@ impl GpuScorer {
         let traced = match physics {
             None if mesh.gpu_renderer() == super::CpuRenderer::RayCast => {
                 let caster = mesh.ray_caster().expect("chosen only when built");
-                Some(TracedStage::new(ctx, &caster.gpu_layout())?)
+                super::check_pixel_budget(k.pixels())?;
+                let stage = TracedStage::new(ctx, &caster.gpu_layout(), &k)?;
+                tracing::info!("GPU renderer: the BVH ray caster ({} triangles)", mesh.triangles.len());
+                Some(stage)
             }
             _ => {
                 super::check_loop_budget(mesh, k.pixels())?;
                 None
             }
         };
-        if traced.is_some() {
-            super::check_pixel_budget(k.pixels())?;
-            let tiles = k.width.div_ceil(8) * k.height.div_ceil(8);
-            if tiles.div_ceil(ctx.limits.max_workgroups.max(1)) > ctx.limits.max_workgroups {
-                return Err(Error::Gpu(format!("the adapter dispatches too few workgroups for {tiles} tiles of 8x8 pixels")));
-            }
-            tracing::info!("GPU renderer: the BVH ray caster ({} triangles)", mesh.triangles.len());
-        }
         let words = physics.map_or(0, |(p, _)| p.words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
@@ -531,33 +535,25 @@ impl GpuScorer {
         Ok(Some(total))
     }
 
-    /// One chunk: the score records, the plane stage's output when the
-    /// scorer has one, and the stage times; with `timestamps` the GPU time
-    /// of the pass too.
-    #[allow(clippy::type_complexity)]
-    fn run_chunk(
-        &self,
-        chunk: &[Pose],
-        raster_only: bool,
-        timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
-    ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
-        let mut out = match self.run_chunk_with(chunk, raster_only, self.traced.as_ref(), timestamps) {
-            // A ray out of budget leaves its pixels empty: the chunk is
-            // rasterized instead where the mesh allows, else scored by the
-            // twin.
-            Err(Error::Gpu(m)) if m == RAY_OVERFLOW => {
-                if super::check_loop_budget(&self.mesh, self.target_intrinsics.pixels()).is_ok() {
-                    tracing::warn!("{RAY_OVERFLOW}: rasterizing these {} hypotheses instead", chunk.len());
-                    self.run_chunk_with(chunk, raster_only, None, timestamps)
-                } else {
-                    tracing::warn!("{RAY_OVERFLOW}: scoring these {} hypotheses on the CPU", chunk.len());
-                    let t = Instant::now();
-                    let records = score_cpu(&self.mesh, &self.target, chunk, &self.params);
-                    Ok((records, None, StageTimes { compute: t.elapsed(), ..Default::default() }))
-                }
+    /// One chunk ([`ChunkOut`]); with `timestamps` the GPU time of the
+    /// pass too. What the GPU could not draw within lavapipe's loop cap is
+    /// drawn another way: a chunk in which a ray visited too many nodes is
+    /// rasterized where the mesh allows, else scored by the twin, and
+    /// hypotheses the rasterizer marked over its budget by the twin.
+    fn run_chunk(&self, chunk: &[Pose], raster_only: bool, timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>) -> Result<ChunkOut> {
+        let mut out = match self.run_chunk_with(chunk, raster_only, self.traced.as_ref(), timestamps)? {
+            Some(out) => out,
+            None if super::check_loop_budget(&self.mesh, self.target_intrinsics.pixels()).is_ok() => {
+                tracing::warn!("{RAY_OVERFLOW}: rasterizing these {} hypotheses instead", chunk.len());
+                self.run_chunk_with(chunk, raster_only, None, timestamps)?.expect("only the ray caster overflows")
             }
-            r => r,
-        }?;
+            None => {
+                tracing::warn!("{RAY_OVERFLOW}: scoring these {} hypotheses on the CPU", chunk.len());
+                let t = Instant::now();
+                let records = score_cpu(&self.mesh, &self.target, chunk, &self.params);
+                (records, None, StageTimes { compute: t.elapsed(), ..Default::default() })
+            }
+        };
         // Hypotheses the rasterizer marked over its loop budget (triangles
         // overlapping many times over): scored by the twin instead.
         let over: Vec<usize> = (0..out.0.len()).filter(|&i| out.0[i].valid == OVER_BUDGET).collect();
@@ -571,13 +567,15 @@ impl GpuScorer {
         Ok(out)
     }
 
+    /// One chunk through the ray caster (`traced`) or the rasterizer;
+    /// `None` when a ray ran out of nodes (its pixels were left empty).
     fn run_chunk_with(
         &self,
         chunk: &[Pose],
         raster_only: bool,
         traced: Option<&TracedStage>,
         timestamps: Option<&(wgpu::QuerySet, wgpu::Buffer)>,
-    ) -> Result<(Vec<ScoreRecord>, Option<PlaneContactOutput>, StageTimes)> {
+    ) -> Result<Option<ChunkOut>> {
         let ctx = &self.ctx;
         let mut times = StageTimes::default();
         let upload = tracing::trace_span!("upload", hypotheses = chunk.len()).entered();
@@ -605,6 +603,10 @@ impl GpuScorer {
             beginning_of_pass_write_index: Some(0),
             end_of_pass_write_index: Some(1),
         });
+        let scored = [
+            wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
+        ];
         if raster_only {
             self.bufs.dispatch_waves(ctx, &mut enc, &self.raster_pipeline, &[], params, chunk.len(), timestamp_writes);
         } else if let Some(st) = traced {
@@ -614,25 +616,18 @@ impl GpuScorer {
                 wgpu::BindGroupEntry { binding: 12, resource: st.prims.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 13, resource: st.overflow.as_entire_binding() },
             ];
-            let reduced = [
-                wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
-            ];
             self.bufs.dispatch_traced_waves(
                 ctx,
                 &mut enc,
                 (&st.raycast, &traced_entries),
-                (&st.reduce, &reduced),
+                (&st.reduce, &scored),
                 params,
                 chunk.len(),
-                &self.target_intrinsics,
+                st.grid,
                 timestamp_writes,
             );
         } else {
-            let mut extra = vec![
-                wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
-            ];
+            let mut extra = scored.to_vec();
             let pipeline = match &self.plane {
                 Some(st) => {
                     extra.extend([
@@ -663,7 +658,7 @@ impl GpuScorer {
         }
         drop(dispatch);
         if raster_only {
-            return Ok((Vec::new(), None, times));
+            return Ok(Some((Vec::new(), None, times)));
         }
 
         let _readback = tracing::trace_span!("readback", hypotheses = chunk.len()).entered();
@@ -671,7 +666,7 @@ impl GpuScorer {
         if let Some(st) = traced {
             let flag = ctx.read_buffer(&st.overflow, 4)?;
             if bytemuck::cast_slice::<u8, u32>(&flag)[0] != 0 {
-                return Err(Error::Gpu(RAY_OVERFLOW.into()));
+                return Ok(None);
             }
         }
         let size = (chunk.len() * std::mem::size_of::<ScoreRecord>()) as u64;
@@ -690,7 +685,7 @@ impl GpuScorer {
             None => None,
         };
         times.readback = t2.elapsed();
-        Ok((recs, plane, times))
+        Ok(Some((recs, plane, times)))
     }
 }
 

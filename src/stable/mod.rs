@@ -261,9 +261,9 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
 /// plane at every corner, so the support polygon is the whole face, and the
 /// shape is unchanged. Four corners per piece keeps the pieces few: every
 /// piece touching the plane is one more collider pair and contact
-/// constraint at every step (and pieces are switched on only near the
-/// ground: `drop::update_pieces`) (one thin tetrahedron per corner, drop
-/// [`DROP_REVISION`] 1, made steps 1.3-3.4× dearer). The pieces are separate
+/// constraint at every step (one thin tetrahedron per corner, drop
+/// [`DROP_REVISION`] 1, made steps 1.3-3.4× dearer), and pieces take part
+/// only near the ground (`drop::update_pieces`). The pieces are separate
 /// colliders on the body (not one compound shape: rapier's
 /// compound-vs-half-space path let a cylinder on its side sink and roll
 /// forever in our tests).
