@@ -43,16 +43,42 @@ struct GpuMeshlet { sphere: vec4<f32>, cone: vec4<f32>, first: u32, count: u32, 
 struct GpuPose { r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32> }
 
 @group(0) @binding(0) var<uniform> params: RasterParams;
-@group(0) @binding(1) var<storage, read> tris: array<GpuTriangle>;
+// The triangles as texels (GpuTriangle's four vec4s side by side,
+// TRI_ROW triangles per row): on lavapipe a texel fetch is a vector
+// gather, while a storage-buffer load runs lane by lane.
+@group(0) @binding(1) var tris: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> poses: array<GpuPose>;
 @group(0) @binding(3) var<storage, read_write> vis: array<atomic<u32>>;
-@group(0) @binding(10) var<storage, read> meshlets: array<GpuMeshlet>;
+// The meshlet table as texels (GpuMeshlet's three 16-byte words side by
+// side, MESHLET_ROW meshlets per row; floats bit-cast).
+@group(0) @binding(10) var meshlets: texture_2d<u32>;
 
 // Invocations per workgroup: 64 measured fastest on lavapipe (fewer
 // reduction steps per hypothesis) and is a full warp/wavefront on GPUs.
 const WG: u32 = 64u;
 const EMPTY: u32 = 0u;
 const BIG: i32 = 0x7fffffff;
+// Triangles per row of the triangle texture (kernels/raster.rs TRI_ROW).
+const TRI_ROW: u32 = 1024u;
+
+// Meshlets per row of the meshlet texture (kernels/raster.rs MESHLET_ROW).
+const MESHLET_ROW: u32 = 1024u;
+
+// Word k (0: sphere, 1: cone, 2: first, count, first_vertex,
+// vertex_count) of meshlet m.
+fn meshlet_texel(m: u32, k: u32) -> vec4<u32> {
+    return textureLoad(meshlets, vec2<u32>((m % MESHLET_ROW) * 3u + k, m / MESHLET_ROW), 0);
+}
+
+fn meshlet(m: u32) -> GpuMeshlet {
+    let s = meshlet_texel(m, 2u);
+    return GpuMeshlet(bitcast<vec4<f32>>(meshlet_texel(m, 0u)), bitcast<vec4<f32>>(meshlet_texel(m, 1u)), s.x, s.y, s.z, s.w);
+}
+
+// Texel k (0-2: vertices v0-v2, 3: plane) of triangle t.
+fn tri_texel(t: u32, k: u32) -> vec4<f32> {
+    return textureLoad(tris, vec2<u32>((t % TRI_ROW) * 4u + k, t / TRI_ROW), 0);
+}
 
 // Tight rectangle of what was drawn: (min x, min y, max x, max y).
 var<workgroup> drawn: array<atomic<i32>, 4>;
@@ -174,13 +200,13 @@ struct Setup {
 fn setup_triangle(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
     var s: Setup;
     s.ok = false;
-    let plane = tris[t].plane;
+    let plane = tri_texel(t, 3u);
     if (params.cull != 0u && dot(plane.xyz, cam) <= plane.w) {
         return s; // back face of a closed mesh
     }
-    let a = transform(p, tris[t].v0.xyz);
-    let b = transform(p, tris[t].v1.xyz);
-    let c = transform(p, tris[t].v2.xyz);
+    let a = transform(p, tri_texel(t, 0u).xyz);
+    let b = transform(p, tri_texel(t, 1u).xyz);
+    let c = transform(p, tri_texel(t, 2u).xyz);
     if (min(a.z, min(b.z, c.z)) < params.near) {
         return s;
     }
@@ -300,7 +326,7 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
         }
         workgroupBarrier();
         let mine = round + lid;
-        if (lid < PER_ROUND && mine < params.n_meshlets && meshlet_visible(meshlets[mine], p, cam, first, last)) {
+        if (lid < PER_ROUND && mine < params.n_meshlets && meshlet_visible(meshlet(mine), p, cam, first, last)) {
             atomicOr(&keep[lid / 32u], 1u << (lid % 32u));
         }
         workgroupBarrier();
@@ -310,10 +336,14 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
             if (m >= params.n_meshlets) {
                 break;
             }
-            if ((kept[k / 32u] & (1u << (k % 32u))) == 0u || lid >= meshlets[m].count) {
+            if ((kept[k / 32u] & (1u << (k % 32u))) == 0u) {
                 continue;
             }
-            let t = meshlets[m].first + lid;
+            let span = meshlet_texel(m, 2u).xy; // first, count
+            if (lid >= span.y) {
+                continue;
+            }
+            let t = span.x + lid;
             let s = setup_triangle(p, t, cam, first, last);
             if (!s.ok) {
                 continue;
@@ -393,7 +423,7 @@ fn resolve(p: GpuPose, key: u32, x: f32, y: f32) -> vec4<f32> {
         return vec4<f32>(0.0);
     }
     let id_mask = (1u << params.id_bits) - 1u;
-    let plane = tris[key & id_mask].plane;
+    let plane = tri_texel(key & id_mask, 3u);
     let n = rotate(p, plane.xyz);
     let d = plane.w + dot(n, vec3<f32>(p.r0.w, p.r1.w, p.r2.w));
     let ray = vec3<f32>((x - params.cx) / params.fx, (y - params.cy) / params.fy, 1.0);

@@ -26,13 +26,17 @@
 // 5 primitive_base_idx, 6-7 child_meta[8], 8-9 child_min_x[8],
 // 10-11 child_max_x, 12-13 child_min_y, 14-15 child_max_y, 16-17 child_min_z,
 // 18-19 child_max_z (bytes little-endian).
-@group(0) @binding(11) var<storage, read> nodes: array<u32>;
+// As texels: five per node (the words four by four), NODE_ROW nodes per
+// row, so a node is read with five vector gathers on lavapipe instead of
+// a loop over lanes per word (kernels/raycast.rs NODE_ROW).
+@group(0) @binding(11) var nodes: texture_2d<u32>;
 // The render mesh's triangle id of each BVH primitive.
 @group(0) @binding(12) var<storage, read> prims: array<u32>;
 // Set to 1 when a ray ran out of budget or stack (the host then rasterizes).
 @group(0) @binding(13) var<storage, read_write> overflow: array<atomic<u32>>;
 
-const NODE_WORDS: u32 = 20u;
+// Nodes per row of the node texture (kernels/raycast.rs NODE_ROW).
+const NODE_ROW: u32 = 1024u;
 const TILE: u32 = 8u;
 // Nodes one ray may visit: 1,400 * 41 = 57,400 iterations.
 const MAX_NODES: u32 = 1400u;
@@ -43,18 +47,23 @@ const STACK: u32 = 176u;
 // a box the hit lies on (flat boxes, rays along a face).
 const BOX_SLACK: f32 = 1.0001;
 
-// Byte b of the two words starting at w of node n.
-fn node_byte(n: u32, w: u32, b: u32) -> u32 {
-    return (nodes[n * NODE_WORDS + w + b / 4u] >> ((b % 4u) * 8u)) & 0xffu;
+// Texel k (words 4k..4k+3) of node n.
+fn node_texel(n: u32, k: u32) -> vec4<u32> {
+    return textureLoad(nodes, vec2<u32>((n % NODE_ROW) * 5u + k, n / NODE_ROW), 0);
+}
+
+// Byte b (0-7) of the little-endian word pair (lo, hi).
+fn pair_byte(lo: u32, hi: u32, b: u32) -> u32 {
+    return (select(hi, lo, b < 4u) >> ((b % 4u) * 8u)) & 0xffu;
 }
 
 // Nearest hit of the ray (o, d) with triangle t beyond near and before
 // best: its distance, or best (Möller–Trumbore in obvhs's edge layout:
 // e1 = v0 - v1, e2 = v2 - v0, ng = e1 x e2, front faces have det > 0).
 fn hit_triangle(t: u32, o: vec3<f32>, d: vec3<f32>, best: f32) -> f32 {
-    let v0 = tris[t].v0.xyz;
-    let e1 = v0 - tris[t].v1.xyz;
-    let e2 = tris[t].v2.xyz - v0;
+    let v0 = tri_texel(t, 0u).xyz;
+    let e1 = v0 - tri_texel(t, 1u).xyz;
+    let e2 = tri_texel(t, 2u).xyz - v0;
     let ng = cross(e1, e2);
     let c = v0 - o;
     let r = cross(d, c);
@@ -127,23 +136,27 @@ fn raycast_main(
         }
         sp -= 1u;
         let n = stack[sp];
-        let at = n * NODE_WORDS;
-        let np = vec3<f32>(bitcast<f32>(nodes[at]), bitcast<f32>(nodes[at + 1u]), bitcast<f32>(nodes[at + 2u]));
-        let w3 = nodes[at + 3u];
+        let n0 = node_texel(n, 0u);
+        let n1 = node_texel(n, 1u);
+        let nx = node_texel(n, 2u);
+        let ny = node_texel(n, 3u);
+        let nz = node_texel(n, 4u);
+        let np = bitcast<vec3<f32>>(n0.xyz);
+        let w3 = n0.w;
         let scale = vec3<f32>(bitcast<f32>((w3 & 0xffu) << 23u), bitcast<f32>(((w3 >> 8u) & 0xffu) << 23u), bitcast<f32>(((w3 >> 16u) & 0xffu) << 23u));
         let imask = w3 >> 24u;
-        let child_base = nodes[at + 4u];
-        let prim_base = nodes[at + 5u];
+        let child_base = n1.x;
+        let prim_base = n1.y;
         // Bit k: the child in slot k ^ oct is an inner node the ray enters.
         var enter = 0u;
         for (var k = 8u; k > 0u; k--) {
             let c = (k - 1u) ^ oct;
-            let info = node_byte(n, 6u, c);
+            let info = pair_byte(n1.z, n1.w, c);
             if (info == 0u) {
                 continue;
             }
-            let qlo = vec3<f32>(f32(node_byte(n, 8u, c)), f32(node_byte(n, 12u, c)), f32(node_byte(n, 16u, c)));
-            let qhi = vec3<f32>(f32(node_byte(n, 10u, c)), f32(node_byte(n, 14u, c)), f32(node_byte(n, 18u, c)));
+            let qlo = vec3<f32>(f32(pair_byte(nx.x, nx.y, c)), f32(pair_byte(ny.x, ny.y, c)), f32(pair_byte(nz.x, nz.y, c)));
+            let qhi = vec3<f32>(f32(pair_byte(nx.z, nx.w, c)), f32(pair_byte(ny.z, ny.w, c)), f32(pair_byte(nz.z, nz.w, c)));
             let t0 = (np + scale * qlo - o) * inv;
             let t1 = (np + scale * qhi - o) * inv;
             let tn = min(t0, t1);

@@ -19,8 +19,10 @@ struct ScoreRecord {
     rendered: u32, observed: u32, front: u32, behind: u32,
 }
 
-// Observed normal (xyz, zero if unknown) and depth (w, zero if invalid).
-@group(0) @binding(4) var<storage, read> observed: array<vec4<f32>>;
+// Observed normal (xyz, zero if unknown) and depth (w, zero if invalid),
+// one texel per region pixel (a texel fetch is a vector gather on
+// lavapipe, a storage-buffer load a loop over lanes).
+@group(0) @binding(4) var observed: texture_2d<f32>;
 @group(0) @binding(5) var<storage, read_write> records: array<ScoreRecord>;
 
 // `valid` of a hypothesis the rasterizer could not draw within its budget.
@@ -84,9 +86,11 @@ fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: 
             if (key == EMPTY) {
                 continue;
             }
-            let obs = observed[i];
-            let x = f32(i % params.width);
-            let y = f32(i / params.width);
+            let xi = i % params.width;
+            let yi = i / params.width;
+            let obs = textureLoad(observed, vec2<u32>(xi, yi), 0);
+            let x = f32(xi);
+            let y = f32(yi);
             if (obs.w <= 0.0) {
                 // Only where another object is: hidden behind it?
                 if (obs.w < 0.0 && resolve(p, key, x, y).w > -obs.w) {

@@ -178,6 +178,9 @@ pub struct Context {
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
     pub limits: BatchLimits,
+    /// Largest side of a 2D texture: the visual kernels read their
+    /// read-only tables (triangles, meshlets, the observation) as textures.
+    pub max_texture_dim: u32,
     /// Whether the device records GPU timestamps (used by `bench` for the
     /// per-stage split; wall clock is reported beside them).
     pub timestamps: bool,
@@ -191,11 +194,11 @@ impl std::fmt::Debug for Context {
     }
 }
 
-/// Storage buffers the largest kernel binds (score with the plane stage:
-/// triangles, meshlets, poses, visibility, observation, records, samples,
-/// contact records and support bits). Desktop Vulkan, Metal and DX12
-/// adapters offer far more; WebGPU's default is 8.
-const STORAGE_BUFFERS: u32 = 9;
+/// Storage buffers the largest kernels bind (score with the plane stage:
+/// poses, visibility, records, samples, contact records and support bits;
+/// the triangles, meshlets and observation are textures). Desktop Vulkan,
+/// Metal and DX12 adapters offer far more; WebGPU's default is 8.
+const STORAGE_BUFFERS: u32 = 6;
 
 impl Context {
     /// Opens a device. Backends: `WGPU_BACKEND` when set, otherwise the
@@ -238,6 +241,7 @@ impl Context {
         let mut required = wgpu::Limits::downlevel_defaults();
         required.max_storage_buffer_binding_size = alimits.max_storage_buffer_binding_size;
         required.max_buffer_size = alimits.max_buffer_size;
+        required.max_texture_dimension_2d = alimits.max_texture_dimension_2d;
         required.max_compute_workgroups_per_dimension = alimits.max_compute_workgroups_per_dimension;
         required.max_compute_invocations_per_workgroup = alimits.max_compute_invocations_per_workgroup.min(256);
         required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
@@ -265,7 +269,7 @@ impl Context {
         }
         tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
         let timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
-        Ok(Context { device, queue, info, limits, timestamps, cache: Default::default() })
+        Ok(Context { device, queue, info, limits, max_texture_dim: required.max_texture_dimension_2d, timestamps, cache: Default::default() })
     }
 
     /// A one-line description: adapter name and backend.

@@ -66,9 +66,9 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     if samples.is_empty() {
         return Err(Error::InvalidInput("the body has no surface samples".into()));
     }
-    // raster (tris, poses, vis) + score (observed, records) + this stage
-    // (samples, records, bits).
-    let needed = 8;
+    // raster (poses, vis) + score (records) + this stage (samples,
+    // records, bits); the triangles, meshlets and observation are textures.
+    let needed = 6;
     let have = ctx.device.limits().max_storage_buffers_per_shader_stage;
     if have < needed {
         return Err(Error::Gpu(format!(

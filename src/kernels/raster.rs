@@ -368,15 +368,15 @@ pub fn draw_budget(ctx: &Context, n_meshlets: u32, pixels: u32) -> u32 {
 }
 
 /// Refuses a mesh whose triangle or meshlet table is larger than the
-/// adapter can bind.
+/// adapter's textures hold (`TRI_ROW` triangles per row: 16.7M triangles
+/// on an adapter with 16,384-texel textures).
 pub fn check_mesh_bindings(ctx: &Context, mesh: &RenderMesh) -> Result<()> {
-    let lim = ctx.limits;
-    let tri_bytes = (mesh.triangles.len() * std::mem::size_of::<GpuTriangle>()) as u64;
-    let meshlet_bytes = (mesh.meshlets.len() * std::mem::size_of::<GpuMeshlet>()) as u64;
-    if tri_bytes.max(meshlet_bytes) > lim.max_storage_binding.min(lim.max_buffer) {
+    let rows = mesh.triangles.len().div_ceil(TRI_ROW).max(mesh.meshlets.len().div_ceil(MESHLET_ROW));
+    if rows > ctx.max_texture_dim as usize {
         return Err(Error::Gpu(format!(
-            "mesh needs {tri_bytes} bytes of triangles but the adapter binds at most {} bytes: decimate it",
-            lim.max_storage_binding
+            "mesh has {} triangles but the adapter's textures hold at most {}: decimate it",
+            mesh.triangles.len(),
+            TRI_ROW * ctx.max_texture_dim as usize
         )));
     }
     Ok(())
@@ -385,8 +385,8 @@ pub fn check_mesh_bindings(ctx: &Context, mesh: &RenderMesh) -> Result<()> {
 /// GPU buffers a visual kernel needs for one mesh and image size.
 pub(crate) struct RasterBuffers {
     pub params: wgpu::Buffer,
-    pub tris: wgpu::Buffer,
-    pub meshlets: wgpu::Buffer,
+    pub tris: wgpu::TextureView,
+    pub meshlets: wgpu::TextureView,
     pub poses: wgpu::Buffer,
     pub vis: wgpu::Buffer,
     /// Hypotheses per dispatch.
@@ -403,7 +403,6 @@ impl RasterBuffers {
     /// Sizes the buffers so every binding fits the adapter's limits;
     /// `per_hyp_bytes` is what each hypothesis adds to the largest output.
     pub fn new(ctx: &Context, mesh: &RenderMesh, k: &Intrinsics, n: usize, per_hyp_bytes: u64, max_chunk: usize) -> Result<Self> {
-        use wgpu::util::DeviceExt;
         let lim = ctx.limits;
         let pix = k.pixels() as u64;
         check_mesh_bindings(ctx, mesh)?;
@@ -426,16 +425,8 @@ impl RasterBuffers {
             .min((lim.max_storage_binding.min(lim.max_buffer).min(budget) / (pix * 4)).max(1))
             .max(1) as u32;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let tris = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("triangles"),
-            contents: bytemuck::cast_slice(&mesh.triangles),
-            usage: storage,
-        });
-        let meshlets = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("meshlets"),
-            contents: bytemuck::cast_slice(&mesh.meshlets),
-            usage: storage,
-        });
+        let tris = texel_table(ctx, "triangles", &mesh.triangles, TRI_ROW, wgpu::TextureFormat::Rgba32Float);
+        let meshlets = texel_table(ctx, "meshlets", &mesh.meshlets, MESHLET_ROW, wgpu::TextureFormat::Rgba32Uint);
         // One parameter block per wave, each at a uniform-offset boundary.
         let waves = (chunk as u64).div_ceil(slots as u64);
         let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -550,17 +541,51 @@ impl RasterBuffers {
                     size: std::num::NonZeroU64::new(std::mem::size_of::<RasterParams>() as u64),
                 }),
             },
-            wgpu::BindGroupEntry { binding: 1, resource: self.tris.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&self.tris) },
             wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
         ];
         if meshlets {
-            entries.push(wgpu::BindGroupEntry { binding: MESHLETS_BINDING, resource: self.meshlets.as_entire_binding() });
+            entries.push(wgpu::BindGroupEntry { binding: MESHLETS_BINDING, resource: wgpu::BindingResource::TextureView(&self.meshlets) });
         }
         entries.extend(extra.iter().cloned());
         let layout = pipeline.get_bind_group_layout(0);
         ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("wave"), layout: &layout, entries: &entries })
     }
+}
+
+/// Triangles per row of the triangle texture (`TRI_ROW` in raster.wgsl).
+pub const TRI_ROW: usize = 1024;
+/// Meshlets per row of the meshlet texture (`MESHLET_ROW` in raster.wgsl).
+pub const MESHLET_ROW: usize = 1024;
+
+/// A read-only table as a texture of 16-byte texels: `per_row` items per
+/// row, each item's texels side by side, the last row zero-padded. On
+/// lavapipe a texel fetch is a vector gather, where a storage-buffer load
+/// runs lane by lane with a branch and a bounds check each.
+pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &[T], per_row: usize, format: wgpu::TextureFormat) -> wgpu::TextureView {
+    use wgpu::util::DeviceExt;
+    let texels = std::mem::size_of::<T>() / 16;
+    debug_assert_eq!(texels * 16, std::mem::size_of::<T>());
+    let rows = items.len().div_ceil(per_row).max(1);
+    let mut data = items.to_vec();
+    data.resize(rows * per_row, bytemuck::Zeroable::zeroed());
+    let texture = ctx.device.create_texture_with_data(
+        &ctx.queue,
+        &wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d { width: (per_row * texels) as u32, height: rows as u32, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        },
+        wgpu::util::TextureDataOrder::LayerMajor,
+        bytemuck::cast_slice(&data),
+    );
+    texture.create_view(&Default::default())
 }
 
 /// Binding of the meshlet table in raster.wgsl (after every kernel's own

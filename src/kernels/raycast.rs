@@ -24,6 +24,9 @@ pub const RAYCAST_WGSL: &str = concat!(include_str!("../../shaders/raster.wgsl")
 
 /// u32 words per CWBVH node (obvhs's `CwBvhNode`, 80 bytes).
 pub const NODE_WORDS: usize = 20;
+/// Nodes per row of the node texture (`NODE_ROW` in raycast.wgsl): five
+/// RGBA32Uint texels each.
+pub const NODE_ROW: usize = 1024;
 /// Nodes one ray may visit (`MAX_NODES` in raycast.wgsl): each costs a
 /// SIMD vector of lavapipe at most 41 loop iterations, and 1,400 * 41 stays
 /// under its 65,535 per vector.

@@ -207,7 +207,8 @@ pub struct GpuScorer {
     bufs: RasterBuffers,
     records: wgpu::Buffer,
     staging: wgpu::Buffer,
-    observed: wgpu::Buffer,
+    /// The observation as a texture (`observed` in score.wgsl) and its view.
+    observed: (wgpu::Texture, wgpu::TextureView),
     pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     raster_pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     /// Timestamp query set and its resolve buffer, when enabled.
@@ -224,7 +225,8 @@ pub struct GpuScorer {
 struct TracedStage {
     /// Workgroups of a wave's ray-casting dispatch (`raycast::tile_grid`).
     grid: (u32, u32),
-    nodes: wgpu::Buffer,
+    /// The BVH's nodes as a texture (`nodes` in raycast.wgsl).
+    nodes: wgpu::TextureView,
     prims: wgpu::Buffer,
     /// One word, set by a ray that ran out of budget or stack.
     overflow: wgpu::Buffer,
@@ -238,8 +240,9 @@ impl TracedStage {
             .ok_or_else(|| Error::Gpu(format!("the adapter dispatches too few workgroups for a {}x{} region in tiles of 8x8 pixels", k.width, k.height)))?;
         use wgpu::util::DeviceExt;
         let limit = ctx.limits.max_storage_binding.min(ctx.limits.max_buffer);
-        if (bvh.nodes.len() * 4) as u64 > limit {
-            return Err(Error::Gpu(format!("the mesh's BVH needs {} bytes but the adapter binds at most {limit}", bvh.nodes.len() * 4)));
+        let n_nodes = bvh.nodes.len() / super::raycast::NODE_WORDS;
+        if n_nodes.div_ceil(super::raycast::NODE_ROW) > ctx.max_texture_dim as usize || (bvh.prims.len() * 4) as u64 > limit {
+            return Err(Error::Gpu(format!("the mesh's BVH ({n_nodes} nodes, {} primitives) is larger than this adapter's textures and bindings hold", bvh.prims.len())));
         }
         let init = |label, words: &[u32], usage| {
             ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(words), usage })
@@ -247,7 +250,7 @@ impl TracedStage {
         let read = wgpu::BufferUsages::STORAGE;
         Ok(TracedStage {
             grid,
-            nodes: init("bvh nodes", &bvh.nodes, read),
+            nodes: super::raster::texel_table::<[u32; 20]>(ctx, "bvh nodes", bytemuck::cast_slice(&bvh.nodes), super::raycast::NODE_ROW, wgpu::TextureFormat::Rgba32Uint),
             prims: init("bvh primitives", &bvh.prims, read),
             overflow: init("ray overflow", &[0], read | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC),
             raycast: ctx.pipeline("raycast", super::raycast::RAYCAST_WGSL, "raycast_main"),
@@ -301,6 +304,38 @@ fn trace_gpu_time(ctx: &Context, gpu: Duration, hypotheses: usize) {
     );
 }
 
+/// The observation as an RGBA32F texture of the region's size (normal,
+/// depth; `ScoreTarget::packed`).
+fn observed_texture(ctx: &Context, target: &ScoreTarget) -> Result<(wgpu::Texture, wgpu::TextureView)> {
+    let k = target.intrinsics;
+    if k.width.max(k.height) > ctx.max_texture_dim {
+        return Err(Error::Gpu(format!("a {}x{} region is too large for this adapter's textures (at most {} a side)", k.width, k.height, ctx.max_texture_dim)));
+    }
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("observed"),
+        size: wgpu::Extent3d { width: k.width, height: k.height, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    write_observed(ctx, &texture, target);
+    let view = texture.create_view(&Default::default());
+    Ok((texture, view))
+}
+
+fn write_observed(ctx: &Context, texture: &wgpu::Texture, target: &ScoreTarget) {
+    let k = target.intrinsics;
+    ctx.queue.write_texture(
+        texture.as_image_copy(),
+        bytemuck::cast_slice(&target.packed()),
+        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(k.width * 16), rows_per_image: Some(k.height) },
+        wgpu::Extent3d { width: k.width, height: k.height, depth_or_array_layers: 1 },
+    );
+}
+
 /// Default most hypotheses per dispatch: keeps each submission short (the
 /// OS watchdog on desktop GPUs) and memory bounded for any N.
 pub const DEFAULT_MAX_CHUNK: usize = 4096;
@@ -348,7 +383,6 @@ impl GpuScorer {
         max_chunk: usize,
         physics: Option<(&PlaneParams, &[[f32; 4]])>,
     ) -> Result<Self> {
-        use wgpu::util::DeviceExt;
         let _span = tracing::trace_span!("gpu_setup").entered();
         let k = target.intrinsics;
         let traced = match physics {
@@ -367,12 +401,7 @@ impl GpuScorer {
         let words = physics.map_or(0, |(p, _)| p.words as usize);
         let per_hyp = (std::mem::size_of::<ScoreRecord>() as u64).max(words as u64 * 4);
         let bufs = RasterBuffers::new(ctx, mesh, &k, n_hint, per_hyp, max_chunk)?;
-        let obs = target.packed();
-        let observed = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("observed"),
-            contents: bytemuck::cast_slice(&obs),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-        });
+        let observed = observed_texture(ctx, target)?;
         let rec_bytes = (bufs.chunk * std::mem::size_of::<ScoreRecord>()) as u64;
         let records = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("records"),
@@ -433,7 +462,7 @@ impl GpuScorer {
         if target.intrinsics != self.target_intrinsics || target.observed_pixels() as u32 != self.n_obs {
             return Err(Error::InvalidInput("a scorer's observation can only change its occluders, not its region or observed pixels".into()));
         }
-        self.ctx.queue.write_buffer(&self.observed, 0, bytemuck::cast_slice(&target.packed()));
+        write_observed(&self.ctx, &self.observed.0, target);
         self.target = target.clone();
         Ok(())
     }
@@ -604,7 +633,7 @@ impl GpuScorer {
             end_of_pass_write_index: Some(1),
         });
         let scored = [
-            wgpu::BindGroupEntry { binding: 4, resource: self.observed.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(&self.observed.1) },
             wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
         ];
         if raster_only {
@@ -612,7 +641,7 @@ impl GpuScorer {
         } else if let Some(st) = traced {
             ctx.queue.write_buffer(&st.overflow, 0, bytemuck::bytes_of(&0u32));
             let traced_entries = [
-                wgpu::BindGroupEntry { binding: 11, resource: st.nodes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 11, resource: wgpu::BindingResource::TextureView(&st.nodes) },
                 wgpu::BindGroupEntry { binding: 12, resource: st.prims.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 13, resource: st.overflow.as_entire_binding() },
             ];
