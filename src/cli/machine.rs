@@ -21,6 +21,11 @@ pub struct Machine {
     pub adapter: Option<String>,
     pub backend: Option<String>,
     pub driver: Option<String>,
+    /// `GALLIUM_OVERRIDE_CPU_CAPS` when set: Mesa's software adapters then
+    /// compile for fewer SIMD features than `cpu_features` lists (`avx`:
+    /// AVX2 without AVX-512, how an AVX-512 machine measures lavapipe as
+    /// an AVX2-only one would run it).
+    pub mesa_cpu_caps_override: Option<String>,
 }
 
 impl Machine {
@@ -39,6 +44,7 @@ impl Machine {
             adapter: gpu.map(|i| i.name.clone()),
             backend: gpu.map(|i| format!("{:?}", i.backend)),
             driver: gpu.map(|i| format!("{} {}", i.driver, i.driver_info).trim().to_string()),
+            mesa_cpu_caps_override: gpu.and_then(|_| std::env::var("GALLIUM_OVERRIDE_CPU_CAPS").ok()),
         }
     }
 
@@ -49,7 +55,11 @@ impl Machine {
             (Some(a), Some(d)) => format!("; adapter {a} ({}), driver {d}", self.backend.as_deref().unwrap_or("?")),
             _ => String::new(),
         };
-        format!("{} [{simd}], {} logical CPUs, {} threads, {}{gpu}", self.cpu_model, self.logical_cpus, self.threads, self.os)
+        let caps = match &self.mesa_cpu_caps_override {
+            Some(c) => format!(" (Mesa's CPU features capped: GALLIUM_OVERRIDE_CPU_CAPS={c})"),
+            None => String::new(),
+        };
+        format!("{} [{simd}], {} logical CPUs, {} threads, {}{gpu}{caps}", self.cpu_model, self.logical_cpus, self.threads, self.os)
     }
 }
 
