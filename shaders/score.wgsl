@@ -80,17 +80,14 @@ fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: 
         var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
         var behind = 0u;
         let n = rect_pixels(rect);
-        for (var j = lid; j < n; j += WG) {
-            let i = rect_index(rect, j);
-            let key = take_key(base + i);
+        for (var w = rect_walk(rect, lid); w.j < n; walk_step(&w, rect)) {
+            let key = take_key(base + w.y * params.width + w.x);
             if (key == EMPTY) {
                 continue;
             }
-            let xi = i % params.width;
-            let yi = i / params.width;
-            let obs = textureLoad(observed, vec2<u32>(xi, yi), 0);
-            let x = f32(xi);
-            let y = f32(yi);
+            let obs = textureLoad(observed, vec2<u32>(w.x, w.y), 0);
+            let x = f32(w.x);
+            let y = f32(w.y);
             if (obs.w <= 0.0) {
                 // Only where another object is: hidden behind it?
                 if (obs.w < 0.0 && resolve(p, key, x, y).w > -obs.w) {
@@ -166,7 +163,7 @@ fn raster_main(
     let base = wid.x * params.width * params.height;
     let rect = raster_slot(poses[h], base, lid).rect;
     let n = rect_pixels(rect);
-    for (var j = lid; j < n; j += WG) {
-        atomicStore(&vis[base + rect_index(rect, j)], 0u);
+    for (var w = rect_walk(rect, lid); w.j < n; walk_step(&w, rect)) {
+        atomicStore(&vis[base + w.y * params.width + w.x], 0u);
     }
 }
