@@ -456,7 +456,7 @@ impl GpuScorer {
 
     /// Replaces the observation with `target`'s, which must be the same
     /// region with the same observed pixels and may differ only in the
-    /// other objects' depth ([`ScoreTarget::set_occluders`]): one buffer
+    /// other objects' depth ([`ScoreTarget::set_occluders`]): one texture
     /// write, the mesh and pipeline stay.
     pub fn set_observation(&mut self, target: &ScoreTarget) -> Result<()> {
         if target.intrinsics != self.target_intrinsics || target.observed_pixels() as u32 != self.n_obs {

@@ -230,7 +230,7 @@ impl ObjectView {
     /// [`ScoreTarget::set_occluders`]). The occluders' depth is one small
     /// image per object and round, rendered by the CPU z-buffer (the render
     /// kernel's twin); the scorer keeps its mesh and pipeline and takes the
-    /// new observation in one buffer write.
+    /// new observation in one texture write.
     pub fn set_occluders(&mut self, occluders: &[(&RenderMesh, Pose)]) -> Result<()> {
         let t = std::time::Instant::now();
         let depth = scene_depth(&self.target.intrinsics, occluders);
