@@ -276,3 +276,30 @@ fn a_dense_sphere_has_mass_properties_and_a_hull_quickly() {
     assert!((mass.com.length()) < 1e-6 && hull.volume() > 0.99 * mass.volume, "{} vs {}", hull.volume(), mass.volume);
     assert!(note.is_none(), "163,842 vertices are below the subsampling limit");
 }
+
+/// The visual kernels read the triangles and the observation as textures:
+/// a mesh with more rows of triangles, or a region wider, than the
+/// adapter's textures hold is refused by name (and `--device auto` scores
+/// it on the CPU twin), never bound past the limit. The limit is lowered
+/// on the context to try it without a 16.7M-triangle mesh.
+#[test]
+fn gpu_tables_past_the_adapters_texture_size_are_refused() {
+    use plausible::gpu::{test_context, Device, DeviceChoice};
+    use plausible::kernels::raster::TRI_ROW;
+    use plausible::kernels::score::{GpuScorer, ScoreParams};
+    let mut ctx = test_context();
+    ctx.max_texture_dim = 2;
+    let mesh = RenderMesh::new(&plausible::shapes::cuboid(glam::DVec3::splat(0.1))).unwrap();
+    let obs = flat_observation();
+    let target = ScoreTarget::new(&obs, None, RoiSampling::Square(2), 0.1).unwrap();
+    assert!(GpuScorer::new(&ctx, &mesh, &target, ScoreParams::default(), 1).is_ok());
+    let mut big = mesh.clone();
+    big.triangles.resize(2 * TRI_ROW + 1, big.triangles[0]);
+    let e = GpuScorer::new(&ctx, &big, &target, ScoreParams::default(), 1).err().unwrap().to_string();
+    assert!(e.contains("textures hold") && e.contains(&format!("{}", 2 * TRI_ROW)), "{e}");
+    let (d, note) = Device::Gpu(Box::new(ctx.clone())).for_mesh(DeviceChoice::Auto, &big, 4);
+    assert!(matches!(d, Device::Cpu) && note.unwrap().contains("CPU twin"));
+    let wide = ScoreTarget::new(&obs, None, RoiSampling::Square(3), 0.1).unwrap();
+    let e = GpuScorer::new(&ctx, &mesh, &wide, ScoreParams::default(), 1).err().unwrap().to_string();
+    assert!(e.contains("3x3") && e.contains("textures"), "{e}");
+}
