@@ -382,7 +382,8 @@ pub fn check_mesh_bindings(ctx: &Context, mesh: &RenderMesh) -> Result<()> {
     Ok(())
 }
 
-/// GPU buffers a visual kernel needs for one mesh and image size.
+/// GPU buffers and textures a visual kernel needs for one mesh and image
+/// size.
 pub(crate) struct RasterBuffers {
     pub params: wgpu::Buffer,
     pub tris: wgpu::TextureView,
@@ -560,31 +561,43 @@ pub const TRI_ROW: usize = 1024;
 pub const MESHLET_ROW: usize = 1024;
 
 /// A read-only table as a texture of 16-byte texels: `per_row` items per
-/// row, each item's texels side by side, the last row zero-padded. On
+/// row, each item's texels side by side, the last row zero-padded (only
+/// that row is copied to pad it, so a large mesh is not held twice). On
 /// lavapipe a texel fetch is a vector gather, where a storage-buffer load
 /// runs lane by lane with a branch and a bounds check each.
 pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &[T], per_row: usize, format: wgpu::TextureFormat) -> wgpu::TextureView {
-    use wgpu::util::DeviceExt;
     let texels = std::mem::size_of::<T>() / 16;
     debug_assert_eq!(texels * 16, std::mem::size_of::<T>());
     let rows = items.len().div_ceil(per_row).max(1);
-    let mut data = items.to_vec();
-    data.resize(rows * per_row, bytemuck::Zeroable::zeroed());
-    let texture = ctx.device.create_texture_with_data(
-        &ctx.queue,
-        &wgpu::TextureDescriptor {
-            label: Some(label),
-            size: wgpu::Extent3d { width: (per_row * texels) as u32, height: rows as u32, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        },
-        wgpu::util::TextureDataOrder::LayerMajor,
-        bytemuck::cast_slice(&data),
-    );
+    let width = (per_row * texels) as u32;
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width, height: rows as u32, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let write = |first_row: usize, data: &[u8]| {
+        let n_rows = (data.len() / (width as usize * 16)) as u32;
+        ctx.queue.write_texture(
+            wgpu::TexelCopyTextureInfo { texture: &texture, mip_level: 0, origin: wgpu::Origin3d { x: 0, y: first_row as u32, z: 0 }, aspect: wgpu::TextureAspect::All },
+            data,
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(width * 16), rows_per_image: Some(n_rows) },
+            wgpu::Extent3d { width, height: n_rows, depth_or_array_layers: 1 },
+        );
+    };
+    let full = items.len() / per_row;
+    if full > 0 {
+        write(0, bytemuck::cast_slice(&items[..full * per_row]));
+    }
+    if full < rows {
+        let mut last = items[full * per_row..].to_vec();
+        last.resize(per_row, bytemuck::Zeroable::zeroed());
+        write(full, bytemuck::cast_slice(&last));
+    }
     texture.create_view(&Default::default())
 }
 
