@@ -21,6 +21,20 @@
 // faces, so whether the point is supported is refined exactly).
 
 const WG: u32 = 64u;
+// Texels per row of the sample and node textures (kernels/contacts.rs).
+const SAMPLE_ROW: u32 = 1024u;
+const NODE_ROW: u32 = 4096u;
+
+fn sample_at(j: u32) -> vec3<f32> {
+    return textureLoad(samples, vec2<u32>(j % SAMPLE_ROW, j / SAMPLE_ROW), 0).xyz;
+}
+
+// Grid node values i and i + 1 (all grids' nodes one after another; each
+// texel holds a node and its +x neighbour, so a cell is four fetches).
+fn node_pair(i: u32) -> vec2<f32> {
+    return textureLoad(dist, vec2<u32>(i % NODE_ROW, i / NODE_ROW), 0).xy;
+}
+
 // Specialised per pipeline (the dispatch code sets them), so the loops over
 // the scene unroll and unused paths disappear.
 override N_PLANES: u32 = 1u;
@@ -72,11 +86,14 @@ struct GpuPose { rows: array<vec4<f32>, 3> }
 struct ContactRecord { intersecting: u32, contact: u32, supported: u32, min_delta: f32 }
 
 @group(0) @binding(0) var<uniform> params: ContactParams;
-@group(0) @binding(1) var<storage, read> samples: array<vec4<f32>>;
+// Model-frame surface samples (xyz), SAMPLE_ROW per row. Read-only tables
+// are textures: on lavapipe a texel fetch is a vector gather, a
+// storage-buffer load a loop over lanes (kernels/contacts.rs).
+@group(0) @binding(1) var samples: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> poses: array<GpuPose>;
 // Per node: signed distance (the normals stay on the CPU; the GPU takes
 // them from the interpolant's gradient).
-@group(0) @binding(4) var<storage, read> dist: array<f32>;
+@group(0) @binding(4) var dist: texture_2d<f32>;
 @group(0) @binding(5) var<storage, read_write> records: array<ContactRecord>;
 @group(0) @binding(6) var<storage, read_write> support_bits: array<u32>;
 @group(0) @binding(7) var<storage, read_write> deltas: array<f32>;
@@ -106,8 +123,8 @@ fn grid_cell(k: u32, q: vec3<f32>) -> Cell {
     let b = u32(dot(cell, vec3<f32>(1.0, dimf.x, dimf.x * dimf.y))) + dims.w;
     let iy = dims.x;
     let iz = dims.x * dims.y;
-    let lo = vec4<f32>(dist[b], dist[b + 1u], dist[b + iy], dist[b + iy + 1u]);
-    let hi = vec4<f32>(dist[b + iz], dist[b + iz + 1u], dist[b + iz + iy], dist[b + iz + iy + 1u]);
+    let lo = vec4<f32>(node_pair(b), node_pair(b + iy));
+    let hi = vec4<f32>(node_pair(b + iz), node_pair(b + iz + iy));
     return Cell(lo, hi, u - cell, q - qc);
 }
 
@@ -183,7 +200,7 @@ fn contacts_main(
             let j0 = w * 32u;
             let j1 = min(j0 + 32u, params.n_samples);
             for (var j = j0; j < j1; j += 1u) {
-                let sm = samples[j].xyz;
+                let sm = sample_at(j);
                 // Closest component: its δ and world unit normal (grids:
                 // computed only for candidates in the contact band).
                 var d = 3.0e38;

@@ -24,7 +24,10 @@ struct ContactRecord { intersecting: u32, contact: u32, supported: u32, min_delt
 
 @group(0) @binding(6) var<uniform> plane_params: PlaneParams;
 // Surface samples, model frame (xyz).
-@group(0) @binding(7) var<storage, read> samples: array<vec4<f32>>;
+// Model-frame surface samples (xyz), PLANE_SAMPLE_ROW per row (a texture:
+// a vector gather on lavapipe, see raster.wgsl's tables).
+@group(0) @binding(7) var samples: texture_2d<f32>;
+const PLANE_SAMPLE_ROW: u32 = 1024u;
 @group(0) @binding(8) var<storage, read_write> contact_records: array<ContactRecord>;
 // `words` u32 per hypothesis: bit j % 32 of word j / 32 = sample j supported.
 @group(0) @binding(9) var<storage, read_write> support_bits: array<u32>;
@@ -62,7 +65,7 @@ fn plane_contacts(h: u32, lid: u32) {
         let j1 = min(j0 + 32u, plane_params.n_samples);
         var bits = 0u;
         for (var j = j0; j < j1; j += 1u) {
-            let d = dot(nm, samples[j].xyz) - wm;
+            let d = dot(nm, textureLoad(samples, vec2<u32>(j % PLANE_SAMPLE_ROW, j / PLANE_SAMPLE_ROW), 0).xyz) - wm;
             mn = min(mn, d);
             if (d < -eps) {
                 cnt.x += 1u;

@@ -194,11 +194,12 @@ impl std::fmt::Debug for Context {
     }
 }
 
-/// Storage buffers the largest kernels bind (score with the plane stage:
-/// poses, visibility, records, samples, contact records and support bits;
-/// the triangles, meshlets and observation are textures). Desktop Vulkan,
-/// Metal and DX12 adapters offer far more; WebGPU's default is 8.
-const STORAGE_BUFFERS: u32 = 6;
+/// Storage buffers the largest kernel binds (score with the plane stage:
+/// poses, visibility, records, contact records and support bits; the
+/// read-only tables, from triangles to surface samples, are textures).
+/// Desktop Vulkan, Metal and DX12 adapters offer far more; WebGPU's
+/// default is 8.
+const STORAGE_BUFFERS: u32 = 5;
 
 impl Context {
     /// Opens a device. Backends: `WGPU_BACKEND` when set, otherwise the

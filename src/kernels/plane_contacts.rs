@@ -53,7 +53,9 @@ pub struct PlaneContactOutput {
 pub(crate) struct PlaneStage {
     pub words: usize,
     pub params: wgpu::Buffer,
-    pub samples: wgpu::Buffer,
+    /// The samples as a texture (`samples` in plane_contacts.wgsl),
+    /// `contacts::SAMPLE_ROW` per row.
+    pub samples: wgpu::TextureView,
     pub records: wgpu::Buffer,
     pub bits: wgpu::Buffer,
     pub pipeline: std::sync::Arc<wgpu::ComputePipeline>,
@@ -66,9 +68,9 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     if samples.is_empty() {
         return Err(Error::InvalidInput("the body has no surface samples".into()));
     }
-    // raster (poses, vis) + score (records) + this stage (samples,
-    // records, bits); the triangles, meshlets and observation are textures.
-    let needed = 6;
+    // raster (poses, vis) + score (records) + this stage (records, bits);
+    // the triangles, meshlets, observation and samples are textures.
+    let needed = 5;
     let have = ctx.device.limits().max_storage_buffers_per_shader_stage;
     if have < needed {
         return Err(Error::Gpu(format!(
@@ -77,9 +79,9 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     }
     let words = params.words as usize;
     let bits_bytes = (chunk * words * 4) as u64;
-    if bits_bytes > ctx.limits.max_items(1) || (samples.len() * 16) as u64 > ctx.limits.max_items(1) {
+    if bits_bytes > ctx.limits.max_items(1) || samples.len().div_ceil(super::contacts::SAMPLE_ROW) > ctx.max_texture_dim as usize {
         return Err(Error::Gpu(format!(
-            "{} surface samples do not fit this adapter's storage bindings; use fewer samples",
+            "{} surface samples do not fit this adapter's storage bindings and textures; use fewer samples",
             samples.len()
         )));
     }
@@ -97,7 +99,7 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     Ok(PlaneStage {
         words,
         params: init("plane params", bytemuck::bytes_of(params), wgpu::BufferUsages::UNIFORM),
-        samples: init("plane samples", bytemuck::cast_slice(samples), wgpu::BufferUsages::STORAGE),
+        samples: super::raster::texel_table(ctx, "plane samples", samples, super::contacts::SAMPLE_ROW, wgpu::TextureFormat::Rgba32Float),
         records: output("plane records", (chunk * std::mem::size_of::<ContactRecord>()) as u64),
         bits: output("plane bits", bits_bytes),
         pipeline: ctx.pipeline("score+plane", SCORE_PHYSICS_WGSL, "score_physics_main"),

@@ -560,16 +560,18 @@ pub const TRI_ROW: usize = 1024;
 /// Meshlets per row of the meshlet texture (`MESHLET_ROW` in raster.wgsl).
 pub const MESHLET_ROW: usize = 1024;
 
-/// A read-only table as a texture of 16-byte texels: `per_row` items per
-/// row, each item's texels side by side, the last row zero-padded (only
+/// A read-only table as a texture of `format`'s texels (16 or 4 bytes):
+/// `per_row` items per row, each item's texels side by side, the last row zero-padded (only
 /// that row is copied to pad it, so a large mesh is not held twice). On
 /// lavapipe a texel fetch is a vector gather, where a storage-buffer load
 /// runs lane by lane with a branch and a bounds check each.
 pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &[T], per_row: usize, format: wgpu::TextureFormat) -> wgpu::TextureView {
-    let texels = std::mem::size_of::<T>() / 16;
-    debug_assert_eq!(texels * 16, std::mem::size_of::<T>());
+    let texel_bytes = format.block_copy_size(None).expect("an uncompressed colour format") as usize;
+    let texels = std::mem::size_of::<T>() / texel_bytes;
+    debug_assert_eq!(texels * texel_bytes, std::mem::size_of::<T>());
     let rows = items.len().div_ceil(per_row).max(1);
     let width = (per_row * texels) as u32;
+    let row_bytes = width as usize * texel_bytes;
     let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
         size: wgpu::Extent3d { width, height: rows as u32, depth_or_array_layers: 1 },
@@ -581,11 +583,11 @@ pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &
         view_formats: &[],
     });
     let write = |first_row: usize, data: &[u8]| {
-        let n_rows = (data.len() / (width as usize * 16)) as u32;
+        let n_rows = (data.len() / row_bytes) as u32;
         ctx.queue.write_texture(
             wgpu::TexelCopyTextureInfo { texture: &texture, mip_level: 0, origin: wgpu::Origin3d { x: 0, y: first_row as u32, z: 0 }, aspect: wgpu::TextureAspect::All },
             data,
-            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(width * 16), rows_per_image: Some(n_rows) },
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes as u32), rows_per_image: Some(n_rows) },
             wgpu::Extent3d { width, height: n_rows, depth_or_array_layers: 1 },
         );
     };

@@ -661,7 +661,7 @@ impl GpuScorer {
                 Some(st) => {
                     extra.extend([
                         wgpu::BindGroupEntry { binding: 6, resource: st.params.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 7, resource: st.samples.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 7, resource: wgpu::BindingResource::TextureView(&st.samples) },
                         wgpu::BindGroupEntry { binding: 8, resource: st.records.as_entire_binding() },
                         wgpu::BindGroupEntry { binding: 9, resource: st.bits.as_entire_binding() },
                     ]);
