@@ -33,28 +33,24 @@ fn depth_main(
     let drawn = d.rect;
     let tile = tiles[h];
     let t = vec4<i32>(tile.x0, tile.y0, tile.x1, tile.y1);
-    let tw = u32(t.z - t.x + 1);
-    let n = tw * u32(t.w - t.y + 1);
-    for (var j = lid; j < n; j += WG) {
-        let x = t.x + i32(j % tw);
-        let y = t.y + i32(j / tw);
+    let n = rect_pixels(t);
+    for (var w = rect_walk(t, lid); w.j < n; walk_step(&w, t)) {
         var key = EMPTY;
-        if (in_rect(drawn, x, y)) {
-            key = take_key(base + u32(y) * params.width + u32(x));
+        if (in_rect(drawn, i32(w.x), i32(w.y))) {
+            key = take_key(base + w.y * params.width + w.x);
         }
         // -1 in a tile's first pixel: over budget, the host renders the
         // tile on the CPU.
-        depths[tile.offset + j] = select(resolve(p, key, f32(x), f32(y)).w, -1.0, j == 0u && d.over);
+        depths[tile.offset + w.j] = select(resolve(p, key, f32(w.x), f32(w.y)).w, -1.0, w.j == 0u && d.over);
     }
     // The host's tile and the kernel's own rectangle are the same f32
     // formula, but may round apart by a pixel: empty whatever was drawn
     // outside the tile so the slot is clean for the next wave.
     if (drawn.x < t.x || drawn.y < t.y || drawn.z > t.z || drawn.w > t.w) {
         let m = rect_pixels(drawn);
-        for (var j = lid; j < m; j += WG) {
-            let at = rect_index(drawn, j);
-            if (!in_rect(t, i32(at % params.width), i32(at / params.width))) {
-                _ = take_key(base + at);
+        for (var w = rect_walk(drawn, lid); w.j < m; walk_step(&w, drawn)) {
+            if (!in_rect(t, i32(w.x), i32(w.y))) {
+                _ = take_key(base + w.y * params.width + w.x);
             }
         }
     }

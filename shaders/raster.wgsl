@@ -161,12 +161,6 @@ fn walk_step(w: ptr<function, RectWalk>, rect: vec4<i32>) {
     }
 }
 
-// Image index of the j-th pixel of the rectangle.
-fn rect_index(rect: vec4<i32>, j: u32) -> u32 {
-    let rw = u32(rect.z - rect.x + 1);
-    return (u32(rect.y) + j / rw) * params.width + u32(rect.x) + j % rw;
-}
-
 // Whether meshlet m may draw into [first, last] (CPU twin:
 // kernels/raster.rs meshlet_visible): not when it faces away from the camera
 // as a whole (meshoptimizer's cone test with the bounding sphere, cam = the
