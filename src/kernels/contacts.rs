@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use bytemuck::{Pod, Zeroable};
 
-use super::raster::texel_table;
+use super::raster::{table_fits, texel_table};
 use super::{ContactRecord, GpuPose};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -222,7 +222,7 @@ impl ContactsKernel {
     /// δ of every sample (for tests: N·M floats).
     pub fn new(ctx: &Context, scene: &ContactScene, max_chunk: usize, with_deltas: bool) -> Result<Self> {
         scene.check()?;
-        if scene.nodes.len().div_ceil(NODE_ROW) > ctx.max_texture_dim as usize || scene.samples.len().div_ceil(SAMPLE_ROW) > ctx.max_texture_dim as usize {
+        if !table_fits(ctx, scene.nodes.len(), NODE_ROW) || !table_fits(ctx, scene.samples.len(), SAMPLE_ROW) {
             return Err(Error::Gpu(format!(
                 "the signed-distance grids ({} MiB) or the {} surface samples are more than this adapter's textures hold; lower the SDF resolution or the samples",
                 (scene.nodes.len() * 4) >> 20,
@@ -234,7 +234,7 @@ impl ContactsKernel {
             ctx: ctx.clone(),
             params: scene.params(with_deltas),
             pipeline: contacts_pipeline(ctx, scene.planes.len(), scene.grids.len(), with_deltas),
-            buffers: ContactBuffers::new(ctx, scene, chunk, with_deltas),
+            buffers: ContactBuffers::new(ctx, scene, chunk, with_deltas)?,
             chunk,
             with_deltas,
         })
@@ -343,7 +343,7 @@ struct ContactBuffers {
 }
 
 impl ContactBuffers {
-    fn new(ctx: &Context, scene: &ContactScene, chunk: usize, with_deltas: bool) -> ContactBuffers {
+    fn new(ctx: &Context, scene: &ContactScene, chunk: usize, with_deltas: bool) -> Result<ContactBuffers> {
         let storage = |label: &str, size: usize, extra: wgpu::BufferUsages| {
             ctx.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -356,9 +356,9 @@ impl ContactBuffers {
         let nodes: &[f32] = if scene.nodes.is_empty() { &dummy_node } else { &scene.nodes };
         let words = scene.words();
         let deltas = if with_deltas { chunk * scene.samples.len() * 4 } else { 16 };
-        ContactBuffers {
-            samples: texel_table(ctx, "contacts samples", &scene.samples, SAMPLE_ROW, wgpu::TextureFormat::Rgba32Float),
-            nodes: texel_table(ctx, "contacts nodes", &node_pairs(nodes), NODE_ROW, wgpu::TextureFormat::Rg32Float),
+        Ok(ContactBuffers {
+            samples: texel_table(ctx, "surface sample", &scene.samples, SAMPLE_ROW, wgpu::TextureFormat::Rgba32Float)?,
+            nodes: texel_table(ctx, "grid node", &node_pairs(nodes), NODE_ROW, wgpu::TextureFormat::Rg32Float)?,
             params: ctx.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("contacts params"),
                 size: std::mem::size_of::<ContactParams>() as u64,
@@ -369,7 +369,7 @@ impl ContactBuffers {
             records: storage("contacts records", chunk * 16, wgpu::BufferUsages::COPY_SRC),
             bits: storage("contacts bits", chunk * words * 8, wgpu::BufferUsages::COPY_SRC),
             deltas: storage("contacts deltas", deltas, wgpu::BufferUsages::COPY_SRC),
-        }
+        })
     }
 }
 

@@ -68,9 +68,9 @@ pub fn check_loop_budget(mesh: &RenderMesh, pixels: usize) -> Result<()> {
 }
 
 /// Refuses what the GPU cannot score with the mesh's renderer
-/// ([`RenderMesh::gpu_renderer`]) over a region of `pixels`: triangles past
-/// what the adapter binds, and the rasterizer's loop budget (meshlets and
-/// pixels) or the ray caster's (pixels).
+/// ([`RenderMesh::gpu_renderer`]) over a region of `pixels`: triangle or
+/// meshlet tables taller than the adapter's textures, and the rasterizer's
+/// loop budget (meshlets and pixels) or the ray caster's (pixels).
 pub fn check_gpu_budget(ctx: &crate::gpu::Context, mesh: &RenderMesh, pixels: usize) -> Result<()> {
     raster::check_mesh_bindings(ctx, mesh)?;
     match mesh.gpu_renderer() {

@@ -79,7 +79,7 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     }
     let words = params.words as usize;
     let bits_bytes = (chunk * words * 4) as u64;
-    if bits_bytes > ctx.limits.max_items(1) || samples.len().div_ceil(super::contacts::SAMPLE_ROW) > ctx.max_texture_dim as usize {
+    if bits_bytes > ctx.limits.max_items(1) || !super::raster::table_fits(ctx, samples.len(), super::contacts::SAMPLE_ROW) {
         return Err(Error::Gpu(format!(
             "{} surface samples do not fit this adapter's storage bindings and textures; use fewer samples",
             samples.len()
@@ -99,7 +99,7 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     Ok(PlaneStage {
         words,
         params: init("plane params", bytemuck::bytes_of(params), wgpu::BufferUsages::UNIFORM),
-        samples: super::raster::texel_table(ctx, "plane samples", samples, super::contacts::SAMPLE_ROW, wgpu::TextureFormat::Rgba32Float),
+        samples: super::raster::texel_table(ctx, "surface sample", samples, super::contacts::SAMPLE_ROW, wgpu::TextureFormat::Rgba32Float)?,
         records: output("plane records", (chunk * std::mem::size_of::<ContactRecord>()) as u64),
         bits: output("plane bits", bits_bytes),
         pipeline: ctx.pipeline("score+plane", SCORE_PHYSICS_WGSL, "score_physics_main"),

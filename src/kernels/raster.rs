@@ -371,8 +371,7 @@ pub fn draw_budget(ctx: &Context, n_meshlets: u32, pixels: u32) -> u32 {
 /// adapter's textures hold (`TRI_ROW` triangles per row: 16.7M triangles
 /// on an adapter with 16,384-texel textures).
 pub fn check_mesh_bindings(ctx: &Context, mesh: &RenderMesh) -> Result<()> {
-    let rows = mesh.triangles.len().div_ceil(TRI_ROW).max(mesh.meshlets.len().div_ceil(MESHLET_ROW));
-    if rows > ctx.max_texture_dim as usize {
+    if !table_fits(ctx, mesh.triangles.len(), TRI_ROW) || !table_fits(ctx, mesh.meshlets.len(), MESHLET_ROW) {
         return Err(Error::Gpu(format!(
             "mesh has {} triangles but the adapter's textures hold at most {}: decimate it",
             mesh.triangles.len(),
@@ -426,8 +425,8 @@ impl RasterBuffers {
             .min((lim.max_storage_binding.min(lim.max_buffer).min(budget) / (pix * 4)).max(1))
             .max(1) as u32;
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let tris = texel_table(ctx, "triangles", &mesh.triangles, TRI_ROW, wgpu::TextureFormat::Rgba32Float);
-        let meshlets = texel_table(ctx, "meshlets", &mesh.meshlets, MESHLET_ROW, wgpu::TextureFormat::Rgba32Uint);
+        let tris = texel_table(ctx, "triangles", &mesh.triangles, TRI_ROW, wgpu::TextureFormat::Rgba32Float)?;
+        let meshlets = texel_table(ctx, "meshlets", &mesh.meshlets, MESHLET_ROW, wgpu::TextureFormat::Rgba32Uint)?;
         // One parameter block per wave, each at a uniform-offset boundary.
         let waves = (chunk as u64).div_ceil(slots as u64);
         let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -560,12 +559,26 @@ pub const TRI_ROW: usize = 1024;
 /// Meshlets per row of the meshlet texture (`MESHLET_ROW` in raster.wgsl).
 pub const MESHLET_ROW: usize = 1024;
 
-/// A read-only table as a texture of `format`'s texels (16 or 4 bytes):
-/// `per_row` items per row, each item's texels side by side, the last row zero-padded (only
-/// that row is copied to pad it, so a large mesh is not held twice). On
-/// lavapipe a texel fetch is a vector gather, where a storage-buffer load
-/// runs lane by lane with a branch and a bounds check each.
-pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &[T], per_row: usize, format: wgpu::TextureFormat) -> wgpu::TextureView {
+/// Whether a table of `len` items, `per_row` a row, fits the adapter's
+/// textures (see [`texel_table`]).
+pub(crate) fn table_fits(ctx: &Context, len: usize, per_row: usize) -> bool {
+    len.div_ceil(per_row) <= ctx.max_texture_dim as usize
+}
+
+/// A read-only table as a texture of `format`'s texels (4 to 16 bytes):
+/// `per_row` items per row, each item's texels side by side, the last row
+/// zero-padded (only that row is copied to pad it, so a large mesh is not
+/// held twice); refused when it has more rows than the adapter's textures.
+/// On lavapipe a texel fetch is a vector gather, where a storage-buffer
+/// load runs lane by lane with a branch and a bounds check each.
+pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &[T], per_row: usize, format: wgpu::TextureFormat) -> Result<wgpu::TextureView> {
+    if !table_fits(ctx, items.len(), per_row) {
+        return Err(Error::Gpu(format!(
+            "the {label} table ({} items, {per_row} a row) is taller than this adapter's textures ({} rows)",
+            items.len(),
+            ctx.max_texture_dim
+        )));
+    }
     let texel_bytes = format.block_copy_size(None).expect("an uncompressed colour format") as usize;
     let texels = std::mem::size_of::<T>() / texel_bytes;
     debug_assert_eq!(texels * texel_bytes, std::mem::size_of::<T>());
@@ -600,7 +613,7 @@ pub(crate) fn texel_table<T: bytemuck::Pod>(ctx: &Context, label: &str, items: &
         last.resize(per_row, bytemuck::Zeroable::zeroed());
         write(full, bytemuck::cast_slice(&last));
     }
-    texture.create_view(&Default::default())
+    Ok(texture.create_view(&Default::default()))
 }
 
 /// Binding of the meshlet table in raster.wgsl (after every kernel's own

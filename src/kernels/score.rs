@@ -240,9 +240,8 @@ impl TracedStage {
             .ok_or_else(|| Error::Gpu(format!("the adapter dispatches too few workgroups for a {}x{} region in tiles of 8x8 pixels", k.width, k.height)))?;
         use wgpu::util::DeviceExt;
         let limit = ctx.limits.max_storage_binding.min(ctx.limits.max_buffer);
-        let n_nodes = bvh.nodes.len() / super::raycast::NODE_WORDS;
-        if n_nodes.div_ceil(super::raycast::NODE_ROW) > ctx.max_texture_dim as usize || (bvh.prims.len() * 4) as u64 > limit {
-            return Err(Error::Gpu(format!("the mesh's BVH ({n_nodes} nodes, {} primitives) is larger than this adapter's textures and bindings hold", bvh.prims.len())));
+        if (bvh.prims.len() * 4) as u64 > limit {
+            return Err(Error::Gpu(format!("the mesh's BVH has {} primitives; the adapter binds at most {}", bvh.prims.len(), limit / 4)));
         }
         let init = |label, words: &[u32], usage| {
             ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytemuck::cast_slice(words), usage })
@@ -250,7 +249,7 @@ impl TracedStage {
         let read = wgpu::BufferUsages::STORAGE;
         Ok(TracedStage {
             grid,
-            nodes: super::raster::texel_table::<[u32; 20]>(ctx, "bvh nodes", bytemuck::cast_slice(&bvh.nodes), super::raycast::NODE_ROW, wgpu::TextureFormat::Rgba32Uint),
+            nodes: super::raster::texel_table::<[u32; 20]>(ctx, "BVH node", bytemuck::cast_slice(&bvh.nodes), super::raycast::NODE_ROW, wgpu::TextureFormat::Rgba32Uint)?,
             prims: init("bvh primitives", &bvh.prims, read),
             overflow: init("ray overflow", &[0], read | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC),
             raycast: ctx.pipeline("raycast", super::raycast::RAYCAST_WGSL, "raycast_main"),
