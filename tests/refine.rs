@@ -98,6 +98,25 @@ fn a_killed_run_resumes_and_shards_merge_into_the_single_run() {
     }
     std::fs::write(&merged, all).unwrap();
     assert_eq!(rows(&merged), rows(&single));
+    // The shards written in turn into one file: each keeps the others'
+    // images. A kill that cuts the last image's rows short (its journal
+    // line not yet written) redoes that image only.
+    let one = d.path().join("one.csv");
+    for k in 1..=3 {
+        refine(&init, &one, &["--method", "sir", "--shard", &format!("{k}/3")]);
+    }
+    assert_eq!(rows(&one), rows(&single));
+    let journal = std::fs::read_to_string(d.path().join("one.csv.done")).unwrap();
+    assert_eq!(journal.lines().count(), 12, "{journal}");
+    let text = std::fs::read_to_string(&one).unwrap();
+    let last_im = text.lines().last().unwrap().split(',').nth(1).unwrap().to_string();
+    let kept: Vec<&str> = text.lines().collect();
+    std::fs::write(&one, kept[..kept.len() - 1].join("\n") + "\n").unwrap();
+    let cut: Vec<&str> = journal.lines().filter(|l| l.split(' ').nth(1) != Some(last_im.as_str())).collect();
+    std::fs::write(d.path().join("one.csv.done"), cut.join("\n") + "\n").unwrap();
+    let text = refine(&init, &one, &["--method", "sir"]);
+    assert!(text.contains("refined 1 images"), "{text}");
+    assert_eq!(rows(&one), rows(&single));
 }
 
 #[test]

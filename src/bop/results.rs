@@ -78,11 +78,7 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
         }
         let mut e = parse_line(&line).map_err(|reason| Error::BadLine { path: path.to_path_buf(), line: n, reason })?;
         e.line = n;
-        let mut key = [0u64; 12];
-        for (k, v) in key.iter_mut().zip(e.pose.r_row_major().iter().chain(e.pose.t.to_array().iter())) {
-            *k = v.to_bits();
-        }
-        if let Some(first) = seen.insert((e.scene_id, e.im_id, e.obj_id, key), n) {
+        if let Some(first) = seen.insert((e.scene_id, e.im_id, e.obj_id, pose_bits(&e)), n) {
             return Err(Error::BadLine {
                 path: path.to_path_buf(),
                 line: n,
@@ -92,6 +88,41 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
         out.push(e);
     }
     Ok(out)
+}
+
+/// The bits of an estimate's pose: two estimates are the same pose exactly
+/// when these are equal (what [`read_results`] refuses twice).
+fn pose_bits(e: &Estimate) -> [u64; 12] {
+    let mut key = [0u64; 12];
+    for (k, v) in key.iter_mut().zip(e.pose.r_row_major().iter().chain(e.pose.t.to_array().iter())) {
+        *k = v.to_bits();
+    }
+    key
+}
+
+/// Keeps one of the estimates that give the same object in the same image
+/// the same pose (the best scored, in the place of the first): refinement
+/// can bring two hypotheses to one pose, and a results file must not hold
+/// it twice (the BOP toolkit would count the copy as a false positive, and
+/// [`read_results`] refuses it as a likely concatenation mistake).
+pub fn drop_repeated_poses(estimates: &mut Vec<Estimate>) {
+    let mut first: HashMap<(u32, u32, u32, [u64; 12]), usize> = HashMap::new();
+    let mut keep = vec![true; estimates.len()];
+    for i in 0..estimates.len() {
+        let e = &estimates[i];
+        match first.entry((e.scene_id, e.im_id, e.obj_id, pose_bits(e))) {
+            std::collections::hash_map::Entry::Vacant(v) => {
+                v.insert(i);
+            }
+            std::collections::hash_map::Entry::Occupied(o) => {
+                let j = *o.get();
+                estimates[j].score = estimates[j].score.max(estimates[i].score);
+                keep[i] = false;
+            }
+        }
+    }
+    let mut k = keep.iter();
+    estimates.retain(|_| *k.next().unwrap());
 }
 
 /// Formats one estimate as a results line (shortest round-trip floats).

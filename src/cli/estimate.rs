@@ -100,9 +100,20 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     }
     let (shard, masks) = a.run.shard_and_masks()?;
     plausible::io::check_writable(&a.out)?;
+    a.run.prepare_outputs()?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(a.targets.as_deref()).context("--targets")?;
+    for s in &a.scenes {
+        if !targets.iter().any(|t| t.scene_id == *s) {
+            bail!("--scenes {s}: no target in scene {s} (the dataset's scenes with targets: {})", id_list(targets.iter().map(|t| t.scene_id)));
+        }
+    }
+    for i in &a.images {
+        if !targets.iter().any(|t| t.im_id == *i && (a.scenes.is_empty() || a.scenes.contains(&t.scene_id))) {
+            bail!("--images {i}: no target in image {i} of the chosen scenes");
+        }
+    }
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
     for t in targets {
         if (a.scenes.is_empty() || a.scenes.contains(&t.scene_id)) && (a.images.is_empty() || a.images.contains(&t.im_id)) {
@@ -133,7 +144,6 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();
-    a.run.prepare_outputs()?;
     let device = a.run.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());
@@ -149,7 +159,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         let r = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {scene_id} image {im_id}"))?;
         a.run.save_picture(*scene_id, *im_id, r.picture.as_ref())?;
-        out.append(&r.estimates)?;
+        out.append((*scene_id, *im_id), &r.estimates)?;
         total += r.stats;
         pb.inc(1);
     }
@@ -166,6 +176,14 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         total.hypotheses_s / n,
         total.refine_s / n
     );
+    let wanted: usize = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.inst_count as usize)).sum();
+    if total.instances < wanted {
+        eprintln!(
+            "note: {} of the {wanted} target instances have no mask with a pixel ({}): they are not estimated",
+            wanted - total.instances,
+            masks.describe()
+        );
+    }
     println!("wrote {}", a.out.display());
     if let Some(p) = &a.run.summary {
         let v = serde_json::json!({
@@ -182,4 +200,14 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         })?;
     }
     Ok(())
+}
+
+/// Distinct ids, in order, for a message (the first 20).
+fn id_list(ids: impl Iterator<Item = u32>) -> String {
+    let set: std::collections::BTreeSet<u32> = ids.collect();
+    let mut s: Vec<String> = set.iter().take(20).map(u32::to_string).collect();
+    if set.len() > 20 {
+        s.push("...".into());
+    }
+    s.join(", ")
 }

@@ -157,40 +157,55 @@ pub fn parse_masks(s: &str) -> Result<Masks> {
 }
 
 /// A results CSV written image by image: each image's lines in one write,
-/// synced, so a kill loses at most the image being written (and resuming
-/// drops a partial one).
+/// synced, then a line in the journal beside it
+/// ([`plausible::refine::dataset::journal_path`]), so a kill loses at most
+/// the image being written (and resuming drops a partial one).
 pub struct ResultsAppender {
     file: std::fs::File,
     path: PathBuf,
-    /// A regular file is synced after each image (a pipe or device cannot be).
-    regular: bool,
+    /// A regular file is synced after each image and journaled (a pipe or
+    /// device cannot be).
+    journal: Option<(std::fs::File, PathBuf)>,
 }
 
 impl ResultsAppender {
     pub fn open(path: &std::path::Path) -> Result<ResultsAppender> {
-        let file = std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let append = |p: &std::path::Path| std::fs::OpenOptions::new().create(true).append(true).open(p).with_context(|| format!("cannot open {}", p.display()));
+        let file = append(path)?;
         let regular = file.metadata().is_ok_and(|m| m.is_file());
-        let mut out = ResultsAppender { file, path: path.to_path_buf(), regular };
-        if !regular || out.file.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
-            out.write(&format!("{HEADER}\n"))?;
+        let journal = if regular {
+            let j = plausible::refine::dataset::journal_path(path);
+            Some((append(&j)?, j))
+        } else {
+            None
+        };
+        let empty = !regular || file.metadata().map(|m| m.len()).unwrap_or(0) == 0;
+        let mut out = ResultsAppender { file, path: path.to_path_buf(), journal };
+        if empty {
+            let header = format!("{HEADER}\n");
+            write_synced(&mut out.file, &out.path, &header, regular)?;
         }
         Ok(out)
     }
 
-    pub fn append(&mut self, estimates: &[plausible::bop::Estimate]) -> Result<()> {
+    /// Appends image (scene_id, im_id)'s estimates and journals it.
+    pub fn append(&mut self, (scene_id, im_id): (u32, u32), estimates: &[plausible::bop::Estimate]) -> Result<()> {
         let text: String = estimates.iter().map(|e| format_line(e) + "\n").collect();
-        self.write(&text)
-    }
-
-    fn write(&mut self, text: &str) -> Result<()> {
-        self.file.write_all(text.as_bytes()).with_context(|| format!("cannot write {}", self.path.display()))?;
-        if self.regular {
-            self.file.sync_data().with_context(|| format!("cannot write {}", self.path.display()))?;
+        write_synced(&mut self.file, &self.path, &text, self.journal.is_some())?;
+        if let Some((j, path)) = &mut self.journal {
+            write_synced(j, path, &plausible::refine::dataset::journal_line(scene_id, im_id, estimates.len()), true)?;
         }
         Ok(())
     }
 }
 
+fn write_synced(file: &mut std::fs::File, path: &std::path::Path, text: &str, sync: bool) -> Result<()> {
+    file.write_all(text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))?;
+    if sync {
+        file.sync_data().with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
 
 /// `k/n` with 1 ≤ k ≤ n.
 pub fn parse_shard(s: &str) -> Result<(usize, usize)> {
@@ -301,6 +316,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     }
     let (shard, masks) = a.run.shard_and_masks()?;
     plausible::io::check_writable(&a.out)?;
+    a.run.prepare_outputs()?;
     if a.out.canonicalize().ok().is_some_and(|o| a.init.canonicalize().ok() == Some(o)) {
         bail!("--out is the --init file: write the refined results elsewhere");
     }
@@ -331,7 +347,6 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
         bail!("--init: object {o} is not in the dataset's models_info.json");
     }
-    a.run.prepare_outputs()?;
     let device = a.run.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
@@ -347,7 +362,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         let r = refine_image(scene, job, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
         a.run.save_picture(job.scene_id, job.im_id, r.picture.as_ref())?;
-        file.append(&r.estimates)?;
+        file.append((job.scene_id, job.im_id), &r.estimates)?;
         total += r.stats;
         pb.inc(1);
     }

@@ -58,7 +58,10 @@ impl Masks {
 
     /// Each instance's own mask of the object in an image, empty when none.
     pub fn instances(&self, scene: &Scene, im_id: u32, obj_id: u32, width: u32, height: u32) -> Result<Vec<Vec<bool>>> {
-        self.paths(scene, im_id, obj_id).iter().map(|p| read_mask_png(p, width, height)).collect()
+        let masks: Vec<Vec<bool>> = self.paths(scene, im_id, obj_id).iter().map(|p| read_mask_png(p, width, height)).collect::<Result<_>>()?;
+        // An empty mask is an instance not seen at all (BOP annotates fully
+        // occluded ones): it has no mask to refine or estimate against.
+        Ok(masks.into_iter().filter(|m| m.contains(&true)).collect())
     }
 
     /// The object's mask in an image (the union of its instances'), `None`
@@ -277,23 +280,72 @@ pub fn refine_image(
         e.time = stats.seconds;
         e.line = 0;
     }
+    // Hypotheses refined to the very same pose are one estimate.
+    crate::bop::results::drop_repeated_poses(&mut out);
     // Drawn after the clock stops: pictures are not the method's time.
     let picture = explain.then(|| super::explain::scene_picture(&depth, &objects, &scene_out, plane.as_ref(), p)).transpose()?;
     Ok(ImageResult { estimates: out, stats, picture })
 }
 
-/// Images already complete in a (partial) output file, for resuming: an
-/// image counts when the file holds as many of its estimates as `expected`
-/// says (its count in the input). A kill can leave a line cut off or an
-/// image half written; those lines are removed (the file is rewritten
-/// atomically) and the images run again. A missing file, or one that is not
-/// a regular file, is an empty set.
+/// The journal beside a results file written image by image: one line
+/// `scene_id im_id rows` per image, appended once the image's rows are on
+/// disk. A kill can cut an image's rows short (a write of several pages is
+/// not atomic), and refinement may keep fewer rows than it was given (two
+/// hypotheses refined to one pose are one estimate), so only the journal
+/// tells a finished image from a cut one.
+pub fn journal_path(out: &Path) -> PathBuf {
+    let mut name = out.as_os_str().to_owned();
+    name.push(".done");
+    PathBuf::from(name)
+}
+
+/// The journal's image counts, the last line of an image winning; `None`
+/// without a journal (an output from before journals, or none yet). A line
+/// cut by a kill is ignored.
+fn read_journal(path: &Path) -> Result<Option<HashMap<(u32, u32), usize>>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(Error::io(path, e)),
+    };
+    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    let mut counts = HashMap::new();
+    for (i, line) in complete.lines().enumerate() {
+        let f: Vec<u64> = line.split_whitespace().filter_map(|v| v.parse().ok()).collect();
+        match f[..] {
+            [s, im, n] if s <= u32::MAX as u64 && im <= u32::MAX as u64 => counts.insert((s as u32, im as u32), n as usize),
+            _ => return Err(Error::InvalidInput(format!("{}: line {}: not 'scene_id im_id rows' (a journal this command wrote?)", path.display(), i + 1))),
+        };
+    }
+    Ok(Some(counts))
+}
+
+/// Appends one finished image to the journal (see [`journal_path`]).
+pub fn journal_line(scene_id: u32, im_id: u32, rows: usize) -> String {
+    format!("{scene_id} {im_id} {rows}\n")
+}
+
+/// Images of `expected` already complete in a (partial) output file, for
+/// resuming. An image is complete when the journal ([`journal_path`]) lists
+/// it with as many rows as the file holds; without a journal (an older
+/// output), when the file holds as many as `expected` says (its count in
+/// the input). Rows of incomplete images are removed (the file is
+/// rewritten atomically) and those images run again; rows of images outside
+/// `expected` (another --images, --scenes or --shard written to the same
+/// file) are kept as they are when complete. The journal is rewritten to
+/// match what is kept. A missing file, or one that is not a regular file,
+/// is an empty set.
 pub fn resume_from(path: &Path, expected: &HashMap<(u32, u32), usize>) -> Result<std::collections::BTreeSet<(u32, u32)>> {
     // Only a regular file can be resumed (reading /dev/full or a FIFO would
     // never end); anything else is written to as it is.
+    let journal = journal_path(path);
     if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        if journal.is_file() {
+            std::fs::remove_file(&journal).map_err(|e| Error::io(&journal, e))?;
+        }
         return Ok(Default::default());
     }
+    let listed = read_journal(&journal)?;
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
     let mut rows: Vec<((u32, u32), &str)> = Vec::new();
@@ -305,13 +357,18 @@ pub fn resume_from(path: &Path, expected: &HashMap<(u32, u32), usize>) -> Result
             .map_err(|r| Error::InvalidInput(format!("{}: line {}: {r} (not a results file this command wrote?)", path.display(), i + 1)))?;
         rows.push(((e.scene_id, e.im_id), line));
     }
-    let mut count: HashMap<(u32, u32), usize> = HashMap::new();
+    let mut count: BTreeMap<(u32, u32), usize> = BTreeMap::new();
     for (k, _) in &rows {
         *count.entry(*k).or_default() += 1;
     }
+    let finished = |k: &(u32, u32), n: usize| match &listed {
+        Some(j) => j.get(k) == Some(&n),
+        None => expected.get(k).is_none_or(|&want| want == n),
+    };
     let done: std::collections::BTreeSet<(u32, u32)> =
-        count.iter().filter(|(k, n)| expected.get(k) == Some(n)).map(|(k, _)| *k).collect();
-    let kept: Vec<&str> = rows.iter().filter(|(k, _)| done.contains(k)).map(|(_, l)| *l).collect();
+        expected.keys().filter(|k| finished(k, count.get(*k).copied().unwrap_or(0))).copied().collect();
+    let kept_images: BTreeMap<(u32, u32), usize> = count.into_iter().filter(|(k, n)| finished(k, *n)).collect();
+    let kept: Vec<&str> = rows.iter().filter(|(k, _)| kept_images.contains_key(k)).map(|(_, l)| *l).collect();
     if kept.len() != rows.len() || complete.len() != text.len() {
         crate::io::write_atomically(path, |w| {
             use std::io::Write;
@@ -319,5 +376,12 @@ pub fn resume_from(path: &Path, expected: &HashMap<(u32, u32), usize>) -> Result
             kept.iter().try_for_each(|l| writeln!(w, "{l}"))
         })?;
     }
+    // Images finished without a row (no mask) stay finished.
+    let empty = done.iter().filter(|k| !kept_images.contains_key(*k)).map(|k| (*k, 0));
+    let entries: Vec<((u32, u32), usize)> = kept_images.iter().map(|(k, n)| (*k, *n)).chain(empty).collect();
+    crate::io::write_atomically(&journal, |w| {
+        use std::io::Write;
+        entries.iter().try_for_each(|((s, im), n)| w.write_all(journal_line(*s, *im, *n).as_bytes()))
+    })?;
     Ok(done)
 }

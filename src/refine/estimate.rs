@@ -214,6 +214,8 @@ pub fn estimate_image(
     }
     stats.seconds = t0.elapsed().as_secs_f64();
     out.iter_mut().for_each(|e| e.time = stats.seconds);
+    // Two instances refined to the very same pose are one estimate.
+    crate::bop::results::drop_repeated_poses(&mut out);
     // Drawn after the clock stops: pictures are not the method's time.
     let picture = explain.then(|| super::explain::scene_picture(&depth, &frame.objects, &frame.scene, Some(&plane), &p.refine)).transpose()?;
     Ok(super::dataset::ImageResult { estimates: out, stats, picture })
