@@ -84,4 +84,11 @@ impl Error {
             Error::Io { path, error: source }
         }
     }
+
+    /// Wraps an error creating or writing a file: "not found" there means a
+    /// folder on the way cannot hold files (e.g. /proc), not a missing input.
+    pub fn write(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        let error = std::io::Error::new(source.kind(), format!("cannot create or write the file: {source}"));
+        Error::Io { path: path.into(), error }
+    }
 }

@@ -20,7 +20,7 @@ pub fn write_atomically(path: &Path, body: impl FnOnce(&mut std::io::BufWriter<s
             body(&mut w)?;
             w.flush()
         })();
-        return result.map_err(|e| Error::io(path, e));
+        return result.map_err(|e| Error::write(path, e));
     }
     let tmp = temp_beside(path);
     let result = (|| {
@@ -33,11 +33,11 @@ pub fn write_atomically(path: &Path, body: impl FnOnce(&mut std::io::BufWriter<s
     })();
     if let Err(e) = result {
         let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
+        return Err(Error::write(path, e));
     }
     std::fs::rename(&tmp, path).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
-        Error::io(path, e)
+        Error::write(path, e)
     })
 }
 
@@ -61,11 +61,11 @@ pub fn check_writable(path: &Path) -> Result<()> {
     }
     if path.exists() && !path.is_file() {
         // A device or FIFO: it must open for writing.
-        std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::io(path, e))?;
+        std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::write(path, e))?;
         return Ok(());
     }
     let probe = temp_beside(path);
-    std::fs::File::create(&probe).map_err(|e| Error::io(path, e))?;
+    std::fs::File::create(&probe).map_err(|e| Error::write(path, e))?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
 }

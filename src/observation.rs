@@ -196,7 +196,14 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     if (mw, mh) != (width, height) {
         return Err(bad(format!("mask is {mw}x{mh} but the depth image is {width}x{height}")));
     }
-    let img = image::open(path).map_err(|e| bad(e.to_string()))?.to_luma8();
+    let img = image::open(path).map_err(|e| bad(e.to_string()))?;
+    // A 16-bit or float PNG is a depth image, not a mask (BOP masks are
+    // 8-bit, 0 or 255): thresholding it at zero would take every pixel
+    // with depth as the object.
+    if img.color().bytes_per_pixel() > img.color().channel_count() {
+        return Err(bad(format!("a mask is an 8-bit PNG (0 = background), this one has {} bits a channel: a depth image?", 8 * img.color().bytes_per_pixel() / img.color().channel_count())));
+    }
+    let img = img.to_luma8();
     if img.dimensions() != (width, height) {
         return Err(bad(format!(
             "mask is {}x{} but the depth image is {width}x{height}",
@@ -204,11 +211,7 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
             img.height()
         )));
     }
-    let mask: Vec<bool> = img.as_raw().iter().map(|&v| v != 0).collect();
-    if !mask.iter().any(|&m| m) {
-        return Err(bad("mask is empty (no non-zero pixel): nothing to score".into()));
-    }
-    Ok(mask)
+    Ok(img.as_raw().iter().map(|&v| v != 0).collect())
 }
 
 /// Largest margin of the region around the mask (fraction of its size).

@@ -180,7 +180,7 @@ fn parse_pose_entries(path: &Path, text: &str, select: Option<SceneGtSelection>)
                 serde_json::from_value(entry.clone()).map_err(|e| bad(format!("image {}: {e}; {shape}", sel.frame)))?;
             let picked: Vec<BopPose> = all.into_iter().filter(|p| sel.obj_id.is_none_or(|o| p.obj_id == Some(o))).collect();
             if picked.is_empty() {
-                return Err(bad(format!("image {} has no instance of object {:?}", sel.frame, sel.obj_id)));
+                return Err(bad(format!("image {} has no instance of object {}", sel.frame, sel.obj_id.map_or("(any)".into(), |o| o.to_string()))));
             }
             Ok(picked)
         }

@@ -261,6 +261,7 @@ fn bad_results_files_name_the_file_and_line() {
         ("2,3,1,nan,1 0 0 0 1 0 0 0 1,1 2 3,-1", "score"),
         ("2,x,1,0.9,1 0 0 0 1 0 0 0 1,1 2 3,-1", "im_id"),
         ("2,3,1,0.9,2 0 0 0 2 0 0 0 2,1 2 3,-1", "not a rotation"),
+        ("2,3,1,0.9,-1 0 0 0 -1 0 0 0 -1,1 2 3,-1", "reflection"),
         ("2,3,1,0.9,1 0 0 0 1 0 0 0 1,1 2 inf,-1", "t"),
     ];
     for (line, want) in cases {

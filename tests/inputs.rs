@@ -286,8 +286,14 @@ fn mask_errors() {
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("m.png");
     image::GrayImage::from_pixel(64, 48, image::Luma([0])).save(&p).unwrap();
-    assert!(err_text(read_mask_png(&p, 64, 48)).contains("mask is empty"));
+    // An empty mask reads (a dataset's fully hidden instance); scoring
+    // against it is refused.
+    let empty = read_mask_png(&p, 64, 48).unwrap();
+    assert!(err_text(plausible::observation::check_mask(&empty, 64, 48)).contains("mask is empty"));
     assert!(err_text(read_mask_png(&p, 640, 480)).contains("64x48"));
+    // A 16-bit PNG is a depth image given as the mask.
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([700u16])).save(&p).unwrap();
+    assert!(err_text(read_mask_png(&p, 64, 48)).contains("depth image?"));
 }
 
 fn poses_file(dir: &Path, body: &str) -> PathBuf {

@@ -48,6 +48,10 @@ impl PoseMm {
         if err > BOP_ORTHONORMAL_TOL {
             return Err(format!("R is not a rotation (|RᵀR − I| up to {err:.2e})"));
         }
+        // Orthonormal with determinant −1 is a mirror image, not a pose.
+        if p.r.determinant() < 0.0 {
+            return Err("R is not a rotation: its determinant is −1 (a reflection; a row or column flipped?)".into());
+        }
         Ok(p)
     }
 
@@ -195,7 +199,7 @@ impl Dataset {
                 }
             }
         }
-        Ok(Scene { id: scene_id, dir, gt, camera, gt_info, image_size: self.image_size })
+        Ok(Scene { id: scene_id, dir, gt, camera, gt_info, image_size: self.image_size, first_size: Default::default() })
     }
 
     /// The evaluation targets: `file` (or `test_targets_bop19.json` in the
@@ -249,6 +253,10 @@ pub struct Scene {
     /// `None` when the file is missing.
     pub gt_info: Option<BTreeMap<u32, Vec<f64>>>,
     image_size: Option<(u32, u32)>,
+    /// Without a camera.json, the size of the first depth image read: the
+    /// others must match it (BOP images of a dataset share one size, and
+    /// MSPD is scaled by it).
+    first_size: std::sync::OnceLock<(PathBuf, u32, u32)>,
 }
 
 impl Scene {
@@ -277,7 +285,30 @@ impl Scene {
         if let Some(s) = self.image_size {
             return Ok(s);
         }
-        png_size(&self.depth_path(im_id))
+        let path = self.depth_path(im_id);
+        let (w, h) = png_size(&path)?;
+        self.check_size(&path, w, h)?;
+        Ok((w, h))
+    }
+
+    /// Checks an image's size against the dataset's camera.json, or without
+    /// one against the first image of the scene read.
+    fn check_size(&self, path: &Path, w: u32, h: u32) -> Result<()> {
+        let bad = |reason: String| Error::BadImage { path: path.to_path_buf(), reason };
+        match self.image_size {
+            Some((cw, ch)) if (w, h) != (cw, ch) => Err(bad(format!("depth is {w}x{h} but the dataset's camera.json says {cw}x{ch}"))),
+            Some(_) => Ok(()),
+            None => {
+                let (first, fw, fh) = self.first_size.get_or_init(|| (path.to_path_buf(), w, h));
+                if (w, h) != (*fw, *fh) {
+                    return Err(bad(format!(
+                        "depth is {w}x{h} but {} is {fw}x{fh}: the images of a dataset share one size (the dataset has no camera.json to say which is right)",
+                        first.display()
+                    )));
+                }
+                Ok(())
+            }
+        }
     }
 
     /// Reads an image's depth as the BOP toolkit does (value × depth_scale,
@@ -288,11 +319,7 @@ impl Scene {
         let cam = self.frame_camera(im_id)?;
         let bad = |reason: String| Error::BadImage { path: path.clone(), reason };
         let (w, h) = png_size(&path)?;
-        if let Some((cw, ch)) = self.image_size {
-            if (w, h) != (cw, ch) {
-                return Err(bad(format!("depth is {w}x{h} but the dataset's camera.json says {cw}x{ch}")));
-            }
-        }
+        self.check_size(&path, w, h)?;
         let img = image::open(&path).map_err(|e| bad(e.to_string()))?;
         let image::DynamicImage::ImageLuma16(img) = img else {
             return Err(bad(format!("depth must be a 16-bit single-channel PNG (BOP convention), got {:?}", img.color())));
@@ -312,7 +339,7 @@ fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
 
 fn parse_id(path: &Path, key: &str, what: &str) -> Result<u32> {
     key.parse()
-        .map_err(|_| Error::BadJson { path: path.to_path_buf(), reason: format!("'{key}' is not a {what} id (expected an integer)") })
+        .map_err(|_| Error::BadJson { path: path.to_path_buf(), reason: format!("'{key}' is not an id of {what} (expected an integer)") })
 }
 
 #[derive(Deserialize)]
@@ -337,7 +364,7 @@ pub fn read_models_info(path: &Path) -> Result<BTreeMap<u32, ModelInfo>> {
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let mut out = BTreeMap::new();
     for (key, m) in raw {
-        let id = parse_id(path, &key, "object")?;
+        let id = parse_id(path, &key, "an object")?;
         if !(m.diameter.is_finite() && m.diameter > 0.0) {
             return Err(bad(format!("object {id}: diameter must be a positive number of mm, got {}", m.diameter)));
         }
@@ -354,6 +381,9 @@ pub fn read_models_info(path: &Path) -> Result<BTreeMap<u32, ModelInfo>> {
             let err = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
             if err > BOP_ORTHONORMAL_TOL {
                 return Err(bad(format!("object {id}: symmetries_discrete[{i}] is not a rotation (|RᵀR − I| up to {err:.2e})")));
+            }
+            if r.determinant() < 0.0 {
+                return Err(bad(format!("object {id}: symmetries_discrete[{i}] is a reflection (determinant −1), not a rotation")));
             }
             disc.push(arr);
         }
@@ -408,7 +438,7 @@ pub fn read_scene_gt(path: &Path) -> Result<BTreeMap<u32, Vec<GtInstance>>> {
     let raw: BTreeMap<String, Vec<RawGt>> = read_json(path)?;
     let mut out = BTreeMap::new();
     for (key, list) in raw {
-        let im = parse_id(path, &key, "image")?;
+        let im = parse_id(path, &key, "an image")?;
         let mut insts = Vec::with_capacity(list.len());
         for (i, g) in list.iter().enumerate() {
             let pose = PoseMm::from_row_major(&g.r, &g.t)
@@ -433,7 +463,7 @@ pub fn read_scene_camera(path: &Path) -> Result<BTreeMap<u32, FrameCamera>> {
     let raw: BTreeMap<String, RawCamera> = read_json(path)?;
     let mut out = BTreeMap::new();
     for (key, c) in raw {
-        let im = parse_id(path, &key, "image")?;
+        let im = parse_id(path, &key, "an image")?;
         let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: {reason}") };
         let k: [f64; 9] = c.k.as_slice().try_into().map_err(|_| bad(format!("cam_K has {} numbers, expected 9", c.k.len())))?;
         Intrinsics::from_k(&k, 1, 1).map_err(|e| bad(e.to_string()))?;
@@ -458,10 +488,10 @@ pub fn read_scene_gt_info(path: &Path, gt: &BTreeMap<u32, Vec<GtInstance>>) -> R
     let raw: BTreeMap<String, Vec<RawGtInfo>> = read_json(path)?;
     let mut out = BTreeMap::new();
     for (key, list) in raw {
-        let im = parse_id(path, &key, "image")?;
+        let im = parse_id(path, &key, "an image")?;
         let fr: Vec<f64> = list.iter().map(|i| i.visib_fract).collect();
-        if fr.iter().any(|v| !v.is_finite()) {
-            return Err(Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: visib_fract is not a number") });
+        if let Some(v) = fr.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+            return Err(Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: visib_fract {v} is not a fraction in [0, 1]") });
         }
         if let Some(g) = gt.get(&im) {
             if g.len() != fr.len() {

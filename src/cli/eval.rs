@@ -76,6 +76,10 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
+    super::distinct_files(
+        &[("--out", a.out.as_deref()), ("--errors-out", a.errors_out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())],
+        &[("--results", a.results.as_deref()), ("--targets", a.targets.as_deref())],
+    )?;
     for p in [&a.out, &a.errors_out, &a.gt_as_results].into_iter().flatten() {
         plausible::io::check_writable(p)?;
     }
@@ -97,6 +101,9 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         }
         (None, None) => bail!("give --results or --gt-as-results"),
     };
+    if results.is_empty() {
+        eprintln!("warning: the results hold no estimate: every target counts as missed");
+    }
     let device = a.dev.open(verbose)?;
     drop(open);
     let n_images = {

@@ -76,7 +76,11 @@ impl ObservationArgs {
         let cam = read_camera(&self.camera, self.frame.as_deref()).context("--camera (a frame of a scene_camera.json is picked with --frame)")?;
         let obs = read_depth_png(&self.depth, &cam).context("--depth")?;
         let mask = match &self.mask {
-            Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),
+            Some(p) => {
+                let m = read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?;
+                plausible::observation::check_mask(&m, obs.intrinsics.width, obs.intrinsics.height).with_context(|| format!("--mask {}", p.display()))?;
+                Some(m)
+            }
             None => None,
         };
         Ok((obs, mask))
@@ -174,4 +178,32 @@ pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     );
     pb.set_message(what.to_string());
     pb
+}
+
+/// A path as the file system resolves it, also for a file not made yet
+/// (its folder resolved, its name kept), so two spellings of one file
+/// compare equal.
+fn resolved(p: &std::path::Path) -> Option<PathBuf> {
+    if let Ok(r) = p.canonicalize() {
+        return Some(r);
+    }
+    let dir = match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.canonicalize().ok()?,
+        _ => std::env::current_dir().ok()?,
+    };
+    Some(dir.join(p.file_name()?))
+}
+
+/// Refuses two flags naming one file where one of them is written: an
+/// output would overwrite an input, or another output.
+pub fn distinct_files(outputs: &[(&str, Option<&std::path::Path>)], inputs: &[(&str, Option<&std::path::Path>)]) -> Result<()> {
+    let outs: Vec<(&str, PathBuf)> = outputs.iter().filter_map(|(f, p)| Some((*f, resolved((*p)?)?))).collect();
+    for (i, (flag, path)) in outs.iter().enumerate() {
+        for (other, q) in outs[..i].iter().map(|(f, p)| (*f, Some(p.clone()))).chain(inputs.iter().map(|(f, p)| (*f, p.and_then(resolved)))) {
+            if q.as_ref() == Some(path) {
+                anyhow::bail!("{flag} and {other} name the same file ({}): give {flag} another path", path.display());
+            }
+        }
+    }
+    Ok(())
 }

@@ -39,7 +39,7 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
     };
     let env = || EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(format!("warn,plausible={level}")));
     let Some(path) = trace else {
-        tracing_subscriber::fmt().with_env_filter(env()).with_writer(std::io::stderr).without_time().init();
+        tracing_subscriber::fmt().with_env_filter(env()).with_writer(std::io::stderr).with_ansi(colour()).without_time().init();
         return Ok(());
     };
     let file = create(path)?;
@@ -53,7 +53,7 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
             tracing_chrome::EventOrSpan::Span(s) => s.name().to_string(),
         }))
         .build();
-    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr).without_time().with_filter(env());
+    let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr).with_ansi(colour()).without_time().with_filter(env());
     let traced = Targets::new().with_target("plausible", LevelFilter::TRACE);
     tracing_subscriber::registry().with(fmt).with(chrome.with_filter(traced)).init();
     *TRACE.lock().unwrap_or_else(|e| e.into_inner()) = Some(TraceFile { path: path.to_path_buf(), guard, error });
@@ -134,4 +134,10 @@ impl Write for Recording {
         self.guarded(|w| w.flush());
         Ok(())
     }
+}
+
+/// Colours only on a terminal: a log piped to a file stays plain text.
+fn colour() -> bool {
+    use std::io::IsTerminal;
+    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none()
 }

@@ -135,14 +135,14 @@ fn parse(bytes: &[u8]) -> std::result::Result<(Vec<DVec3>, Vec<[u64; 3]>), Strin
                     Property::List(name, c, i) => {
                         let n = r.read(*c)?;
                         if !(0.0..=1e6).contains(&n) {
-                            return Err(format!("bad list length {n}"));
+                            return Err(format!("bad list length {n}{MISMATCH}"));
                         }
                         let keep = el.name == "face" && (name == "vertex_indices" || name == "vertex_index");
                         for _ in 0..n as usize {
                             let v = r.read(*i)?;
                             if keep {
                                 if v < 0.0 {
-                                    return Err(format!("negative vertex index {v}"));
+                                    return Err(format!("negative vertex index {v}{MISMATCH}"));
                                 }
                                 face.push(v as u64);
                             }
@@ -162,8 +162,14 @@ fn parse(bytes: &[u8]) -> std::result::Result<(Vec<DVec3>, Vec<[u64; 3]>), Strin
             }
         }
     }
+    if !r.rest_is_blank() {
+        return Err(format!("data goes on after the elements the header declares{MISMATCH}"));
+    }
     Ok((vertices, triangles))
 }
+
+/// Said where the body cannot be what the header describes.
+const MISMATCH: &str = " (does the data match the header's element counts and types?)";
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
@@ -176,6 +182,12 @@ struct Reader<'a> {
 }
 
 impl Reader<'_> {
+    /// Whether only whitespace (or, in a binary file, zero padding) is left.
+    fn rest_is_blank(&self) -> bool {
+        let rest = &self.data[self.pos.min(self.data.len())..];
+        rest.iter().all(|b| b.is_ascii_whitespace() || (self.format != Format::Ascii && *b == 0))
+    }
+
     fn read(&mut self, t: Scalar) -> std::result::Result<f64, String> {
         if self.format == Format::Ascii {
             while self.pos < self.data.len() && self.data[self.pos].is_ascii_whitespace() {
@@ -241,5 +253,13 @@ mod tests {
     fn truncated_binary_is_an_error() {
         let bin = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0";
         assert!(parse(bin).unwrap_err().contains("end of data"));
+    }
+
+    #[test]
+    fn data_past_the_declared_elements_is_an_error() {
+        let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+        assert!(parse(format!("{head}\n  \n").as_bytes()).is_ok());
+        let e = parse(format!("{head}3 2 1 0\n").as_bytes()).unwrap_err();
+        assert!(e.contains("goes on after") && e.contains("element counts"), "{e}");
     }
 }
