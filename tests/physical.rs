@@ -96,6 +96,30 @@ fn cube_resting_on_the_plane_is_plausible_with_half_side_margin() {
 }
 
 #[test]
+fn two_copies_of_one_object_in_one_place_intersect() {
+    // A duplicated detection: each copy's surface samples lie on the other's
+    // surface (δ ≈ 0), the centres of mass deep inside each other.
+    let d = assets();
+    let t = DVec3::new(0.0, 0.0, SIDE / 2.0);
+    for offset in [0.0, 1e-4] {
+        let r = check(
+            d.path(),
+            &[object("a", "cube.obj", DMat3::IDENTITY, t, false), object("b", "cube.obj", DMat3::IDENTITY, t + DVec3::new(offset, 0.0, 0.0), false)],
+        );
+        for o in &r {
+            assert_eq!(o.evaluation.verdict, Verdict::Intersecting, "{offset}: {:?}", o.evaluation);
+            assert!(o.evaluation.min_distance < -0.02, "{:?}", o.evaluation);
+        }
+    }
+    // Side by side, touching: both plausible (the probe is not inside).
+    let r = check(
+        d.path(),
+        &[object("a", "cube.obj", DMat3::IDENTITY, t, false), object("b", "cube.obj", DMat3::IDENTITY, t + DVec3::new(SIDE, 0.0, 0.0), false)],
+    );
+    assert!(r.iter().all(|o| o.evaluation.verdict == Verdict::Plausible), "{r:?}");
+}
+
+#[test]
 fn cube_lifted_1cm_floats_and_sunk_1cm_intersects() {
     let d = assets();
     let up = check(

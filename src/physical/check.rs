@@ -194,6 +194,25 @@ pub fn environment_of(scene: &Scene, prep: &Prepared, i: usize) -> Environment {
     }
 }
 
+/// The depth (δ < −ε, m) of object `i`'s centre of mass inside another
+/// object, when it lies inside its own: surface samples alone miss two
+/// objects in one place (each sample lies on the other's surface, δ ≈ 0, as
+/// for a duplicated detection), while a centre inside both means their
+/// volumes overlap by more than ε all round it. A centre outside its own
+/// object (a mug's, a ring's) says nothing and is skipped.
+fn interior_overlap(prep: &Prepared, i: usize, pose: &crate::pose::Pose, env: &Environment, eps: f64) -> Option<f64> {
+    let com = prep.mass[i].com;
+    if prep.grids[i].exact(com).delta >= -eps {
+        return None;
+    }
+    let x = pose.transform_point(com);
+    env.obstacles
+        .iter()
+        .map(|o| o.sdf.exact(o.pose.r.transpose() * (x - o.pose.t)).delta)
+        .filter(|d| *d < -eps)
+        .reduce(f64::min)
+}
+
 /// Checks every object of the scene. Static objects are held in place:
 /// their verdict is intersecting or plausible.
 pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck>> {
@@ -206,6 +225,13 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
         let body = &prep.bodies[i];
         env.check_epsilon(body.epsilon)?;
         let (mut e, detail) = evaluate_detailed(body, &o.pose, &env);
+        if let Some(delta) = interior_overlap(&prep, i, &o.pose, &env, body.epsilon) {
+            e.intersecting += 1;
+            e.min_distance = e.min_distance.min(delta);
+            e.feasible = false;
+            e.stable = false;
+            e.verdict = Verdict::Intersecting;
+        }
         if o.is_static {
             e.verdict = if e.intersecting > 0 {
                 Verdict::Intersecting

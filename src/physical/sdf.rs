@@ -75,6 +75,13 @@ impl SdfGrid {
     /// Bakes the grid of `mesh` with `resolution` cells across the longest
     /// side of its bounding box.
     pub fn bake(mesh: &Mesh, resolution: usize) -> Result<SdfGrid> {
+        // The exact distances take their sign from the faces' winding: a
+        // mesh wound inside out would put every point near it inside.
+        // Turned round first (closed meshes; others keep their winding and
+        // the ray-parity grid decides).
+        let mut oriented = mesh.clone();
+        oriented.orient();
+        let mesh = &oriented;
         if !(4..=1024).contains(&resolution) {
             return Err(Error::InvalidInput(format!(
                 "SDF grid resolution {resolution} is outside 4..=1024"
@@ -336,6 +343,20 @@ fn inside_votes(mesh: &Mesh, origin: DVec3, h: f64, dims: [usize; 3]) -> Vec<boo
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn a_mesh_wound_inside_out_has_the_same_distances() {
+        let half = DVec3::new(0.03, 0.02, 0.01);
+        let mut inverted = crate::shapes::cuboid(half);
+        inverted.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+        let (g, gi) = (SdfGrid::bake(&crate::shapes::cuboid(half), 16).unwrap(), SdfGrid::bake(&inverted, 16).unwrap());
+        for p in [DVec3::ZERO, DVec3::new(0.0, 0.0, 0.015), DVec3::new(0.029, 0.0, 0.0), DVec3::new(0.05, 0.03, -0.02)] {
+            let (a, b) = (g.exact(p), gi.exact(p));
+            assert!((a.delta - b.delta).abs() < 1e-9 && a.normal.dot(b.normal) > 0.999, "{p}: {a:?} vs {b:?}");
+            assert_eq!(g.trilinear(p).1 < 0.0, gi.trilinear(p).1 < 0.0);
+        }
+        assert!(g.exact(DVec3::ZERO).delta < 0.0);
+    }
 
     #[test]
     fn box_grid_matches_the_analytic_distance_within_the_bound() {
