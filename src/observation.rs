@@ -129,6 +129,8 @@ pub fn read_camera(path: &Path, frame: Option<&str>) -> Result<BopCamera> {
             cam.depth_scale
         )));
     }
+    // K on its own (its fit to the image size is checked with the depth).
+    Intrinsics::from_k(&cam.cam_k, 1, 1).map_err(|e| bad(e.to_string()))?;
     Ok(cam)
 }
 

@@ -233,19 +233,25 @@ pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, 
         let t = [p.cam_t_m2c[0] * scale, p.cam_t_m2c[1] * scale, p.cam_t_m2c[2] * scale];
         out.push(Pose::from_row_major(r, t).validated(i, orthonormalize)?);
     }
-    if units == PoseUnits::Millimetres {
-        // A camera-to-object distance under 2 cm is not a real scene: the file
-        // almost certainly holds metres where BOP expects millimetres.
-        let mut d: Vec<f64> = out.iter().map(|p| p.t.length()).collect();
-        d.sort_by(f64::total_cmp);
-        let median = d[d.len() / 2];
-        if median < 0.02 {
+    // A median camera-to-object distance under 2 cm, or over 50 m, is no
+    // real scene: the file almost certainly holds the other unit.
+    let mut d: Vec<f64> = out.iter().map(|p| p.t.length()).collect();
+    d.sort_by(f64::total_cmp);
+    let median = d[d.len() / 2];
+    match units {
+        PoseUnits::Millimetres if median < 0.02 => {
             return Err(bad(format!(
                 "median camera distance is {:.1} mm: cam_t_m2c looks like metres, but BOP poses are in \
                  millimetres (pass --pose-units m if the file really holds metres)",
                 median * 1e3
             )));
         }
+        PoseUnits::Metres if median > 50.0 => {
+            return Err(bad(format!(
+                "median camera distance is {median:.1} m: cam_t_m2c looks like millimetres (BOP's unit), read as metres"
+            )));
+        }
+        _ => {}
     }
     Ok(out)
 }

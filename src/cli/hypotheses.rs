@@ -39,6 +39,7 @@ pub struct HypothesesArgs {
 }
 
 pub fn run(a: HypothesesArgs) -> Result<()> {
+    plausible::io::check_writable(&a.out).context("--out")?;
     if !(0.0..1.0).contains(&a.min_probability) {
         bail!("--min-probability must lie in [0, 1)");
     }
@@ -68,16 +69,17 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
         }
         None => (analytic_resting_poses(&mesh)?, "the quasi-static analysis of the convex hull".to_string()),
     };
+    let min_probability = probability_cut(&rests, a.min_probability);
     let params = OnPlaneParams {
         yaw_steps: a.yaw_steps,
-        min_probability: a.min_probability,
+        min_probability,
         grid_radius: a.grid_radius,
         grid_step: a.grid_step_mm * 1e-3,
         ..Default::default()
     };
     let used = rests.iter().filter(|r| r.group_probability >= params.min_probability).count();
     if used == 0 {
-        bail!("no resting pose is at least {} probable; lower --min-probability", a.min_probability);
+        bail!("no resting poses");
     }
     let hyps = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &params)?;
     let json: Vec<serde_json::Value> = hyps
@@ -102,4 +104,30 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     );
     println!("wrote {}", a.out.display());
     Ok(())
+}
+
+/// Most probable resting poses taken when none reaches `--min-probability`:
+/// a round object (a ball, a lemon, a can on its side) rests on any of
+/// hundreds of hull facets, each a fraction of a percent probable.
+const ROUND_POSES: usize = 64;
+
+/// The probability cut for the resting poses: `asked`, or where no pose
+/// reaches it, the cut that keeps the [`ROUND_POSES`] most probable (said on
+/// stderr).
+fn probability_cut(rests: &[plausible::hypotheses::on_plane::RestingPose], asked: f64) -> f64 {
+    if rests.iter().any(|r| r.group_probability >= asked) || rests.is_empty() {
+        return asked;
+    }
+    let mut p: Vec<f64> = rests.iter().map(|r| r.group_probability).collect();
+    p.sort_by(|a, b| b.total_cmp(a));
+    let cut = p[p.len().min(ROUND_POSES) - 1];
+    let kept: f64 = p.iter().filter(|&&v| v >= cut).sum();
+    eprintln!(
+        "note: no resting pose is at least {asked} probable (a round object rests on any of its {} hull facets): \
+         using the {} most probable, {:.0} % of the probability (--min-probability sets the cut)",
+        p.len(),
+        p.iter().filter(|&&v| v >= cut).count(),
+        100.0 * kept
+    );
+    cut
 }

@@ -73,7 +73,10 @@ pub struct ObservationArgs {
 impl ObservationArgs {
     /// Reads the depth and, when given, the mask.
     pub fn load(&self) -> Result<(DepthImage, Option<Vec<bool>>)> {
-        let cam = read_camera(&self.camera, self.frame.as_deref()).context("--camera (a frame of a scene_camera.json is picked with --frame)")?;
+        let cam = read_camera(&self.camera, self.frame.as_deref()).map_err(|e| {
+            let frames = matches!(&e, plausible::Error::BadJson { reason, .. } if reason.contains("frame"));
+            anyhow::Error::new(e).context(if frames { "--camera (a frame of a scene_camera.json is picked with --frame)" } else { "--camera" })
+        })?;
         let obs = read_depth_png(&self.depth, &cam).context("--depth")?;
         let mask = match &self.mask {
             Some(p) => {

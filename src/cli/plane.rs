@@ -29,6 +29,7 @@ pub struct PlaneArgs {
 }
 
 pub fn run(a: PlaneArgs) -> Result<()> {
+    plausible::io::check_writable(&a.out).context("--out")?;
     if a.iterations == 0 {
         bail!("--iterations must be at least 1");
     }

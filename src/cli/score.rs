@@ -125,6 +125,8 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let physics = match (&a.plane, a.physics) {
         (Some(path), true) => {
             let plane = read_camera_plane(path)?;
+            plausible::hypotheses::on_plane::check_plane_under_observation(&plane, &obs, mask.as_deref(), mesh.diagonal())
+                .with_context(|| format!("--plane {}", path.display()))?;
             if let Some(e) = a.sampling.epsilon {
                 if !(e.is_finite() && e > 0.0 && e < 0.05) {
                     bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
@@ -209,6 +211,9 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     if let Some(out) = &a.out {
         check_out(out)?;
     }
+    if let Some(dir) = &a.explain {
+        prepare_explain_dir(dir).context("--explain")?;
+    }
     let mesh = a.mesh.load()?;
     let (obs, mask) = tracing::trace_span!("observation").in_scope(|| a.obs.load())?;
     let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
@@ -216,6 +221,9 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     let poses = tracing::trace_span!("poses")
         .in_scope(|| read_poses_selected(&a.poses, units, a.orthonormalize, select))
         .context("--poses (a BOP scene_gt.json needs --frame and --obj-id)")?;
+    if let Some(&bad) = a.explain_ids.iter().find(|&&i| i >= poses.len()) {
+        bail!("--explain-ids {bad}: there are only {} hypotheses (indices start at 0)", poses.len());
+    }
     Ok((mesh, obs, mask, poses))
 }
 
@@ -251,7 +259,10 @@ fn explain_ids(asked: &[usize], rank: &[usize]) -> Result<Vec<usize>> {
         bail!("--explain-ids {bad}: there are only {} hypotheses (indices start at 0)", rank.len());
     }
     if !asked.is_empty() {
-        return Ok(asked.to_vec());
+        let mut ids = asked.to_vec();
+        let mut seen = std::collections::HashSet::new();
+        ids.retain(|i| seen.insert(*i));
+        return Ok(ids);
     }
     Ok(by_rank(rank).into_iter().take(3).collect())
 }
@@ -269,7 +280,14 @@ pub fn write_explanations(
     params: &ScoreParams,
     physics: Option<&PlanePhysics>,
 ) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    prepare_explain_dir(dir)?;
+    // Pictures of an earlier run would sit beside this run's rows in a
+    // report as if they were its own.
+    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?.flatten() {
+        if plausible_picture_index(&entry.file_name().to_string_lossy()).is_some() {
+            std::fs::remove_file(entry.path()).with_context(|| format!("cannot remove the earlier run's {}", entry.path().display()))?;
+        }
+    }
     for &i in ids {
         let render = plausible::kernels::raster::render_cpu(rmesh, &poses[i], &target.intrinsics);
         // The band shows the verdict of the views drawn below it.
@@ -292,6 +310,22 @@ pub fn write_explanations(
         println!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The folder of `--explain` pictures, made now (before the scoring) and
+/// checked writable.
+fn prepare_explain_dir(dir: &std::path::Path) -> Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        bail!("{}: is a file; --explain takes a folder for the pictures", dir.display());
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
+    plausible::io::check_writable(&dir.join(".plausible-write-test")).with_context(|| format!("{}", dir.display()))?;
+    Ok(())
+}
+
+/// The index of a `hypothesis_<index>.png` this command writes.
+fn plausible_picture_index(name: &str) -> Option<usize> {
+    name.strip_prefix("hypothesis_")?.strip_suffix(".png")?.parse().ok()
 }
 
 fn print_throughput(device: &Device, target: &ScoreTarget, n: usize, secs: f64) {

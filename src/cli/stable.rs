@@ -174,6 +174,9 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.drops == 0 {
         bail!("--drops must be at least 1");
     }
+    if let Some(json) = &args.json {
+        plausible::io::check_writable(json).context("--json")?;
+    }
     if !(0.0..90.0).contains(&args.cluster_deg) || args.cluster_deg == 0.0 {
         bail!("--cluster-deg must be between 0 and 90 degrees");
     }
@@ -188,7 +191,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         drops: args.drops,
         seed: args.seed,
         collider: args.collider,
-        hull_max_points: args.hull_points.max(4),
+        hull_max_points: hull_points(args.hull_points)?,
         sim: stable::drop::SimParams {
             max_time: args.max_time,
             dt: 1.0 / args.step_hz,
@@ -468,6 +471,9 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
 fn export(args: ExportArgs) -> anyhow::Result<()> {
     let db = Db::open_existing(&args.db)?;
     let ex = stable::export::export(&db, args.mesh.as_deref())?;
+    if let (Some(filter), true) = (&args.mesh, ex.meshes.is_empty()) {
+        bail!("no mesh of {} matches '{filter}' (by path or hash prefix); `stable-poses show --db {}` lists them", args.db.display(), args.db.display());
+    }
     write_json(&args.json, &ex)
 }
 
@@ -505,6 +511,10 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
     if meshes.is_empty() {
         bail!("no meshes: assets/ not found; pass --mesh FILE");
     }
+    if !(10.0..=10_000.0).contains(&args.step_hz) {
+        bail!("--step-hz {}: give 10 to 10000 steps per second", args.step_hz);
+    }
+    hull_points(args.hull_points)?;
     let mut rows = Vec::new();
     for path in &meshes {
         let (mesh, _) = Mesh::load(path, MeshUnits::Metres)?;
@@ -517,9 +527,9 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
             drops: args.drops,
             seed: args.seed,
             collider,
-            hull_max_points: args.hull_points.max(4),
+            hull_max_points: hull_points(args.hull_points)?,
             sim: stable::drop::SimParams {
-                dt: 1.0 / args.step_hz.clamp(10.0, 10_000.0),
+                dt: 1.0 / args.step_hz,
                 ..Default::default()
             },
             ..Default::default()
@@ -630,4 +640,15 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `--hull-points`, checked: fewer than 8 vertices make a collider too
+/// coarse to stand for any real mesh (4 is a tetrahedron, whatever the
+/// shape), and the simplification is made for a budget, not a full hull of
+/// a million points.
+fn hull_points(n: usize) -> anyhow::Result<usize> {
+    if !(8..=100_000).contains(&n) {
+        anyhow::bail!("--hull-points {n}: give 8 to 100000 vertices per collider hull (default 96)");
+    }
+    Ok(n)
 }

@@ -287,6 +287,26 @@ fn check_object_on_plane(points: &[DVec3], to_plane: &Pose, diagonal: f64) -> Re
     Ok(())
 }
 
+/// Refuses a camera-frame plane the observed object does not stand on, as
+/// hypotheses do (see `check_object_on_plane`), for scoring given poses
+/// with physics: the object's masked points, or without a mask every
+/// point of the frame, must lie within one object size of the plane. Too
+/// few points to judge pass.
+pub fn check_plane_under_observation(plane: &Plane, obs: &DepthImage, mask: Option<&[bool]>, diagonal: f64) -> Result<()> {
+    let all;
+    let mask = match mask {
+        Some(m) => m,
+        None => {
+            all = vec![true; obs.depth.len()];
+            &all
+        }
+    };
+    let points = observed_points(obs, mask);
+    if points.len() < 10 {
+        return Ok(());
+    }
+    check_object_on_plane(&points, &camera_to_plane_frame(plane), diagonal)
+}
 
 /// Generates the hypotheses (see the module docs), in order of resting
 /// pose, then yaw, then offset.
@@ -309,6 +329,13 @@ pub fn on_plane_hypotheses(
     }
     if !(p.grid_step.is_finite() && p.grid_step > 0.0) {
         return Err(Error::InvalidInput(format!("the grid step must be a positive number of metres, got {}", p.grid_step)));
+    }
+    if p.grid_step > mesh.diagonal() {
+        return Err(Error::InvalidInput(format!(
+            "a grid step of {} m is larger than the object ({:.3} m across): the offsets would place hypotheses away from the observed object",
+            p.grid_step,
+            mesh.diagonal()
+        )));
     }
     if p.grid_radius > MAX_GRID_RADIUS {
         return Err(Error::InvalidInput(format!(

@@ -270,6 +270,13 @@ fn png(bytes: &[u8]) -> Result<Kind> {
     if width == 0 || height == 0 {
         bail!("a PNG of {width}x{height} pixels");
     }
+    // Decoded whole, once: a truncated file has a valid header, and a
+    // browser would show it as a broken picture. (The header check above
+    // bounds the decode's memory first.)
+    if (width as u64) * (height as u64) > 64 << 20 {
+        bail!("a PNG of {width}x{height} pixels, more than a report shows");
+    }
+    image::load_from_memory_with_format(bytes, image::ImageFormat::Png).context("a broken PNG (truncated?)")?;
     Ok(Kind::Png { bytes: bytes.to_vec(), width, height })
 }
 
