@@ -57,6 +57,10 @@ struct Report<'a> {
 /// check (prepare, one span per object), explain, simulate, report.
 #[tracing::instrument(name = "plausible check", level = "trace", skip_all)]
 pub fn run(a: CheckArgs) -> Result<()> {
+    let sim_defaults = SimSettings::default();
+    if !a.sim && (a.sim_dt != sim_defaults.dt || a.sim_steps != sim_defaults.steps || a.sim_rounds != sim_defaults.rounds) {
+        anyhow::bail!("--sim-dt, --sim-steps and --sim-rounds set the simulation: add --sim");
+    }
     if let Some(path) = &a.explain {
         if path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
             anyhow::bail!("--explain {}: the picture is a PNG; give a file name ending in .png", path.display());

@@ -33,6 +33,9 @@ pub struct SimSettings {
     pub solver_iterations: usize,
 }
 
+/// Most simulation steps (rounds × steps per round) one check runs.
+pub const MAX_STEPS: usize = 1_000_000;
+
 impl Default for SimSettings {
     fn default() -> Self {
         SimSettings {
@@ -124,8 +127,13 @@ impl SimWorld {
     /// A world of prebuilt bodies (see [`SimShapes`]); `length_unit` (m) is
     /// the objects' typical size, which rapier scales its tolerances by.
     pub fn from_bodies(planes: &[super::Plane], gravity: DVec3, bodies: &[SimBody], length_unit: f64, settings: &SimSettings) -> Result<SimWorld> {
-        if !(settings.dt > 0.0 && settings.dt.is_finite()) || settings.steps == 0 || settings.rounds == 0 {
-            return Err(Error::InvalidInput("simulation needs dt > 0, steps ≥ 1 and rounds ≥ 1".into()));
+        // A step over 0.1 s lets a falling object pass through a table in
+        // one step, and a million steps is hours: neither is a check.
+        if !(settings.dt > 0.0 && settings.dt <= 0.1) || !(1..=MAX_STEPS).contains(&(settings.steps.saturating_mul(settings.rounds))) {
+            return Err(Error::InvalidInput(format!(
+                "simulation needs a time step in (0, 0.1] s (got {}) and 1 to {MAX_STEPS} steps in all (got {} rounds of {})",
+                settings.dt, settings.rounds, settings.steps
+            )));
         }
         let mut world = PhysicsWorld::new();
         world.gravity = gravity.as_vec3();
