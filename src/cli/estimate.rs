@@ -71,7 +71,7 @@ pub struct EstimateArgs {
 
 /// The resting poses of `--stable`: a `stable-poses export` JSON as it is,
 /// or a `stable-poses` SQLite database exported in memory.
-fn read_stable(path: &std::path::Path) -> Result<String> {
+pub fn read_stable(path: &std::path::Path) -> Result<String> {
     let mut head = [0u8; 16];
     let is_sqlite = std::fs::File::open(path)
         .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))

@@ -17,8 +17,9 @@ pub struct HypothesesArgs {
     /// Support plane in the camera frame (`plausible plane` writes one).
     #[arg(long)]
     pub plane: PathBuf,
-    /// Resting poses from `plausible stable-poses export --json` (default:
-    /// the quasi-static analysis of the mesh's convex hull).
+    /// Resting poses from `plausible stable-poses export --json`, or its
+    /// SQLite database (default: the quasi-static analysis of the mesh's
+    /// convex hull).
     #[arg(long)]
     pub stable: Option<PathBuf>,
     /// Yaw angles per resting pose, evenly spaced over 360°.
@@ -54,7 +55,7 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     let plane = read_camera_plane(&a.plane)?;
     let (rests, source) = match &a.stable {
         Some(path) => {
-            let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let text = super::estimate::read_stable(path)?;
             let stem = a.mesh.mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             let sha = plausible::stable::mesh_sha256(&mesh);
             let (rests, how) = resting_poses_from_export(&text, &sha, &stem).with_context(|| path.display().to_string())?;

@@ -224,8 +224,14 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         for w in &prepared.warnings {
             eprintln!("warning: {w}");
         }
-        for n in &prepared.analytic.notes {
+        // A finely tessellated round mesh can give a hundred rounding notes:
+        // the first few say what happened, the database keeps them all.
+        const SHOWN_NOTES: usize = 5;
+        for n in prepared.analytic.notes.iter().take(SHOWN_NOTES) {
             eprintln!("note: {name}: analytic: {n}");
+        }
+        if prepared.analytic.notes.len() > SHOWN_NOTES {
+            eprintln!("note: {name}: analytic: {} more such notes (kept in the database)", prepared.analytic.notes.len() - SHOWN_NOTES);
         }
         let units = match (args.mesh_units, report.scale_to_metres == 1.0) {
             (MeshUnits::Metres, _) | (MeshUnits::Auto, true) => "m",

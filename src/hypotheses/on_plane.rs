@@ -52,6 +52,10 @@ struct ExportIn {
 struct MeshIn {
     mesh: String,
     sha256: String,
+    /// Settled drops of the run (several runs of one mesh: the largest
+    /// is taken, its probabilities the most precise).
+    #[serde(default)]
+    settled: u64,
     clusters: Vec<ClusterIn>,
     #[serde(default)]
     families: Vec<FamilyIn>,
@@ -154,7 +158,11 @@ pub fn resting_poses(mesh: &Mesh, export: Option<&str>, name: &str) -> Result<(V
 /// families [`ROLL_STEPS`] (their probability split evenly).
 pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<(Vec<RestingPose>, ExportMatch)> {
     let bad = |reason: String| Error::InvalidInput(format!("stable-pose JSON: {reason}"));
-    let v: ExportIn = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
+    if value.get("format").and_then(|f| f.as_str()).is_none() {
+        return Err(bad(format!("not a `stable-poses export` file (it has no \"format\": \"{}\")", crate::stable::export::FORMAT)));
+    }
+    let v: ExportIn = serde_json::from_value(value).map_err(|e| bad(e.to_string()))?;
     if v.format != crate::stable::export::FORMAT {
         return Err(bad(format!("format '{}' is not '{}' (made by another tool or version?)", v.format, crate::stable::export::FORMAT)));
     }
@@ -162,9 +170,10 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
     let stem = |m: &MeshIn| std::path::Path::new(&m.mesh).file_stem().map(|s| s.to_string_lossy().into_owned());
     let (entry, how) = meshes
         .iter()
-        .find(|m| m.sha256 == sha256)
+        .filter(|m| m.sha256 == sha256)
+        .max_by_key(|m| m.settled)
         .map(|m| (m, ExportMatch::Hash))
-        .or_else(|| meshes.iter().find(|m| stem(m).as_deref() == Some(name)).map(|m| (m, ExportMatch::Name)))
+        .or_else(|| meshes.iter().filter(|m| stem(m).as_deref() == Some(name)).max_by_key(|m| m.settled).map(|m| (m, ExportMatch::Name)))
         .or_else(|| (meshes.len() == 1).then(|| (&meshes[0], ExportMatch::OnlyEntry)))
         .ok_or_else(|| {
             let names: Vec<String> = meshes.iter().filter_map(stem).collect();
