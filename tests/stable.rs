@@ -395,6 +395,25 @@ fn shards_merged_equal_a_single_run() {
 }
 
 #[test]
+fn a_run_asked_for_more_drops_goes_on_from_the_stored_ones() {
+    // 40 drops, then 90 into the same database: one run whose drops equal
+    // a single run of 90 (drop i does not depend on the count).
+    let mesh = shapes::cuboid(DVec3::new(0.02, 0.03, 0.045));
+    let p = tmp("grown.sqlite");
+    let small = RunParams { drops: 40, seed: 7, ..Default::default() };
+    drop(run_db(&p, mesh.clone(), "box", &small, None, 2));
+    let prepared = stable::prepare(mesh.clone(), "box", &small).unwrap();
+    let mut db = Db::open(&p).unwrap();
+    let big = RunParams { drops: 90, ..small };
+    let summary = stable::run_into_db(&mut db, &prepared, "m", 1.0, &big, None, 2, ClusterParams::default(), |_, _| {}).unwrap();
+    assert_eq!(summary.reused, 40);
+    let runs = db.runs().unwrap();
+    assert_eq!((runs.len(), runs[0].drops), (1, 90));
+    let single = run_db(&tmp("single90.sqlite"), mesh, "box", &big, None, 2);
+    assert_eq!(db.drops(runs[0].id).unwrap(), single.drops(single.runs().unwrap()[0].id).unwrap());
+}
+
+#[test]
 fn killed_run_resumes_without_loss_or_duplicates() {
     let bin = env!("CARGO_BIN_EXE_plausible");
     let mesh = asset("pybullet/duck.obj");

@@ -248,7 +248,9 @@ impl Db {
     }
 
     /// Finds the run for (mesh, parameters) or creates it. `params_json` is the
-    /// canonical JSON of the drop-test parameters; its hash is the key.
+    /// canonical JSON of the drop-test parameters; the hash of all of them but
+    /// the drop count is the key ([`params_key`]), so a run asked for more
+    /// drops goes on from the ones it has.
     #[allow(clippy::too_many_arguments)]
     pub fn run_id(
         &self,
@@ -259,7 +261,7 @@ impl Db {
         collider: &str,
         cluster_params: ClusterParams,
     ) -> Result<i64> {
-        let key = sha256_hex(params_json.as_bytes());
+        let key = params_key(params_json)?;
         self.conn
             .execute(
                 "INSERT OR IGNORE INTO runs (mesh_sha256, params_key, params, seed, drops, collider, crate_version, cluster_params)
@@ -276,10 +278,12 @@ impl Db {
                 ],
             )
             .map_err(|e| self.e(e))?;
+        // More drops asked of a run it already holds extend it: drop i is
+        // the same whatever the count, so the stored ones are kept.
         self.conn
             .execute(
-                "UPDATE runs SET cluster_params = ?1 WHERE mesh_sha256 = ?2 AND params_key = ?3",
-                params![json(&cluster_params), mesh_sha256, key],
+                "UPDATE runs SET cluster_params = ?1, drops = MAX(drops, ?4) WHERE mesh_sha256 = ?2 AND params_key = ?3",
+                params![json(&cluster_params), mesh_sha256, key, drops as i64],
             )
             .map_err(|e| self.e(e))?;
         self.conn
@@ -693,4 +697,16 @@ fn corrupt(col: usize, e: impl std::fmt::Display) -> rusqlite::Error {
 fn json_col<T: serde::de::DeserializeOwned>(r: &rusqlite::Row, col: usize) -> rusqlite::Result<T> {
     let text: String = r.get(col)?;
     serde_json::from_str(&text).map_err(|e| corrupt(col, e))
+}
+
+/// The run key of a parameter JSON: SHA-256 of the parameters without
+/// `drops` (keys sorted). Drop i depends on the seed, the index and the
+/// other parameters, never on how many drops were asked for.
+fn params_key(params_json: &str) -> Result<String> {
+    let mut v: serde_json::Value = serde_json::from_str(params_json)
+        .map_err(|e| Error::InvalidInput(format!("run parameters are not JSON: {e}")))?;
+    if let Some(o) = v.as_object_mut() {
+        o.remove("drops");
+    }
+    Ok(sha256_hex(v.to_string().as_bytes()))
 }
