@@ -4,8 +4,9 @@
 //! - `meshes`: one row per mesh geometry, keyed by the SHA-256 of the loaded
 //!   geometry in metres; source path, units, sizes, mass properties.
 //! - `runs`: one row per (mesh, drop-test parameters) pair; the parameters
-//!   (as canonical JSON) and their hash form the key, so re-running the same
-//!   inputs finds the same run and continues it.
+//!   (as canonical JSON) and their hash without the drop count form the key,
+//!   so re-running the same inputs finds the same run and continues it, and
+//!   asking for more drops extends it.
 //! - `drops`: one row per finished drop, primary key `(run_id, drop_index)`:
 //!   a drop is written at most once, so a killed run that restarts loses only
 //!   uncommitted drops (which it simulates again, bit-identically) and never
