@@ -187,8 +187,10 @@ impl EvalOptions {
                 return bad(what, "needs one or more positive numbers".into());
             }
         }
-        if !(self.add_threshold.is_finite() && self.add_threshold > 0.0) {
-            return bad("ADD threshold", format!("must be positive, got {}", self.add_threshold));
+        // A fraction of the diameter: beyond 10 diameters every estimate
+        // in view counts as correct.
+        if !(self.add_threshold > 0.0 && self.add_threshold <= 10.0) {
+            return bad("ADD threshold", format!("is a fraction of the object's diameter in (0, 10] (BOP uses 0.1), got {}", self.add_threshold));
         }
         if !(self.max_sym_disc_step.is_finite() && self.max_sym_disc_step >= 1e-4 && self.max_sym_disc_step <= 1.0) {
             return bad("max_sym_disc_step", format!("must lie in [1e-4, 1], got {}", self.max_sym_disc_step));

@@ -72,10 +72,6 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         ..EvalOptions::for_dataset(name.as_deref())
     };
     opts.validate().context("check --errors, --add-threshold and --batch-images")?;
-    match &name {
-        Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
-        None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
-    }
     super::distinct_files(
         &[("--out", a.out.as_deref()), ("--errors-out", a.errors_out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())],
         &[("--results", a.results.as_deref()), ("--targets", a.targets.as_deref())],
@@ -84,6 +80,10 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         plausible::io::check_writable(p)?;
     }
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    match &name {
+        Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
+        None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
+    }
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
     if targets.is_empty() {
         bail!("no targets to evaluate");
