@@ -69,6 +69,12 @@ pub struct BopCamera {
     #[serde(rename = "cam_K")]
     pub cam_k: Vec<f64>,
     pub depth_scale: f64,
+    /// The image size, where the file states it (a dataset `camera.json`
+    /// does): the depth image must have it.
+    #[serde(default)]
+    pub width: Option<u32>,
+    #[serde(default)]
+    pub height: Option<u32>,
 }
 
 /// The dataset-level BOP `camera.json`: `fx, fy, cx, cy, width, height,
@@ -80,6 +86,10 @@ struct DatasetCamera {
     cx: f64,
     cy: f64,
     depth_scale: f64,
+    #[serde(default)]
+    width: Option<u32>,
+    #[serde(default)]
+    height: Option<u32>,
 }
 
 /// Reads a camera JSON: one BOP `scene_camera.json` entry (`{"cam_K":
@@ -98,7 +108,7 @@ pub fn read_camera(path: &Path, frame: Option<&str>) -> Result<BopCamera> {
     let cam = if v.get("fx").is_some() {
         let c: DatasetCamera = serde_json::from_value(v)
             .map_err(|e| bad(format!("{e}; a BOP camera.json has fx, fy, cx, cy, width, height and depth_scale")))?;
-        BopCamera { cam_k: vec![c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0], depth_scale: c.depth_scale }
+        BopCamera { cam_k: vec![c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0], depth_scale: c.depth_scale, width: c.width, height: c.height }
     } else {
         let entry = if single {
             v
@@ -161,6 +171,11 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
         return Err(Error::NotFound { path: path.to_path_buf() });
     }
     let (w, h) = png_size(path)?;
+    for (what, stated, got) in [("width", cam.width, w), ("height", cam.height, h)] {
+        if stated.is_some_and(|s| s != got) {
+            return Err(bad(format!("the depth image's {what} is {got} px, but the camera states {} px: is the camera for another image?", stated.unwrap_or(0))));
+        }
+    }
     let intrinsics = Intrinsics::from_k(&cam.cam_k, w, h)?;
     intrinsics.check_against_image().map_err(|reason| bad(reason))?;
     let img = image::open(path).map_err(|e| bad(e.to_string()))?;

@@ -261,10 +261,14 @@ fn depth_png_errors() {
     let small = d.path().join("small.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([7000u16])).save(&small).unwrap();
     assert!(err_text(read_depth_png(&small, &vga)).contains("principal point"));
-    let cam = BopCamera { cam_k: vec![60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1 };
-    let absurd = BopCamera { cam_k: vec![1e6, 0.0, 31.5, 0.0, 1e6, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1 };
+    let cam = BopCamera { cam_k: vec![60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
+    let absurd = BopCamera { cam_k: vec![1e6, 0.0, 31.5, 0.0, 1e6, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
     assert!(err_text(read_depth_png(&small, &absurd)).contains("focal length"));
     assert!(read_depth_png(&small, &cam).is_ok());
+    // A camera that states its image size must match the image.
+    let stated = BopCamera { width: Some(64), height: Some(100), ..cam.clone() };
+    assert!(err_text(read_depth_png(&small, &stated)).contains("height is 48 px, but the camera states 100"));
+    assert!(read_depth_png(&small, &BopCamera { height: Some(48), ..stated }).is_ok());
     // 8-bit depth is not BOP depth.
     let p8 = d.path().join("d8.png");
     image::GrayImage::from_pixel(64, 48, image::Luma([7])).save(&p8).unwrap();
@@ -274,7 +278,7 @@ fn depth_png_errors() {
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([0u16])).save(&p0).unwrap();
     assert!(err_text(read_depth_png(&p0, &cam)).contains("no valid"));
     // A depth_scale that makes depths absurd (metres where mm are expected).
-    let big = BopCamera { cam_k: cam.cam_k.clone(), depth_scale: 1000.0 };
+    let big = BopCamera { cam_k: cam.cam_k.clone(), depth_scale: 1000.0, width: None, height: None };
     let p1 = d.path().join("d1.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([700u16])).save(&p1).unwrap();
     assert!(err_text(read_depth_png(&p1, &big)).contains("depth_scale"));
