@@ -66,9 +66,11 @@ pub fn fit_support_plane(obs: &DepthImage, mask: Option<&[bool]>, p: &PlaneFitPa
             p.inlier_m
         )));
     }
-    if p.iterations == 0 || p.max_points < 3 {
+    // Over a million hypotheses is minutes of work for nothing: 500 find a
+    // plane holding a tenth of the points with certainty.
+    if !(1..=1_000_000).contains(&p.iterations) || p.max_points < 3 {
         return Err(Error::InvalidInput(format!(
-            "plane fit: needs at least 1 RANSAC iteration and 3 points to score on, got {} and {}",
+            "plane fit: needs 1 to 1,000,000 RANSAC iterations and 3 points to score on, got {} and {}",
             p.iterations, p.max_points
         )));
     }

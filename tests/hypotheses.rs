@@ -93,6 +93,10 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     assert!(err.contains("no entry for this mesh") && err.contains("duck, box"), "{err}");
     let skewed = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [1, 0, 0, 0, 2, 0, 0, 0, 1]}]});
     assert!(resting_poses_from_export(&export(vec![skewed]), "x", "x").unwrap_err().to_string().contains("not a rotation"));
+    let mirrored = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [-1, 0, 0, 0, -1, 0, 0, 0, -1]}]});
+    assert!(resting_poses_from_export(&export(vec![mirrored]), "x", "x").unwrap_err().to_string().contains("reflection"));
+    let improbable = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 5.0, "R_model_to_plane": [1, 0, 0, 0, 1, 0, 0, 0, 1]}]});
+    assert!(resting_poses_from_export(&export(vec![improbable]), "x", "x").unwrap_err().to_string().contains("not in [0, 1]"));
     // An export without meshes says so (the message was cut off).
     let e = resting_poses_from_export(&export(vec![]), "x", "duck").unwrap_err().to_string();
     assert!(e.contains("it has no meshes"), "{e}");

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
@@ -102,6 +103,13 @@ def _uint(name: str, value: Any) -> int:
     return int(value)
 
 
+def _bool(name: str, value: Any) -> bool:
+    """A True/False argument, or ValueError (``bool("no")`` is True)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} {value!r}: expected True or False")
+    return bool(value)
+
+
 def load_mesh(path: Union[str, os.PathLike], units: str = "auto") -> Mesh:
     """Loads .obj, .ply, .stl, .gltf or .glb; ``units`` "m", "mm" or "auto"."""
     return Mesh.load(os.fspath(path), units)
@@ -146,6 +154,7 @@ def _mesh(mesh: MeshLike, units: str, mesh_units: str) -> Mesh:
 
 def _array(a: Any, dtype: Any, what: str, shape: Sequence[Optional[int]]) -> np.ndarray:
     """``a`` as a C-contiguous array of ``dtype`` with ``shape`` (None = any)."""
+    _real(a, what)
     try:
         arr = np.ascontiguousarray(np.asarray(a), dtype=dtype)
     except (TypeError, ValueError) as e:
@@ -156,9 +165,19 @@ def _array(a: Any, dtype: Any, what: str, shape: Sequence[Optional[int]]) -> np.
     return arr
 
 
+def _real(a: Any, what: str) -> None:
+    """Refuses complex numbers (numpy would drop their imaginary part)."""
+    if np.iscomplexobj(np.asarray(a) if not isinstance(a, np.ndarray) else a):
+        raise ValueError(f"{what}: expected real numbers, got complex ones")
+
+
 def _camera(K: Any) -> np.ndarray:
     """The row-major 3x3 camera matrix, from (3, 3), 9 numbers or (fx, fy, cx, cy)."""
-    k = np.asarray(K, dtype=np.float64).reshape(-1)
+    _real(K, "K")
+    try:
+        k = np.asarray(K, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"K: cannot be read as numbers ({e})") from None
     if k.size == 4:
         fx, fy, cx, cy = k
         k = np.array([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
@@ -174,9 +193,20 @@ def _depth(depth: Any, scale: float) -> np.ndarray:
         d = d[:, :, 0]
     if d.ndim != 2:
         raise ValueError(f"depth: expected an (H, W) image, got shape {d.shape}")
+    _check_side("depth", d.shape)
     if d.dtype.kind not in "fiu":
         raise ValueError(f"depth: expected numbers, got dtype {d.dtype}")
     return np.ascontiguousarray(d.astype(np.float64) * scale, dtype=np.float32)
+
+
+#: Largest image side read (pixels), as the native side checks: checked
+#: here first, so a huge array is refused before it is copied.
+MAX_IMAGE_SIDE = 4096
+
+
+def _check_side(what: str, shape: Tuple[int, ...]) -> None:
+    if not all(1 <= n <= MAX_IMAGE_SIDE for n in shape[:2]):
+        raise ValueError(f"{what}: {shape[1]}x{shape[0]} pixels: each side must lie in 1..={MAX_IMAGE_SIDE}")
 
 
 def _mask(mask: Any) -> Optional[np.ndarray]:
@@ -188,6 +218,7 @@ def _mask(mask: Any) -> Optional[np.ndarray]:
         m = m[:, :, 0]
     if m.ndim != 2:
         raise ValueError(f"mask: expected an (H, W) image, got shape {m.shape}")
+    _check_side("mask", m.shape)
     return np.ascontiguousarray(m != 0)
 
 
@@ -195,12 +226,18 @@ def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
     """Rotations (N, 3, 3) and translations (N, 3) in metres, from R and t,
     or from 4x4 matrices (N, 4, 4) given as R alone."""
     if t is None:
+        _real(R, "poses")
         T = np.asarray(R, dtype=np.float64)
         if T.ndim == 2:
             T = T[None]
         if T.ndim != 3 or T.shape[1:] != (4, 4):
             raise ValueError(f"poses: give R (N, 3, 3) and t (N, 3), or 4x4 matrices (N, 4, 4); got shape {T.shape}")
+        bad = np.flatnonzero(np.any(T[:, 3, :] != [0.0, 0.0, 0.0, 1.0], axis=1))
+        if bad.size:
+            raise ValueError(f"pose {bad[0]}: the bottom row of a 4x4 pose must be [0, 0, 0, 1], got {T[bad[0], 3].tolist()}")
         R, t = T[:, :3, :3], T[:, :3, 3]
+    _real(R, "R")
+    _real(t, "t")
     r = np.asarray(R, dtype=np.float64)
     tt = np.asarray(t, dtype=np.float64)
     if r.ndim == 2:
@@ -299,6 +336,10 @@ class Scorer:
         self.mesh = _mesh(mesh, units, mesh_units)
         if not isinstance(res, (int, np.integer)) or res < 0 or res > 4096:
             raise ValueError(f"res {res!r}: the region's side in pixels must lie in 0..=4096 (0 = native pixels)")
+        # One call at a time: the native scorer keeps per-call scratch and
+        # releases the GIL while it works, so threads sharing a Scorer queue
+        # here instead of meeting a borrow error.
+        self._lock = threading.Lock()
         self._native = _native.Scorer(
             self.mesh,
             _camera(K),
@@ -316,12 +357,14 @@ class Scorer:
     @property
     def scoring_mesh(self) -> str:
         """Which mesh the visual score renders (level of detail) and why."""
-        return self._native.scoring_mesh
+        with self._lock:
+            return self._native.scoring_mesh
 
     @property
     def device(self) -> str:
         """Where the kernels run, e.g. "CPU twin (2 threads)"."""
-        return self._native.device
+        with self._lock:
+            return self._native.device
 
     def score(
         self,
@@ -343,25 +386,28 @@ class Scorer:
         first as ``plausible score --physics`` does. ``samples``, ``seed``
         and ``epsilon`` (metres) set the physical sampling."""
         r, tt = _poses(R, t, self._scale)
-        if physics is None:
-            physics = plane is not None
+        orthonormalize = _bool("orthonormalize", orthonormalize)
+        physics = plane is not None if physics is None else _bool("physics", physics)
         if physics and plane is None:
             raise ValueError("physics=True needs the support plane: pass plane=... (plausible.fit_plane fits one)")
         if not physics:
-            cols = self._native.score(r, tt, orthonormalize=orthonormalize)
+            with self._lock:
+                cols = self._native.score(r, tt, orthonormalize=orthonormalize)
             return _records(cols, SCORE_DTYPE, self._scale)
         if epsilon is not None and not (0.0 < float(epsilon) < 0.05):
             raise ValueError(f"epsilon {epsilon}: the contact tolerance is in metres and must lie in (0, 0.05)")
         if not (0 < int(samples) <= 1_000_000):
             raise ValueError(f"samples {samples}: between 1 and 1,000,000 surface samples")
         p, n = _plane(plane, self._scale)
-        cols = self._native.score(
-            r, tt, (p, n), samples=int(samples), seed=_uint("seed", seed), epsilon=epsilon, orthonormalize=orthonormalize
-        )
+        with self._lock:
+            cols = self._native.score(
+                r, tt, (p, n), samples=int(samples), seed=_uint("seed", seed), epsilon=epsilon, orthonormalize=orthonormalize
+            )
         return _records(cols, PHYSICS_DTYPE, self._scale)
 
     def __repr__(self) -> str:
-        return repr(self._native)
+        with self._lock:
+            return repr(self._native)
 
 
 def fit_plane(
@@ -499,7 +545,7 @@ def eval(  # noqa: A001 - the CLI's verb
     "mspd", "ad"]."""
     return _native.evaluate(
         os.fspath(dataset), os.fspath(results), targets=None if targets is None else os.fspath(targets), split=split,
-        errors=None if errors is None else list(errors), add_threshold=float(add_threshold), dataset_name=dataset_name,
+        errors=None if errors is None else ([errors] if isinstance(errors, str) else list(errors)), add_threshold=float(add_threshold), dataset_name=dataset_name,
         device=device, adapter=adapter, records=records,
     )
 
@@ -577,8 +623,12 @@ def refine(
         else:
             raise ValueError(f'object {i}: give its hypotheses as "R" and "t", or "poses" (N, 4, 4)')
         scores = o.get("scores")
+        if len(r) == 0:
+            raise ValueError(f"object {i}: no hypotheses to refine")
         if scores is not None:
             sc = _array(scores, np.float64, f"object {i} scores", (len(r),))
+            if not np.all(np.isfinite(sc)):
+                raise ValueError(f"object {i} scores: not all finite (NaN or infinity)")
             lead = int(np.argmax(sc))
         else:
             lead = 0
@@ -588,7 +638,7 @@ def refine(
     pl = None if plane is None else _plane(plane, s)
     out = _native.refine(
         _camera(K), d, meshes, masks, rs, ts, leads, plane=pl, method=method, steps=_uint("steps", steps),
-        budget=None if budget is None else _uint("budget", budget), physics=bool(physics), res=_uint("res", res),
+        budget=None if budget is None else _uint("budget", budget), physics=_bool("physics", physics), res=_uint("res", res),
         seed=_uint("seed", seed), device=device, adapter=adapter,
     )
     return _scene_out(out, s)
@@ -630,7 +680,7 @@ def estimate(
     pl = None if plane is None else _plane(plane, s)
     out = _native.estimate(
         _camera(K), d, meshes, masks, stable, plane=pl, method=method, steps=_uint("steps", steps), top=_uint("top", top),
-        yaw_steps=_uint("yaw_steps", yaw_steps), physics=bool(physics), res=_uint("res", res), seed=_uint("seed", seed),
+        yaw_steps=_uint("yaw_steps", yaw_steps), physics=_bool("physics", physics), res=_uint("res", res), seed=_uint("seed", seed),
         device=device, adapter=adapter,
     )
     return _scene_out(out, s)

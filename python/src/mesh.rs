@@ -15,6 +15,29 @@ pub struct Mesh {
     warnings: Vec<String>,
 }
 
+/// Any 2-D array-like of numbers of a `kinds` numpy kind (`f` float, `i`
+/// and `u` integers) as a C-contiguous array of `dtype`: trimesh's uint32
+/// faces, float32 vertices and plain lists all work; complex numbers,
+/// strings and float indices are refused rather than cast.
+fn numbers<'py, T: numpy::Element>(obj: &Bound<'py, PyAny>, kinds: &str, dtype: &str, what: &str) -> PyResult<PyReadonlyArray2<'py, T>> {
+    let np = obj.py().import("numpy")?;
+    let a = np.call_method1("asarray", (obj,)).map_err(|e| value_error(format!("{what}: not an array of numbers ({e})")))?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    if !kinds.contains(kind.as_str()) {
+        let got = a.getattr("dtype")?.str()?.to_string();
+        return Err(value_error(format!("{what}: expected {} numbers, got dtype {got}", if kinds == "iu" { "integer" } else { "real" })));
+    }
+    let kw = pyo3::types::PyDict::new(obj.py());
+    kw.set_item("dtype", dtype)?;
+    let c = np.call_method("ascontiguousarray", (a,), Some(&kw))?;
+    let ndim: usize = c.getattr("ndim")?.extract()?;
+    if ndim != 2 {
+        let shape = c.getattr("shape")?.str()?.to_string();
+        return Err(value_error(format!("{what}: expected a 2-D array ({what} x 3), got shape {shape}")));
+    }
+    Ok(c.extract::<PyReadonlyArray2<T>>()?)
+}
+
 /// Metres per unit of `units` (`m` or `mm`).
 pub fn unit_scale(units: &str) -> PyResult<f64> {
     match units {
@@ -31,8 +54,10 @@ impl Mesh {
     /// degenerate faces dropped).
     #[new]
     #[pyo3(signature = (vertices, faces, units = "m", name = "<arrays>"))]
-    fn new(vertices: PyReadonlyArray2<f64>, faces: PyReadonlyArray2<i64>, units: &str, name: &str) -> PyResult<Mesh> {
+    fn new(vertices: &Bound<'_, PyAny>, faces: &Bound<'_, PyAny>, units: &str, name: &str) -> PyResult<Mesh> {
         let scale = unit_scale(units)?;
+        let vertices = numbers::<f64>(vertices, "fiu", "float64", "vertices")?;
+        let faces = numbers::<i64>(faces, "iu", "int64", "faces")?;
         let (vs, fs) = (vertices.shape(), faces.shape());
         if vs[1] != 3 || fs[1] != 3 {
             return Err(value_error(format!("vertices must be (V, 3) and faces (F, 3), got {vs:?} and {fs:?}")));

@@ -174,6 +174,12 @@ def test_bad_input_raises_value_error(demo):
         "mesh type": lambda: pl.Scorer(42, K, depth, mask, device="cpu"),
         "lod": lambda: pl.Scorer(mesh, K, depth, mask, lod="fine", device="cpu"),
         "lod 2 faces": lambda: pl.Scorer(mesh, K, depth, mask, lod=2, device="cpu"),
+        "4x4 bottom row": lambda: s.score(np.tile(np.eye(4), (2, 1, 1)) + np.array([[0, 0, 0, 0]] * 3 + [[1, 2, 3, 4]])),
+        "complex t": lambda: s.score(R[:2], t[:2] + 1j),
+        "complex K": lambda: pl.Scorer(mesh, K + 0j, depth, mask, device="cpu"),
+        "physics not a bool": lambda: s.score(R[:2], t[:2], plane=demo / "plane.json", physics="no"),
+        # Refused from its shape, before a 4.6 GB copy of a broadcast view.
+        "huge depth": lambda: pl.Scorer(mesh, [2e4, 2e4, 1e4, 1e4], np.broadcast_to(np.float32(0.7), (20000, 20000)), None, device="cpu"),
     }
     for what, call in cases.items():
         with pytest.raises(ValueError) as e:
@@ -187,3 +193,37 @@ def test_bad_input_raises_value_error(demo):
     except ValueError as e:
         msg = str(e)
     assert msg is None or "--" not in msg, msg
+
+
+def test_threads_share_a_scorer_and_meshes_come_from_any_arrays(demo):
+    """Threads scoring with one Scorer queue instead of failing; a Mesh
+    takes trimesh's uint32 faces, float32 vertices and lists."""
+    import threading
+
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    m = pl.load_mesh(demo / "duck_0.15m.obj")
+    s = pl.Scorer(m, K, depth, mask, device="cpu")
+    want = s.score(R, t)["score"]
+    got, errors = [], []
+
+    def work():
+        try:
+            got.append(s.score(R, t)["score"])
+        except Exception as e:  # noqa: BLE001 - the test reports any failure
+            errors.append(e)
+
+    threads = [threading.Thread(target=work) for _ in range(3)]
+    for th in threads:
+        th.start()
+    work()
+    for th in threads:
+        th.join()
+    assert not errors, errors
+    assert len(got) == 4 and all(np.array_equal(g, want) for g in got)
+    copy = pl.Mesh(m.vertices.astype(np.float32), m.faces)
+    assert copy.faces.shape == m.faces.shape
+    assert pl.Mesh(m.vertices.tolist(), m.faces.tolist()).faces.shape == m.faces.shape
+    for v, f in [(m.vertices, m.faces.astype(np.float64)), (m.vertices + 0j, m.faces), (m.vertices.ravel(), m.faces)]:
+        with pytest.raises(ValueError):
+            pl.Mesh(v, f)

@@ -185,8 +185,11 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
     let mut out = Vec::new();
     for (i, c) in entry.clusters.iter().enumerate() {
         let r = rows(&c.r_model_to_plane);
-        if !c.probability.is_finite() || ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| !(x.abs() <= 1e-6)) {
-            return Err(bad(format!("cluster {i}: R_model_to_plane is not a rotation, or its probability is not a number")));
+        if ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| !(x.abs() <= 1e-6)) || r.determinant() < 0.0 {
+            return Err(bad(format!("cluster {i}: R_model_to_plane is not a rotation (scaled, sheared or a reflection)")));
+        }
+        if !(0.0..=1.0).contains(&c.probability) {
+            return Err(bad(format!("cluster {i}: probability {} is not in [0, 1]", c.probability)));
         }
         out.push(RestingPose { r_model_to_plane: r, probability: c.probability, group_probability: c.probability });
     }
@@ -202,8 +205,8 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             return Err(bad(format!("family {i} (a rolling family) needs an axis")));
         };
         let axis = DVec3::from_array(axis).normalize();
-        if !axis.is_finite() || !p.is_finite() {
-            return Err(bad(format!("family {i} has a zero axis or no probability")));
+        if !axis.is_finite() || !(0.0..=1.0).contains(&p) {
+            return Err(bad(format!("family {i} has a zero axis or no probability in [0, 1]")));
         }
         let start = axis.any_orthonormal_vector();
         for k in 0..ROLL_STEPS {
