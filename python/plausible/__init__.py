@@ -396,8 +396,8 @@ class Scorer:
             return _records(cols, SCORE_DTYPE, self._scale)
         if epsilon is not None and not (0.0 < float(epsilon) < 0.05):
             raise ValueError(f"epsilon {epsilon}: the contact tolerance is in metres and must lie in (0, 0.05)")
-        if not (0 < int(samples) <= 1_000_000):
-            raise ValueError(f"samples {samples}: between 1 and 1,000,000 surface samples")
+        if not (0 < _uint("samples", samples) <= 50_000):
+            raise ValueError(f"samples {samples}: between 1 and 50,000 surface samples")
         p, n = _plane(plane, self._scale)
         with self._lock:
             cols = self._native.score(

@@ -48,7 +48,7 @@ pub fn surface_samples_on_faces(mesh: &Mesh, count: usize, seed: u64) -> Result<
     }
     if count > MAX_SAMPLES {
         return Err(Error::InvalidInput(format!(
-            "{count} surface samples per object is more than the {MAX_SAMPLES} the GPU kernels take; use fewer"
+            "{count} surface samples per object: at most {MAX_SAMPLES} are taken (the GPU kernels' bound, kept on the CPU so both give the same answers); use fewer"
         )));
     }
     let mut cumulative = Vec::with_capacity(mesh.triangles.len());
