@@ -277,7 +277,7 @@ impl SceneFrame {
                 return Err(format!("{label}: missing cam_R_m2c or cam_t_m2c"));
             };
             let r = rotation(&format!("{label}: cam_R_m2c"), r)?;
-            let t = vec3(&format!("{label}: cam_t_m2c"), t)? * 1e-3;
+            let t = within_reach(&format!("{label}: cam_t_m2c"), vec3(&format!("{label}: cam_t_m2c"), t)? * 1e-3)?;
             return Ok(self.to_world.compose(&Pose::new(r, t)));
         }
         if o.cam_r.is_some() || o.cam_t.is_some() {
@@ -286,7 +286,7 @@ impl SceneFrame {
         let (Some(r), Some(t)) = (&o.r, &o.t) else {
             return Err(format!("{label}: missing R or t"));
         };
-        Ok(Pose::new(rotation(&format!("{label}: R"), r)?, vec3(&format!("{label}: t"), t)?))
+        Ok(Pose::new(rotation(&format!("{label}: R"), r)?, within_reach(&format!("{label}: t"), vec3(&format!("{label}: t"), t)?)?))
     }
 }
 
@@ -327,6 +327,17 @@ fn vec3(what: &str, v: &[f64]) -> std::result::Result<DVec3, String> {
         return Err(format!("{what} contains NaN or infinity"));
     }
     Ok(DVec3::new(v[0], v[1], v[2]))
+}
+
+/// Farthest position taken (m): beyond it f32 samples and grids lose the
+/// millimetres a contact test needs, and no tabletop scene is that large.
+pub const MAX_POSITION_M: f64 = 1e4;
+
+fn within_reach(what: &str, t: DVec3) -> std::result::Result<DVec3, String> {
+    if t.length() > MAX_POSITION_M {
+        return Err(format!("{what} lies {:.3e} m from the origin, more than the {MAX_POSITION_M} m a scene may span (units?)", t.length()));
+    }
+    Ok(t)
 }
 
 fn rotation(what: &str, v: &[f64]) -> std::result::Result<DMat3, String> {
