@@ -323,3 +323,32 @@ fn bad_dataset_files_are_clear_errors() {
     let e = corrupt("models/obj_000001.ply", &|p| std::fs::remove_file(p).unwrap());
     assert!(e.contains("obj_000001.ply") && e.contains("not found"), "{e}");
 }
+
+#[test]
+fn a_targets_file_of_images_only_targets_every_instance_in_them() {
+    // BOP'24's test_targets_bop24.json names images, not objects.
+    let ds = dataset();
+    let d = tempfile::tempdir().unwrap();
+    let (all, _) = ds.targets(None).unwrap();
+    let (scene, im) = (all[0].scene_id, all[0].im_id);
+    let p = d.path().join("t24.json");
+    std::fs::write(&p, format!(r#"[{{"scene_id": {scene}, "im_id": {im}}}]"#)).unwrap();
+    let (got, _) = ds.targets(Some(&p)).unwrap();
+    let mut want: std::collections::BTreeMap<u32, u32> = Default::default();
+    for g in &ds.scene(scene).unwrap().gt[&im] {
+        *want.entry(g.obj_id).or_default() += 1;
+    }
+    let got_counts: std::collections::BTreeMap<u32, u32> = got.iter().map(|t| (t.obj_id, t.inst_count)).collect();
+    assert!(got.iter().all(|t| (t.scene_id, t.im_id) == (scene, im)) && got.len() > 3);
+    assert_eq!(got_counts, want);
+    // Mixed entries, unknown images and repeats are errors.
+    for (body, err) in [
+        (format!(r#"[{{"scene_id": {scene}, "im_id": {im}}}, {{"scene_id": {scene}, "im_id": {im}, "obj_id": 1, "inst_count": 1}}]"#), "no obj_id"),
+        (format!(r#"[{{"scene_id": {scene}, "im_id": 999999}}]"#), "not annotated"),
+        (format!(r#"[{{"scene_id": {scene}, "im_id": {im}}}, {{"scene_id": {scene}, "im_id": {im}}}]"#), "listed twice"),
+    ] {
+        std::fs::write(&p, body).unwrap();
+        let e = ds.targets(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains(err), "{e}");
+    }
+}

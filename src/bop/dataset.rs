@@ -219,11 +219,7 @@ impl Dataset {
                 for scene_id in self.scene_ids()? {
                     let scene = self.scene(scene_id)?;
                     for (&im_id, insts) in &scene.gt {
-                        let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
-                        for g in insts {
-                            *counts.entry(g.obj_id).or_default() += 1;
-                        }
-                        out.extend(counts.into_iter().map(|(obj_id, inst_count)| Target { scene_id, im_id, obj_id, inst_count }));
+                        out.extend(instance_targets(scene_id, im_id, insts));
                     }
                 }
                 Ok((out, TargetSource::AllInstances))
@@ -510,29 +506,66 @@ pub fn read_scene_gt_info(path: &Path, gt: &BTreeMap<u32, Vec<GtInstance>>) -> R
 struct RawTarget {
     scene_id: u32,
     im_id: u32,
-    obj_id: u32,
+    obj_id: Option<u32>,
     inst_count: Option<u32>,
+}
+
+/// Every annotated instance of an image as targets: per object, its
+/// instance count.
+fn instance_targets(scene_id: u32, im_id: u32, insts: &[GtInstance]) -> Vec<Target> {
+    let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
+    for g in insts {
+        *counts.entry(g.obj_id).or_default() += 1;
+    }
+    counts.into_iter().map(|(obj_id, inst_count)| Target { scene_id, im_id, obj_id, inst_count }).collect()
+}
+
+/// The targets of a file that names images only (BOP'24's
+/// `test_targets_bop24.json`: `{scene_id, im_id}`): every annotated
+/// instance of those images, as without a targets file.
+fn image_targets(path: &Path, ds: &Dataset, raw: &[RawTarget]) -> Result<Vec<Target>> {
+    let mut scenes: BTreeMap<u32, Scene> = BTreeMap::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut out = Vec::new();
+    for (i, t) in raw.iter().enumerate() {
+        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") };
+        if !seen.insert((t.scene_id, t.im_id)) {
+            return Err(bad(format!("scene {}, image {} is listed twice", t.scene_id, t.im_id)));
+        }
+        if !scenes.contains_key(&t.scene_id) {
+            scenes.insert(t.scene_id, ds.scene(t.scene_id)?);
+        }
+        let insts = scenes[&t.scene_id].gt.get(&t.im_id).ok_or_else(|| bad(format!("image {} of scene {} is not annotated", t.im_id, t.scene_id)))?;
+        out.extend(instance_targets(t.scene_id, t.im_id, insts));
+    }
+    Ok(out)
 }
 
 /// Reads a BOP targets file (`test_targets_bop19.json`): a list of
 /// `{scene_id, im_id, obj_id, inst_count}`. Objects must be in the dataset.
+/// A list of `{scene_id, im_id}` alone (BOP'24's `test_targets_bop24.json`)
+/// makes every annotated instance of those images a target.
 pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
     let raw: Vec<RawTarget> = read_json(path)?;
+    if !raw.is_empty() && raw.iter().all(|t| t.obj_id.is_none()) {
+        return image_targets(path, ds, &raw);
+    }
     let mut seen = std::collections::HashMap::new();
     let mut out = Vec::with_capacity(raw.len());
     for (i, t) in raw.iter().enumerate() {
         let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") };
+        let obj_id = t.obj_id.ok_or_else(|| bad("no obj_id (other entries have one)".into()))?;
         let inst_count = t.inst_count.ok_or_else(|| bad("no inst_count (needed by the BOP'19 protocol)".into()))?;
         if inst_count == 0 {
             return Err(bad("inst_count is 0".into()));
         }
-        if !ds.models_info.contains_key(&t.obj_id) {
-            return Err(bad(format!("object {} is not in models_info.json", t.obj_id)));
+        if !ds.models_info.contains_key(&obj_id) {
+            return Err(bad(format!("object {obj_id} is not in models_info.json")));
         }
-        if let Some(j) = seen.insert((t.scene_id, t.im_id, t.obj_id), i) {
-            return Err(bad(format!("scene {}, image {}, object {} is already entry {j}", t.scene_id, t.im_id, t.obj_id)));
+        if let Some(j) = seen.insert((t.scene_id, t.im_id, obj_id), i) {
+            return Err(bad(format!("scene {}, image {}, object {obj_id} is already entry {j}", t.scene_id, t.im_id)));
         }
-        out.push(Target { scene_id: t.scene_id, im_id: t.im_id, obj_id: t.obj_id, inst_count });
+        out.push(Target { scene_id: t.scene_id, im_id: t.im_id, obj_id, inst_count });
     }
     Ok(out)
 }
