@@ -68,7 +68,10 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
             }
             (rests, format!("drop-test clusters of {}", path.display()))
         }
-        None => (analytic_resting_poses(&mesh)?, "the quasi-static analysis of the convex hull".to_string()),
+        None => (
+            analytic_resting_poses(&mesh).with_context(|| format!("--mesh {}: its resting poses", a.mesh.mesh.display()))?,
+            "the quasi-static analysis of the convex hull".to_string(),
+        ),
     };
     let min_probability = probability_cut(&rests, a.min_probability);
     let params = OnPlaneParams {
