@@ -75,6 +75,7 @@ struct DemoScene {
     fit: plausible::support_plane::PlaneFit,
 }
 
+#[tracing::instrument(name = "plausible demo", level = "trace", skip_all)]
 pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     // The output folder first: a wrong --out fails before any work.
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;

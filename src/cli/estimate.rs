@@ -86,6 +86,7 @@ pub fn read_stable(path: &std::path::Path) -> Result<String> {
     Ok(text)
 }
 
+#[tracing::instrument(name = "plausible estimate", level = "trace", skip_all)]
 pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;

@@ -39,6 +39,7 @@ pub struct HypothesesArgs {
     pub out: PathBuf,
 }
 
+#[tracing::instrument(name = "plausible hypotheses", level = "trace", skip_all)]
 pub fn run(a: HypothesesArgs) -> Result<()> {
     plausible::io::check_writable(&a.out).context("--out")?;
     if !(0.0..1.0).contains(&a.min_probability) {

@@ -28,6 +28,7 @@ pub struct PlaneArgs {
     pub seed: u64,
 }
 
+#[tracing::instrument(name = "plausible plane", level = "trace", skip_all)]
 pub fn run(a: PlaneArgs) -> Result<()> {
     plausible::io::check_writable(&a.out).context("--out")?;
     if a.iterations == 0 {

@@ -298,6 +298,7 @@ pub fn skip_done<T>(jobs: &mut Vec<T>, out: &std::path::Path, key: impl Fn(&T) -
     Ok(())
 }
 
+#[tracing::instrument(name = "plausible refine", level = "trace", skip_all)]
 pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     let params = RefineParams {
         method: Method::parse(&a.method).context("--method")?,

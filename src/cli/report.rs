@@ -34,6 +34,7 @@ pub struct ReportArgs {
     pub title: String,
 }
 
+#[tracing::instrument(name = "plausible report", level = "trace", skip_all)]
 pub fn run(a: ReportArgs) -> Result<()> {
     check_output(&a.output, &a.inputs)?;
     let inputs = inputs::read_all(&a.inputs)?;

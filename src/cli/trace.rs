@@ -22,6 +22,9 @@ use tracing_subscriber::prelude::*;
 /// finish the file too.
 struct TraceFile {
     path: PathBuf,
+    /// Where the trace is written until it is complete (beside `path`):
+    /// a killed run leaves `path` as it was, never empty or cut off.
+    partial: PathBuf,
     guard: tracing_chrome::FlushGuard,
     error: Arc<Mutex<Option<std::io::Error>>>,
 }
@@ -42,7 +45,8 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
         tracing_subscriber::fmt().with_env_filter(env()).with_writer(std::io::stderr).with_ansi(colour()).without_time().init();
         return Ok(());
     };
-    let file = create(path)?;
+    let partial = partial_path(path);
+    let file = create(path, &partial)?;
     let error = Arc::new(Mutex::new(None));
     let writer = Recording { inner: file, error: error.clone() };
     let (chrome, guard) = tracing_chrome::ChromeLayerBuilder::new()
@@ -56,7 +60,7 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
     let fmt = tracing_subscriber::fmt::layer().with_writer(std::io::stderr).with_ansi(colour()).without_time().with_filter(env());
     let traced = Targets::new().with_target("plausible", LevelFilter::TRACE);
     tracing_subscriber::registry().with(fmt).with(chrome.with_filter(traced)).init();
-    *TRACE.lock().unwrap_or_else(|e| e.into_inner()) = Some(TraceFile { path: path.to_path_buf(), guard, error });
+    *TRACE.lock().unwrap_or_else(|e| e.into_inner()) = Some(TraceFile { path: path.to_path_buf(), partial, guard, error });
     Ok(())
 }
 
@@ -76,8 +80,23 @@ fn event_name(e: &tracing::Event<'_>) -> String {
     m.0.unwrap_or_else(|| e.metadata().name().to_string())
 }
 
-/// Creates the trace file, saying which flag a bad path came from.
-fn create(path: &Path) -> Result<std::fs::File> {
+/// The file the trace is written to before it is renamed to `path`.
+fn partial_path(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.partial", std::process::id()))
+}
+
+/// Whether `path` holds something other than a trace (a JSON array): the
+/// trace must not replace a command's input or output.
+fn holds_other_data(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 64];
+    let Ok(n) = std::fs::File::open(path).and_then(|mut f| f.read(&mut head)) else { return false };
+    head[..n].iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b != b'[')
+}
+
+/// Creates the partial trace file, saying which flag a bad path came from.
+fn create(path: &Path, partial: &Path) -> Result<std::fs::File> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -88,7 +107,10 @@ fn create(path: &Path) -> Result<std::fs::File> {
     if path.is_dir() {
         bail!("--trace {}: is a folder, expected a file name (e.g. trace.json)", path.display());
     }
-    std::fs::File::create(path).map_err(|e| anyhow::anyhow!("--trace {}: {e}", path.display()))
+    if holds_other_data(path) {
+        bail!("--trace {}: the file exists and is not a trace (an input or output of the command?): give another path", path.display());
+    }
+    std::fs::File::create(partial).map_err(|e| anyhow::anyhow!("--trace {}: cannot create the file: {e}", path.display()))
 }
 
 /// Finishes the trace, when one is being written: stops the writer thread
@@ -98,9 +120,15 @@ pub fn finish() -> Result<()> {
     let Some(t) = TRACE.lock().unwrap_or_else(|e| e.into_inner()).take() else { return Ok(()) };
     drop(t.guard);
     if let Some(e) = t.error.lock().unwrap_or_else(|e| e.into_inner()).take() {
+        let _ = std::fs::remove_file(&t.partial);
         bail!("cannot write the trace {}: {e}", t.path.display());
     }
-    Ok(())
+    // The command may have written `path` itself meanwhile (an output of
+    // the same name): that is kept, and the trace left beside it.
+    if holds_other_data(&t.path) {
+        bail!("--trace {}: the command wrote a file of that name; the trace is in {}", t.path.display(), t.partial.display());
+    }
+    std::fs::rename(&t.partial, &t.path).map_err(|e| anyhow::anyhow!("cannot write the trace {}: {e}", t.path.display()))
 }
 
 /// The trace file's writer (tracing-chrome buffers in front of it): its
