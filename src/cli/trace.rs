@@ -82,6 +82,10 @@ fn event_name(e: &tracing::Event<'_>) -> String {
 
 /// The file the trace is written to before it is renamed to `path`.
 fn partial_path(path: &Path) -> PathBuf {
+    // A device or pipe (/dev/stdout, a FIFO) is written as it is.
+    if path.exists() && !path.is_file() && !path.is_dir() {
+        return path.to_path_buf();
+    }
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.partial", std::process::id()))
 }
@@ -91,6 +95,9 @@ fn partial_path(path: &Path) -> PathBuf {
 fn holds_other_data(path: &Path) -> bool {
     use std::io::Read;
     let mut head = [0u8; 64];
+    if !path.is_file() {
+        return false;
+    }
     let Ok(n) = std::fs::File::open(path).and_then(|mut f| f.read(&mut head)) else { return false };
     head[..n].iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b != b'[')
 }
@@ -110,6 +117,9 @@ fn create(path: &Path, partial: &Path) -> Result<std::fs::File> {
     if holds_other_data(path) {
         bail!("--trace {}: the file exists and is not a trace (an input or output of the command?): give another path", path.display());
     }
+    if partial == path {
+        return std::fs::OpenOptions::new().write(true).open(path).map_err(|e| anyhow::anyhow!("--trace {}: {e}", path.display()));
+    }
     std::fs::File::create(partial).map_err(|e| anyhow::anyhow!("--trace {}: cannot create the file: {e}", path.display()))
 }
 
@@ -120,11 +130,16 @@ pub fn finish() -> Result<()> {
     let Some(t) = TRACE.lock().unwrap_or_else(|e| e.into_inner()).take() else { return Ok(()) };
     drop(t.guard);
     if let Some(e) = t.error.lock().unwrap_or_else(|e| e.into_inner()).take() {
-        let _ = std::fs::remove_file(&t.partial);
+        if t.partial != t.path {
+            let _ = std::fs::remove_file(&t.partial);
+        }
         bail!("cannot write the trace {}: {e}", t.path.display());
     }
     // The command may have written `path` itself meanwhile (an output of
     // the same name): that is kept, and the trace left beside it.
+    if t.partial == t.path {
+        return Ok(());
+    }
     if holds_other_data(&t.path) {
         bail!("--trace {}: the command wrote a file of that name; the trace is in {}", t.path.display(), t.partial.display());
     }
