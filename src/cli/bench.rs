@@ -140,6 +140,15 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
+/// The demo's view of a mesh of any size and origin: its bounding-box
+/// centre on the demo's line of sight, as far away per metre of diagonal as
+/// the 0.15 m duck at 0.7 m, and never nearer than that.
+fn framed(base: &plausible::pose::Pose, mesh: &Mesh) -> plausible::pose::Pose {
+    let (lo, hi) = mesh.bounds();
+    let scale = (mesh.diagonal() / 0.15).max(1.0);
+    plausible::pose::Pose::new(base.r, base.t * scale - base.r * ((lo + hi) / 2.0))
+}
+
 /// The benchmark meshes: ~1k, ~4k and ~100k triangles, all scaled to a
 /// 0.15 m diagonal. The 100k mesh is the duck with every triangle split in
 /// 25 (same surface, 25x the triangles).
@@ -155,12 +164,15 @@ pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
 }
 
 fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
+    if a.no_cpu && a.device.device == "cpu" {
+        anyhow::bail!("--no-cpu with --device cpu leaves nothing to measure");
+    }
     let device = a.device.open(verbose, true)?;
     let (adapter, backend) = match &device {
         Device::Gpu(c) => (c.info.name.clone(), format!("{:?}", c.info.backend)),
         Device::Cpu => ("none".to_string(), "none".to_string()),
     };
-    let truth = crate::cli::demo::demo_true_pose();
+    let base_truth = crate::cli::demo::demo_true_pose();
     let k = linemod_camera();
     let params = ScoreParams::default();
     let repeat = a.repeat.max(1);
@@ -194,9 +206,17 @@ fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
         }
         println!();
     }
+    let framing = !a.mesh.is_empty();
     for (name, mesh) in meshes {
         let rmesh = RenderMesh::new(&mesh)?;
+        // A mesh of the user's, at its real size and origin, is seen as the
+        // demo sees the duck (the shipped ones keep the demo's pose, so
+        // figures stay comparable across versions).
+        let truth = if framing { framed(&base_truth, &mesh) } else { base_truth };
         let (obs, mask) = observe(&rmesh, &truth, &k, SensorNoise::default(), 1);
+        if !mask.contains(&true) {
+            anyhow::bail!("--mesh {name}: no pixel of it is seen ({:.3} mm across, {:.2} m from the camera): are its units right (--units)?", mesh.diagonal() * 1e3, truth.t.length());
+        }
         // A support plane under the true pose (normal up and towards the
         // camera, through the lowest vertex), so the perturbed hypotheses
         // mix contacts, floating and intersecting ones.

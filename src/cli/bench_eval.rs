@@ -54,6 +54,9 @@ pub struct EvalBenchRow {
 /// The device measured and, unless `no_cpu` or it is the twin already,
 /// the CPU twin beside it, in that order.
 pub fn side_by_side(device: &str, adapter: Option<&str>, no_cpu: bool, verbose: u8) -> Result<Vec<Device>> {
+    if no_cpu && device == "cpu" {
+        anyhow::bail!("--no-cpu with --device cpu leaves nothing to measure");
+    }
     let mut devices = vec![super::open_device(device, adapter, verbose, true)?];
     if !no_cpu && !matches!(devices[0], Device::Cpu) {
         devices.push(Device::Cpu);
@@ -110,6 +113,9 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
         return Ok(());
     }
     println!("machine: {}", super::machine::Machine::detect(devices.first()).line());
+    if rows[0].estimates == 0 {
+        eprintln!("warning: {} holds no estimate of the dataset's targets: nothing was evaluated", results_path.display());
+    }
     println!("{} ({} estimates, {} images; wall clock, median of {})", root.display(), rows[0].estimates, rows[0].images, a.repeat);
     println!("{:<24} {:<44} {:>12} {:>9} {:>9}", "errors", "device", "estimates/s", "wall s", "render s");
     for r in &rows {

@@ -38,6 +38,10 @@ pub struct ReportArgs {
 pub fn run(a: ReportArgs) -> Result<()> {
     check_output(&a.output, &a.inputs)?;
     let inputs = inputs::read_all(&a.inputs)?;
+    let pictures = inputs.iter().filter(|i| matches!(i.kind, Kind::Png { .. })).count();
+    if pictures > inputs::MAX_FOLDER_PNGS {
+        bail!("{pictures} pictures, more than the {} a report embeds; pass the ones you want", inputs::MAX_FOLDER_PNGS);
+    }
     let page = build(&a.title, &inputs);
     plausible::io::write_atomically(&a.output, |w| std::io::Write::write_all(w, page.as_bytes())).context("--output")?;
     println!("wrote {} ({} KiB): {}", a.output.display(), page.len().div_ceil(1024), summary(&inputs));

@@ -509,6 +509,10 @@ fn diameter_m(s: &str) -> Result<f64, String> {
 /// Entry point of `plausible bench stable`.
 pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
     let nthreads = threads(args.threads);
+    let cpus = threads(None);
+    if nthreads > cpus {
+        bail!("--threads {nthreads}: this machine has {cpus} logical CPUs; more threads than that measure contention, and the per-core figure would be wrong");
+    }
     let meshes = if args.mesh.is_empty() {
         bench_meshes()
     } else {
