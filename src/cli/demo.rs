@@ -78,7 +78,11 @@ struct DemoScene {
 #[tracing::instrument(name = "plausible demo", level = "trace", skip_all)]
 pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
     // The output folder first: a wrong --out fails before any work.
-    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    if a.out.is_file() {
+        anyhow::bail!("--out {}: is a file; the demo writes a folder of outputs", a.out.display());
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("--out {}: cannot create the folder", a.out.display()))?;
+    plausible::io::check_writable(&a.out.join(".plausible-write-test")).with_context(|| format!("--out {}", a.out.display()))?;
     let scene = build_scene(a.seed)?;
     let target = ScoreTarget::new(&scene.obs, Some(&scene.mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN)?;
     let poses = around_and_random(&scene.truth, a.n, a.seed);
@@ -245,7 +249,7 @@ fn write_outputs(
     let panels = plausible::explain::alignment_panels(target, &render, &params, 3);
     let pic = plausible::draw::with_title(&panels, &title, plausible::explain::verdict_colour(s.evals[s.best].verdict));
     let pic_path = out.join("alignment.png");
-    pic.save(&pic_path)?;
+    pic.save(&pic_path).with_context(|| format!("cannot write {}", pic_path.display()))?;
     println!(
         "\nwrote {}: observed depth | best hypothesis' depth | per-pixel alignment (yellow = aligned, red = rendered only, blue = observed only)",
         pic_path.display()
@@ -284,20 +288,21 @@ fn write_inputs(out: &std::path::Path, scene: &DemoScene, poses: &[Pose], est_po
     let k = scene.obs.intrinsics;
     let depth_scale = 0.1; // value x 0.1 = mm
     let depth16: Vec<u16> = scene.obs.depth.iter().map(|&d| ((d as f64 * 1e3 / depth_scale).round()).clamp(0.0, 65535.0) as u16).collect();
-    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16).context("depth image size")?.save(out.join("depth.png"))?;
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16).context("depth image size")?.save(out.join("depth.png")).with_context(|| format!("cannot write {}", out.join("depth.png").display()))?;
     let mask8: Vec<u8> = scene.mask.iter().map(|&m| if m { 255 } else { 0 }).collect();
-    image::GrayImage::from_raw(k.width, k.height, mask8).context("mask image size")?.save(out.join("mask.png"))?;
+    image::GrayImage::from_raw(k.width, k.height, mask8).context("mask image size")?.save(out.join("mask.png")).with_context(|| format!("cannot write {}", out.join("mask.png").display()))?;
     std::fs::write(
         out.join("camera.json"),
         serde_json::to_string_pretty(&serde_json::json!({
             "cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
             "depth_scale": depth_scale,
         }))?,
-    )?;
-    std::fs::write(out.join("poses.json"), serde_json::to_string(&poses_to_json(poses))?)?;
-    std::fs::write(out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(est_poses))?)?;
+    )
+    .with_context(|| format!("cannot write {}", out.join("camera.json").display()))?;
+    std::fs::write(out.join("poses.json"), serde_json::to_string(&poses_to_json(poses))?).with_context(|| format!("cannot write {}", out.join("poses.json").display()))?;
+    std::fs::write(out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(est_poses))?).with_context(|| format!("cannot write {}", out.join("hypotheses.json").display()))?;
     let plane_json = CameraPlaneJson::from_plane(&scene.fit.plane);
-    std::fs::write(out.join("plane.json"), serde_json::to_string_pretty(&plane_json)? + "\n")?;
+    std::fs::write(out.join("plane.json"), serde_json::to_string_pretty(&plane_json)? + "\n").with_context(|| format!("cannot write {}", out.join("plane.json").display()))?;
     // The mesh in metres as the demo used it.
     let mut obj = String::new();
     for v in &scene.mesh.vertices {
@@ -306,6 +311,6 @@ fn write_inputs(out: &std::path::Path, scene: &DemoScene, poses: &[Pose], est_po
     for t in &scene.mesh.triangles {
         obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
     }
-    std::fs::write(out.join("duck_0.15m.obj"), obj)?;
+    std::fs::write(out.join("duck_0.15m.obj"), obj).with_context(|| format!("cannot write {}", out.join("duck_0.15m.obj").display()))?;
     Ok(())
 }
