@@ -78,6 +78,7 @@ pub struct ScoreArgs {
     /// (`hypothesis_<index>.png`): observed depth | rendered depth |
     /// alignment, and with --physics the samples, support polygon and centre
     /// of mass from above and from the side under a band in the verdict's colour.
+    /// An earlier run's `hypothesis_<index>.png` there are removed first.
     #[arg(long)]
     pub explain: Option<PathBuf>,
     /// Hypotheses (input indices) to explain; default: the best 3.
