@@ -166,8 +166,9 @@ fn score_and_report(device: &Device, scene: &DemoScene, target: &ScoreTarget, po
         physics.body().samples.len()
     );
     println!("physical verdicts: {}", super::score::verdict_counts(&evals));
-    println!("\ntop 5, physically plausible first (index 0 is the true pose):");
-    super::score::print_table(&records, Some(&evals), &rank, 5);
+    let shown = poses.len().min(5);
+    println!("\ntop {shown}, physically plausible first (index 0 is the true pose):");
+    super::score::print_table(&records, Some(&evals), &rank, shown);
     let best = rank.iter().position(|&r| r == 1).unwrap_or(0);
     let visual_best = visual_rank.iter().position(|&r| r == 1).unwrap_or(0);
     let truth = &scene.truth;
