@@ -232,7 +232,8 @@ def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
             T = T[None]
         if T.ndim != 3 or T.shape[1:] != (4, 4):
             raise ValueError(f"poses: give R (N, 3, 3) and t (N, 3), or 4x4 matrices (N, 4, 4); got shape {T.shape}")
-        bad = np.flatnonzero(np.any(T[:, 3, :] != [0.0, 0.0, 0.0, 1.0], axis=1))
+        # (np.linalg.inv leaves ~1e-17 there: rounding, not another matrix)
+        bad = np.flatnonzero(np.any(~(np.abs(T[:, 3, :] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9), axis=1))
         if bad.size:
             raise ValueError(f"pose {bad[0]}: the bottom row of a 4x4 pose must be [0, 0, 0, 1], got {T[bad[0], 3].tolist()}")
         R, t = T[:, :3, :3], T[:, :3, 3]
