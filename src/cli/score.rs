@@ -248,24 +248,20 @@ fn write_outputs(
     }
     if let Some(dir) = &a.explain {
         let _s = tracing::trace_span!("explain").entered();
-        let ids = explain_ids(&a.explain_ids, rank)?;
+        let ids = explain_ids(&a.explain_ids, rank);
         write_explanations(dir, &ids, poses, records, rank, rmesh, target, params, physics)?;
     }
     Ok(())
 }
 
-/// The hypotheses to explain: those asked for (checked), else the best 3.
-fn explain_ids(asked: &[usize], rank: &[usize]) -> Result<Vec<usize>> {
-    if let Some(&bad) = asked.iter().find(|&&i| i >= rank.len()) {
-        bail!("--explain-ids {bad}: there are only {} hypotheses (indices start at 0)", rank.len());
+/// The hypotheses to explain: those asked for (checked against the poses
+/// in `load`), each once, else the best 3.
+fn explain_ids(asked: &[usize], rank: &[usize]) -> Vec<usize> {
+    if asked.is_empty() {
+        return by_rank(rank).into_iter().take(3).collect();
     }
-    if !asked.is_empty() {
-        let mut ids = asked.to_vec();
-        let mut seen = std::collections::HashSet::new();
-        ids.retain(|i| seen.insert(*i));
-        return Ok(ids);
-    }
-    Ok(by_rank(rank).into_iter().take(3).collect())
+    let mut seen = std::collections::HashSet::new();
+    asked.iter().copied().filter(|i| seen.insert(*i)).collect()
 }
 
 /// Writes `hypothesis_<index>.png` for every id (see `--explain`).

@@ -183,9 +183,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if !args.max_time.is_finite() || args.max_time <= 0.0 {
         bail!("--max-time must be positive");
     }
-    if !(10.0..=10_000.0).contains(&args.step_hz) {
-        bail!("--step-hz must be between 10 and 10000");
-    }
+    let dt = step_dt(args.step_hz)?;
     let mut db = tracing::trace_span!("open_db").in_scope(|| Db::open(&db_path))?;
     let params = RunParams {
         drops: args.drops,
@@ -194,7 +192,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         hull_max_points: hull_points(args.hull_points)?,
         sim: stable::drop::SimParams {
             max_time: args.max_time,
-            dt: 1.0 / args.step_hz,
+            dt,
             ..Default::default()
         },
         ..Default::default()
@@ -521,10 +519,8 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
     if meshes.is_empty() {
         bail!("no meshes: assets/ not found; pass --mesh FILE");
     }
-    if !(10.0..=10_000.0).contains(&args.step_hz) {
-        bail!("--step-hz {}: give 10 to 10000 steps per second", args.step_hz);
-    }
-    hull_points(args.hull_points)?;
+    let dt = step_dt(args.step_hz)?;
+    let hull_max_points = hull_points(args.hull_points)?;
     let mut rows = Vec::new();
     for path in &meshes {
         let (mesh, _) = Mesh::load(path, MeshUnits::Metres)?;
@@ -537,9 +533,9 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
             drops: args.drops,
             seed: args.seed,
             collider,
-            hull_max_points: hull_points(args.hull_points)?,
+            hull_max_points,
             sim: stable::drop::SimParams {
-                dt: 1.0 / args.step_hz,
+                dt,
                 ..Default::default()
             },
             ..Default::default()
@@ -661,4 +657,12 @@ fn hull_points(n: usize) -> anyhow::Result<usize> {
         anyhow::bail!("--hull-points {n}: give 8 to 100000 vertices per collider hull (default 96)");
     }
     Ok(n)
+}
+
+/// The time step of `--step-hz`, checked: 10 to 10,000 steps per second.
+fn step_dt(hz: f64) -> anyhow::Result<f64> {
+    if !(10.0..=10_000.0).contains(&hz) {
+        anyhow::bail!("--step-hz {hz}: give 10 to 10000 steps per second");
+    }
+    Ok(1.0 / hz)
 }
