@@ -250,7 +250,7 @@ fn write_outputs(
     let panels = plausible::explain::alignment_panels(target, &render, &params, 3);
     let pic = plausible::draw::with_title(&panels, &title, plausible::explain::verdict_colour(s.evals[s.best].verdict));
     let pic_path = out.join("alignment.png");
-    pic.save(&pic_path).with_context(|| format!("cannot write {}", pic_path.display()))?;
+    write_named(out, "alignment.png", |p| pic.save(p))?;
     println!(
         "\nwrote {}: observed depth | best hypothesis' depth | per-pixel alignment (yellow = aligned, red = rendered only, blue = observed only)",
         pic_path.display()
@@ -289,21 +289,22 @@ fn write_inputs(out: &std::path::Path, scene: &DemoScene, poses: &[Pose], est_po
     let k = scene.obs.intrinsics;
     let depth_scale = 0.1; // value x 0.1 = mm
     let depth16: Vec<u16> = scene.obs.depth.iter().map(|&d| ((d as f64 * 1e3 / depth_scale).round()).clamp(0.0, 65535.0) as u16).collect();
-    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16).context("depth image size")?.save(out.join("depth.png")).with_context(|| format!("cannot write {}", out.join("depth.png").display()))?;
+    let depth = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16).context("depth image size")?;
+    write_named(out, "depth.png", |p| depth.save(p))?;
     let mask8: Vec<u8> = scene.mask.iter().map(|&m| if m { 255 } else { 0 }).collect();
-    image::GrayImage::from_raw(k.width, k.height, mask8).context("mask image size")?.save(out.join("mask.png")).with_context(|| format!("cannot write {}", out.join("mask.png").display()))?;
-    std::fs::write(
-        out.join("camera.json"),
-        serde_json::to_string_pretty(&serde_json::json!({
-            "cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-            "depth_scale": depth_scale,
-        }))?,
-    )
-    .with_context(|| format!("cannot write {}", out.join("camera.json").display()))?;
-    std::fs::write(out.join("poses.json"), serde_json::to_string(&poses_to_json(poses))?).with_context(|| format!("cannot write {}", out.join("poses.json").display()))?;
-    std::fs::write(out.join("hypotheses.json"), serde_json::to_string(&poses_to_json(est_poses))?).with_context(|| format!("cannot write {}", out.join("hypotheses.json").display()))?;
-    let plane_json = CameraPlaneJson::from_plane(&scene.fit.plane);
-    std::fs::write(out.join("plane.json"), serde_json::to_string_pretty(&plane_json)? + "\n").with_context(|| format!("cannot write {}", out.join("plane.json").display()))?;
+    let mask = image::GrayImage::from_raw(k.width, k.height, mask8).context("mask image size")?;
+    write_named(out, "mask.png", |p| mask.save(p))?;
+    let camera = serde_json::to_string_pretty(&serde_json::json!({
+        "cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+        "depth_scale": depth_scale,
+    }))?;
+    write_named(out, "camera.json", |p| std::fs::write(p, camera))?;
+    let poses = serde_json::to_string(&poses_to_json(poses))?;
+    write_named(out, "poses.json", |p| std::fs::write(p, poses))?;
+    let hypotheses = serde_json::to_string(&poses_to_json(est_poses))?;
+    write_named(out, "hypotheses.json", |p| std::fs::write(p, hypotheses))?;
+    let plane = serde_json::to_string_pretty(&CameraPlaneJson::from_plane(&scene.fit.plane))? + "\n";
+    write_named(out, "plane.json", |p| std::fs::write(p, plane))?;
     // The mesh in metres as the demo used it.
     let mut obj = String::new();
     for v in &scene.mesh.vertices {
@@ -312,6 +313,11 @@ fn write_inputs(out: &std::path::Path, scene: &DemoScene, poses: &[Pose], est_po
     for t in &scene.mesh.triangles {
         obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
     }
-    std::fs::write(out.join("duck_0.15m.obj"), obj).with_context(|| format!("cannot write {}", out.join("duck_0.15m.obj").display()))?;
-    Ok(())
+    write_named(out, "duck_0.15m.obj", |p| std::fs::write(p, obj))
+}
+
+/// Writes file `name` in `out` with `write`; an error names the file.
+fn write_named<E: std::error::Error + Send + Sync + 'static>(out: &std::path::Path, name: &str, write: impl FnOnce(&std::path::Path) -> std::result::Result<(), E>) -> Result<()> {
+    let path = out.join(name);
+    write(&path).with_context(|| format!("cannot write {}", path.display()))
 }
