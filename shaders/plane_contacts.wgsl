@@ -23,7 +23,6 @@ struct PlaneParams {
 struct ContactRecord { intersecting: u32, contact: u32, supported: u32, min_delta: f32 }
 
 @group(0) @binding(6) var<uniform> plane_params: PlaneParams;
-// Surface samples, model frame (xyz).
 // Model-frame surface samples (xyz), PLANE_SAMPLE_ROW per row (a texture:
 // a vector gather on lavapipe, see raster.wgsl's tables).
 @group(0) @binding(7) var samples: texture_2d<f32>;
