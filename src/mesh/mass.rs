@@ -13,7 +13,7 @@
 //! engines would otherwise derive them from the collider (a hull or a convex
 //! decomposition), which moves the centre of mass of concave objects.
 
-use glam::{DMat3, DVec3, Vec3};
+use glam::{DMat3, DVec3};
 
 use super::Mesh;
 use crate::error::{Error, Result};
@@ -257,9 +257,10 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// Convex hull of a point set as a closed, outward-wound triangle mesh
-/// (computed by parry in `f32`, returned in `f64`). Errors (as text) for
-/// fewer than four points or points that span no volume.
+/// Convex hull of a point set as a closed, outward-wound triangle mesh, its
+/// vertices a subset of the points (exact, see
+/// [`quickhull`](super::quickhull)). Errors (as text) for fewer than four
+/// points, points that are not finite, or points that span no volume.
 pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u32; 3]>), String> {
     if points.len() < 4 {
         return Err(format!(
@@ -267,7 +268,6 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
             points.len()
         ));
     }
-    // Centre before converting to f32 so precision follows the object size.
     let (lo, hi) = points.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
         |(l, h), v| (l.min(*v), h.max(*v)),
@@ -275,101 +275,17 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
     if !lo.is_finite() || !hi.is_finite() {
         return Err("points are not finite".into());
     }
-    let centre = 0.5 * (lo + hi);
     let diag = (hi - lo).length();
     if diag <= 0.0 {
         return Err("all points coincide".into());
     }
-    let pts: Vec<Vec3> = points.iter().map(|p| (*p - centre).as_vec3()).collect();
-    let (mut hv, mut ht) = quickhull(&pts)?;
-    if ht.len() < 4 {
-        return Err("the points span no volume (flat or degenerate hull)".into());
+    let flat = || "the points span no volume (flat or degenerate hull)".to_string();
+    let (hv, ht) = super::quickhull::exact_hull(points).ok_or_else(flat)?;
+    let volume: f64 = ht.iter().map(|t| hv[t[0] as usize].dot(hv[t[1] as usize].cross(hv[t[2] as usize]))).sum::<f64>() / 6.0;
+    if volume <= 1e-9 * diag.powi(3) {
+        return Err(flat());
     }
-    // Many coplanar points (a subdivided mesh: every edge midpoint lies on
-    // a face plane) can make parry's quickhull return a surface that is not
-    // convex or leaves points out. Check it, and if so build the hull of the
-    // points moved by a deterministic jitter of 1e-4 of the size (which
-    // breaks the coplanarity), then take the jittered points back.
-    let tol = 1e-5 * diag as f32;
-    let volume: f32 = ht.iter().map(|t| hv[t[0] as usize].dot(hv[t[1] as usize].cross(hv[t[2] as usize]))).sum::<f32>().abs() / 6.0;
-    if volume <= 1e-9 * (diag as f32).powi(3) {
-        return Err("the points span no volume (flat or degenerate hull)".into());
-    }
-    orient_outward(&hv, &mut ht);
-    if !hull_holds(&hv, &ht, &pts, tol) {
-        (hv, ht) = jittered_hull(&pts, diag as f32, tol)?;
-    }
-    Ok((hv.iter().map(|v| v.as_dvec3() + centre).collect(), ht))
-}
-
-/// parry's quickhull of `pts`, its failure as text.
-fn quickhull(pts: &[Vec3]) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), String> {
-    rapier3d::parry::transformation::try_convex_hull(pts).map_err(|e| format!("the points span no volume (convex hull failed: {e:?})"))
-}
-
-/// The hull of `pts` (centred, extent `diag`) built from the points moved
-/// by a deterministic jitter of 1e-4 of the size, which breaks the
-/// coplanarity that trips quickhull, with the jittered points taken back;
-/// checked to hold every point within `20 · tol`.
-fn jittered_hull(pts: &[Vec3], diag: f32, tol: f32) -> std::result::Result<(Vec<Vec3>, Vec<[u32; 3]>), String> {
-    let jittered: Vec<Vec3> = pts.iter().enumerate().map(|(i, p)| *p + jitter(i) * (1e-4 * diag)).collect();
-    let (jv, mut jt) = quickhull(&jittered)?;
-    orient_outward(&jv, &mut jt);
-    let index: std::collections::HashMap<[u32; 3], usize> =
-        jittered.iter().enumerate().map(|(i, p)| ([p.x.to_bits(), p.y.to_bits(), p.z.to_bits()], i)).collect();
-    let back: Option<Vec<Vec3>> = jv.iter().map(|v| index.get(&[v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).map(|&i| pts[i])).collect();
-    let back = back.ok_or("convex hull: the hull has vertices that are not input points")?;
-    if !hull_holds(&back, &jt, pts, 20.0 * tol) {
-        return Err("convex hull: the points are too degenerate for a reliable hull".into());
-    }
-    Ok((back, jt))
-}
-
-/// Winds every face of a convex hull outward (away from the mean of its
-/// vertices, which lies inside): parry's quickhull leaves some faces of
-/// point sets with many coplanar points wound inward.
-fn orient_outward(hv: &[Vec3], ht: &mut [[u32; 3]]) {
-    let inside = hv.iter().copied().sum::<Vec3>() / hv.len().max(1) as f32;
-    for t in ht.iter_mut() {
-        let (a, b, c) = (hv[t[0] as usize], hv[t[1] as usize], hv[t[2] as usize]);
-        if (b - a).cross(c - a).dot(inside - a) > 0.0 {
-            t.swap(1, 2);
-        }
-    }
-}
-
-/// A deterministic pseudo-random vector in [-1, 1]³ for point `i`.
-fn jitter(i: usize) -> Vec3 {
-    let mut x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
-    let mut next = || {
-        x ^= x >> 33;
-        x = x.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
-        x ^= x >> 33;
-        (x >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
-    };
-    Vec3::new(next(), next(), next())
-}
-
-/// Point-face pairs [`hull_holds`] tests at most.
-const HOLD_PAIRS: usize = 100_000_000;
-
-/// Whether `(hv, ht)` is an outward surface holding every point of `pts`
-/// within `tol` (tested in f64 with the one sliver rule), which also makes
-/// it convex (its own vertices are among the points).
-///
-/// Testing every point against every face is O(points × faces): beyond
-/// [`HOLD_PAIRS`] pairs an evenly strided subset of the points is tested (a
-/// dense convex scan, whose points are nearly all hull vertices, would
-/// otherwise take hours; quickhull's failures on coplanar points leave out
-/// or dent whole regions, which a strided subset still meets). Local
-/// convexity across edges would be O(faces) but quickhull's output on
-/// coplanar points is not always edge-manifold, so it cannot replace this.
-fn hull_holds(hv: &[Vec3], ht: &[[u32; 3]], pts: &[Vec3], tol: f32) -> bool {
-    let hv64: Vec<DVec3> = hv.iter().map(|v| v.as_dvec3()).collect();
-    let vol: f64 = ht.iter().map(|t| hv64[t[0] as usize].dot(hv64[t[1] as usize].cross(hv64[t[2] as usize]))).sum();
-    let planes = hull_planes(&hv64, ht);
-    let stride = (pts.len() * planes.len()).div_ceil(HOLD_PAIRS).max(1);
-    vol > 0.0 && pts.iter().step_by(stride).all(|p| outside_planes(&planes, p.as_dvec3()) <= tol as f64)
+    Ok((hv, ht))
 }
 
 #[cfg(test)]
@@ -449,27 +365,24 @@ mod tests {
         );
     }
 
-    /// The jittered retry: on the points of a subdivided duck (many
-    /// coplanar points, where quickhull alone can leave points out) the
-    /// retried hull holds every point, its vertices are input points, and it
-    /// agrees with the plain hull's volume where that one holds.
+    /// On the points of a subdivided duck (many coplanar points, where
+    /// parry's f32 quickhull left points out) the hull holds every point,
+    /// its vertices are input points, and its volume is the original
+    /// duck's hull volume (subdividing adds no hull vertex).
     #[test]
-    fn jittered_retry_holds_every_point_of_a_subdivided_mesh() {
+    fn hull_of_a_subdivided_mesh_holds_every_point() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck_vhacd.obj");
         let (duck, _) = crate::mesh::Mesh::load(path, crate::mesh::MeshUnits::Metres).unwrap();
         let dense = duck.subdivided(2);
-        let (lo, hi) = dense.bounds();
-        let (centre, diag) = (0.5 * (lo + hi), (hi - lo).length());
-        let pts: Vec<Vec3> = dense.vertices.iter().map(|p| (*p - centre).as_vec3()).collect();
-        let tol = 1e-5 * diag as f32;
-        let (hv, ht) = jittered_hull(&pts, diag as f32, tol).unwrap();
-        assert!(hull_holds(&hv, &ht, &pts, 20.0 * tol));
-        assert!(hv.iter().all(|v| pts.contains(v)), "hull vertices are input points");
-        let (fv, ft) = convex_hull(&dense.vertices).unwrap();
+        let (hv, ht) = convex_hull(&dense.vertices).unwrap();
+        let planes = hull_planes(&hv, &ht);
+        let diag = dense.diagonal();
+        assert!(dense.vertices.iter().all(|p| outside_planes(&planes, *p) <= 1e-12 * diag));
+        assert!(hv.iter().all(|v| dense.vertices.contains(v)), "hull vertices are input points");
+        let (fv, ft) = convex_hull(&duck.vertices).unwrap();
         let vol = |v: &[DVec3], t: &[[u32; 3]]| integrate(v, t).volume;
-        let jv: Vec<DVec3> = hv.iter().map(|v| v.as_dvec3() + centre).collect();
-        let (a, b) = (vol(&jv, &ht), vol(&fv, &ft));
-        assert!((a - b).abs() <= 1e-3 * b, "volumes {a} vs {b}");
+        let (a, b) = (vol(&hv, &ht), vol(&fv, &ft));
+        assert!((a - b).abs() <= 1e-9 * b, "volumes {a} vs {b}");
     }
 
     /// One sliver rule: a needle face has no plane, nor a face at the

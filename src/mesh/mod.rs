@@ -9,6 +9,7 @@
 mod load;
 pub mod lod;
 pub mod mass;
+mod quickhull;
 mod ply;
 mod stl;
 

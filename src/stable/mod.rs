@@ -103,8 +103,10 @@ impl Default for RunParams {
 /// tetrahedron per corner of every face with more than four, one drop per
 /// world; 2: support pyramids of four corners (same support polygons, fewer
 /// pieces); 3: 32 drops per world; 4: a support piece takes part in
-/// collisions only while it is near the ground (`drop::update_pieces`).
-pub const DROP_REVISION: u32 = 4;
+/// collisions only while it is near the ground (`drop::update_pieces`); 5:
+/// the collider is simplified from the exact convex hull
+/// ([`crate::mesh::mass::convex_hull`]) instead of parry's `f32` one.
+pub const DROP_REVISION: u32 = 5;
 
 /// The run parameters as stored and hashed into the run key.
 #[derive(serde::Serialize)]
