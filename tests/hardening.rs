@@ -134,6 +134,7 @@ fn absurd_flags_are_refused_before_any_work() {
     for (args, want) in [
         (vec!["demo", "--n", "1000000000000"], "1000000000000"),
         (vec!["bench", "physics", "--n", "1000000000"], "1000000000"),
+        (vec!["bench", "physics", "--n", "1000000", "--samples", "1024"], "sample-hypothesis queries"),
         (vec!["bench", "stable", "--diameter", "1e9"], "outside"),
         (vec!["bench", "stable", "--diameter", "nan"], "outside"),
         (vec!["plane", "--camera", "c", "--depth", "d", "--iterations", "100000000", "--out", "p.json"], "100000000"),

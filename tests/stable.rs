@@ -326,6 +326,18 @@ fn rounded_duck_settles_and_its_main_poses_match() {
 }
 
 #[test]
+fn small_rock_settles_like_a_large_one() {
+    // pybullet's low-poly rock at 3 cm: with absolute step, thresholds and
+    // contact springs it rocked on its face for good (about 55 % of drops
+    // settled); time-scaled to its size (SimParams::for_size) every drop
+    // settles, on the analytic facets.
+    let (mesh, _) = Mesh::load(asset("pybullet/random_000.obj"), MeshUnits::Metres).unwrap();
+    let (carried, settled) = check_against_analytic(mesh.normalized(0.03), "rock3cm", 300, 0.05, 5.0);
+    assert!(settled >= 0.99, "settled {settled}");
+    assert!(carried > 0.5, "matched analytic facets carry only {carried}");
+}
+
+#[test]
 fn same_seed_gives_identical_databases_for_one_and_two_threads() {
     let (mesh, _) = Mesh::load(asset("pybullet/duck_vhacd.obj"), MeshUnits::Metres).unwrap();
     let mesh = mesh.normalized(0.15);

@@ -163,10 +163,13 @@ pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
     Ok(vec![("bunny".into(), bunny), ("duck".into(), duck), ("duck/25".into(), dense)])
 }
 
-fn bench_score(a: BenchScoreArgs, verbose: u8) -> Result<()> {
+fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
     if a.no_cpu && a.device.device == "cpu" {
         anyhow::bail!("--no-cpu with --device cpu leaves nothing to measure");
     }
+    // A repeated --lod or --renderer would only measure the same row twice.
+    a.lod = distinct(&a.lod);
+    a.renderer = distinct(&a.renderer);
     let device = a.device.open(verbose, true)?;
     let (adapter, backend) = match &device {
         Device::Gpu(c) => (c.info.name.clone(), format!("{:?}", c.info.backend)),
@@ -397,6 +400,11 @@ fn measure_physics(
         })?);
     }
     Ok(())
+}
+
+/// The values of `v` in their first order, each once.
+fn distinct<T: PartialEq + Copy>(v: &[T]) -> Vec<T> {
+    v.iter().enumerate().filter(|(i, x)| !v[..*i].contains(x)).map(|(_, x)| *x).collect()
 }
 
 /// The CPU renderer the mesh gets at the true pose (hypotheses around it

@@ -67,12 +67,15 @@ pub struct RunArgs {
     /// Angular threshold of the clustering (degrees).
     #[arg(long, default_value_t = 5.0)]
     pub cluster_deg: f64,
-    /// Cap on simulated time per drop (seconds) for a 0.15 m object; larger
-    /// objects get it times √(diagonal / 0.15 m).
+    /// Cap on simulated time per drop (seconds) for a 0.15 m object; other
+    /// sizes get it times √(diagonal / 0.15 m) (a smaller object's whole
+    /// drop is time-scaled so: it moves faster under gravity).
     #[arg(long, default_value_t = 10.0)]
     pub max_time: f64,
-    /// Simulation steps per second. 240 gives converged pose frequencies;
-    /// 60 is about 4x faster with the same poses but shifted frequencies.
+    /// Simulation steps per second for a 0.15 m object (and larger ones;
+    /// smaller ones step √(0.15 m / diagonal) times as often). 240 gives
+    /// converged pose frequencies; 60 is about 4x faster with the same poses
+    /// but shifted frequencies.
     #[arg(long, default_value_t = 240.0)]
     pub step_hz: f64,
     /// Units of the mesh files: m, mm or auto.

@@ -105,7 +105,9 @@ impl Default for RunParams {
 /// pieces); 3: 32 drops per world; 4: a support piece takes part in
 /// collisions only while it is near the ground (`drop::update_pieces`); 5:
 /// the collider is simplified from the exact convex hull
-/// ([`crate::mesh::mass::convex_hull`]) instead of parry's `f32` one.
+/// ([`crate::mesh::mass::convex_hull`]) instead of parry's `f32` one, and
+/// objects smaller than 0.15 m are time-scaled
+/// ([`drop::SimParams::for_size`]).
 pub const DROP_REVISION: u32 = 5;
 
 /// The run parameters as stored and hashed into the run key.
