@@ -106,8 +106,8 @@ impl Default for RunParams {
 /// collisions only while it is near the ground (`drop::update_pieces`); 5:
 /// the collider is simplified from the exact convex hull
 /// ([`crate::mesh::mass::convex_hull`]) instead of parry's `f32` one, and
-/// objects smaller than 0.15 m are time-scaled
-/// ([`drop::SimParams::for_size`]).
+/// objects smaller or thinner than 0.15 m are time-scaled
+/// ([`drop::SimParams::for_size`], [`drop::DropBody::time_length`]).
 pub const DROP_REVISION: u32 = 5;
 
 /// The run parameters as stored and hashed into the run key.
@@ -649,6 +649,18 @@ pub fn match_analytic(
 mod tests {
     use super::*;
     use crate::shapes;
+
+    /// The time-scaling length: the diagonal for a cube, eight widths for
+    /// a thin rod (its width across a face of its hexagonal section).
+    #[test]
+    fn thin_bodies_are_time_scaled_by_their_width() {
+        let p = RunParams::default();
+        let cube = prepare(shapes::cuboid(DVec3::splat(0.05)), "cube", &p).unwrap();
+        assert!((cube.body.time_length() - cube.body.diagonal).abs() < 1e-12);
+        let rod = prepare(shapes::cylinder(0.0035, 0.175, 6), "rod", &p).unwrap();
+        let width = 2.0 * 0.0035 * (std::f64::consts::PI / 6.0).cos();
+        assert!((rod.body.time_length() - 8.0 * width).abs() < 1e-9, "{} vs {}", rod.body.time_length(), 8.0 * width);
+    }
 
     #[test]
     fn shard_parsing_and_membership() {
