@@ -164,9 +164,7 @@ pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
 }
 
 fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
-    if a.no_cpu && a.device.device == "cpu" {
-        anyhow::bail!("--no-cpu with --device cpu leaves nothing to measure");
-    }
+    super::bench_eval::check_no_cpu(&a.device.device, a.no_cpu)?;
     // A repeated --lod or --renderer would only measure the same row twice.
     a.lod = distinct(&a.lod);
     a.renderer = distinct(&a.renderer);

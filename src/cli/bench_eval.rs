@@ -51,12 +51,18 @@ pub struct EvalBenchRow {
     pub machine: super::machine::Machine,
 }
 
-/// The device measured and, unless `no_cpu` or it is the twin already,
-/// the CPU twin beside it, in that order.
-pub fn side_by_side(device: &str, adapter: Option<&str>, no_cpu: bool, verbose: u8) -> Result<Vec<Device>> {
+/// Refuses `--no-cpu` with `--device cpu`: nothing would be measured.
+pub fn check_no_cpu(device: &str, no_cpu: bool) -> Result<()> {
     if no_cpu && device == "cpu" {
         anyhow::bail!("--no-cpu with --device cpu leaves nothing to measure");
     }
+    Ok(())
+}
+
+/// The device measured and, unless `no_cpu` or it is the twin already,
+/// the CPU twin beside it, in that order.
+pub fn side_by_side(device: &str, adapter: Option<&str>, no_cpu: bool, verbose: u8) -> Result<Vec<Device>> {
+    check_no_cpu(device, no_cpu)?;
     let mut devices = vec![super::open_device(device, adapter, verbose, true)?];
     if !no_cpu && !matches!(devices[0], Device::Cpu) {
         devices.push(Device::Cpu);

@@ -60,13 +60,6 @@ impl Builder<'_> {
         above(a, b, c, self.pts[p as usize])
     }
 
-    /// Distance-like height of `p` above face `f` (unnormalised; only to
-    /// pick the farthest point, whose choice does not affect correctness).
-    fn height(&self, f: u32, p: u32) -> f64 {
-        let [a, b, c] = self.corners(f);
-        (b - a).cross(c - a).dot(self.pts[p as usize] - a)
-    }
-
     fn push_face(&mut self, v: [u32; 3]) -> u32 {
         self.faces.push(Face { v, adj: [u32::MAX; 3], outside: Vec::new(), alive: true });
         (self.faces.len() - 1) as u32
@@ -87,12 +80,15 @@ impl Builder<'_> {
     /// faces from its horizon to the point, and hands the removed faces'
     /// outside points to the new faces. Returns the new faces.
     fn add_point(&mut self, start: u32) -> Vec<u32> {
-        let outside = std::mem::take(&mut self.faces[start as usize].outside);
-        let eye = *outside
+        // The farthest point above the face (by its unnormalised normal:
+        // the choice only orders the work, correctness does not depend on it).
+        let [a, b, c] = self.corners(start);
+        let n = (b - a).cross(c - a);
+        let eye = *self.faces[start as usize]
+            .outside
             .iter()
-            .max_by(|&&p, &&q| self.height(start, p).total_cmp(&self.height(start, q)))
+            .max_by(|&&p, &&q| n.dot(self.pts[p as usize] - a).total_cmp(&n.dot(self.pts[q as usize] - a)))
             .expect("a face with outside points");
-        self.faces[start as usize].outside = outside;
         // The visible faces, by depth-first search from `start`; each edge
         // from a visible face to one that is not is a horizon edge.
         let mut visible = vec![start];

@@ -316,8 +316,9 @@ fn run_world(
     mut times: Option<&mut DropTimes>,
 ) -> Vec<DropResult> {
     let t_setup = times.is_some().then(std::time::Instant::now);
-    let params = &params.for_size(body.time_length());
-    let mut world = empty_world(body, params);
+    let length = body.time_length();
+    let params = &params.for_size(length);
+    let mut world = empty_world(body, params, length);
     let mut slots: Vec<Slot> = members
         .enumerate()
         .map(|(j, index)| {
@@ -341,8 +342,10 @@ fn groups(ground: bool) -> InteractionGroups {
     InteractionGroups::new(me, other, InteractionTestMode::And)
 }
 
-/// A world with the ground half-space and no body yet.
-fn empty_world(body: &DropBody, params: &SimParams) -> PhysicsWorld {
+/// A world with the ground half-space and no body yet, for a body of
+/// time-scaling length `length` ([`DropBody::time_length`]) whose
+/// `params` are already [`SimParams::for_size`].
+fn empty_world(body: &DropBody, params: &SimParams, length: f64) -> PhysicsWorld {
     let mut world = PhysicsWorld::new();
     world.gravity = Vec3::new(0.0, 0.0, -9.81);
     let ip = &mut world.integration_parameters;
@@ -355,7 +358,7 @@ fn empty_world(body: &DropBody, params: &SimParams) -> PhysicsWorld {
     // 60 Hz against the ground); a small object, time-scaled by
     // SimParams::for_size, gets them stiffened by the same factor, so it
     // meets the contact as a 0.15 m object does.
-    let stiffen = (1.0 / small_scale(body.time_length())) as f32;
+    let stiffen = (1.0 / small_scale(length)) as f32;
     ip.contact_softness.natural_frequency *= stiffen;
     ip.static_contact_softness.natural_frequency *= stiffen;
     if !params.ccd {
