@@ -55,13 +55,24 @@ impl MassProperties {
     /// The same properties as rapier's (f32) mass properties of a body of
     /// uniform `density`, for setting on a rigid body instead of deriving
     /// them from its collider.
+    ///
+    /// The principal axes are found here, in f64 and on the tensor scaled to
+    /// unit size ([`principal_axes`]), not by parry's
+    /// `MassProperties::with_inertia_matrix`: its 3×3 eigensolver (glamx
+    /// 0.3) takes any tensor whose column cross products are below an
+    /// absolute 1e-20 for an isotropic one and returns the x axis as the
+    /// first principal axis. Below about 1e-5 kg·m² (a 5 g pencil, any
+    /// object under a few centimetres at 1000 kg/m³) the body then spun
+    /// about the wrong axes: a 5.7 mm × 0.15 m rod got its long axis'
+    /// inertia on a transverse axis and rocked, sunk into the ground, for
+    /// the whole drop.
     pub fn to_rapier(&self, density: f64) -> rapier3d::parry::mass_properties::MassProperties {
-        let i = self.inertia(density);
-        let inertia = glam::Mat3::from_cols(i.x_axis.as_vec3(), i.y_axis.as_vec3(), i.z_axis.as_vec3());
-        rapier3d::parry::mass_properties::MassProperties::with_inertia_matrix(
+        let (principal, frame) = principal_axes(&self.inertia(density));
+        rapier3d::parry::mass_properties::MassProperties::with_principal_inertia_frame(
             self.com.as_vec3(),
             self.mass(density) as f32,
-            inertia,
+            principal.as_vec3(),
+            frame.as_quat().normalize(),
         )
     }
 
@@ -288,10 +299,64 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
     Ok((hv, ht))
 }
 
+/// Principal moments and axes of a symmetric inertia tensor: `inertia =
+/// R diag(moments) Rᵀ` with `R` the returned rotation (its columns are the
+/// axes). The tensor is scaled to unit size first, so the result does not
+/// depend on the units or the size of the body (see
+/// [`MassProperties::to_rapier`]); negative round-off moments become zero.
+pub fn principal_axes(inertia: &DMat3) -> (DVec3, glam::DQuat) {
+    let scale = inertia.to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if !(scale > 0.0 && scale.is_finite()) {
+        return (DVec3::ZERO, glam::DQuat::IDENTITY);
+    }
+    let m = nalgebra::Matrix3::from_fn(|r, c| inertia.col(c)[r] / scale);
+    let eig = nalgebra::SymmetricEigen::new(m);
+    let col = |i: usize| DVec3::new(eig.eigenvectors[(0, i)], eig.eigenvectors[(1, i)], eig.eigenvectors[(2, i)]).normalize();
+    let (x, y) = (col(0), col(1));
+    // A right-handed frame: the third axis is ± the solver's third column
+    // (which may make a reflection), so it keeps its moment.
+    let y = (y - x * x.dot(y)).normalize();
+    let z = x.cross(y);
+    let moments = DVec3::new(eig.eigenvalues[0], eig.eigenvalues[1], eig.eigenvalues[2]);
+    (moments.max(DVec3::ZERO) * scale, glam::DQuat::from_mat3(&DMat3::from_cols(x, y, z)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::shapes;
+
+    /// rapier's mass properties must give back the tensor they were made
+    /// from, for a light thin rod (a 5 g pencil: parry's own eigensolver
+    /// put its long axis on x), a rotated body, any scale and a sphere.
+    #[test]
+    fn rapier_mass_properties_keep_the_inertia_tensor() {
+        let rod = DMat3::from_diagonal(DVec3::new(8.9e-6, 8.9e-6, 2.5e-8));
+        let rot = glam::DMat3::from_quat(glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -1.1, 2.0));
+        let tilted = rot * DMat3::from_diagonal(DVec3::new(1.0, 2.0, 2.0)) * rot.transpose();
+        for (name, inertia) in [
+            ("rod", rod),
+            ("tiny rod", rod * 1e-9),
+            ("big rod", rod * 1e9),
+            ("tilted", tilted),
+            ("tiny tilted", tilted * 1e-12),
+            ("sphere", DMat3::from_diagonal(DVec3::splat(3e-7))),
+        ] {
+            let props = MassProperties {
+                volume: 1e-5,
+                com: DVec3::new(0.01, 0.0, -0.02),
+                inertia_unit_density: inertia / 1000.0,
+                source: MassSource::ClosedMesh,
+            };
+            let back = props.to_rapier(1000.0).reconstruct_inertia_matrix();
+            let back = DMat3::from_cols(back.x_axis.as_dvec3(), back.y_axis.as_dvec3(), back.z_axis.as_dvec3());
+            let scale = inertia.to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let err = (back - inertia).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs())) / scale;
+            assert!(err < 1e-5, "{name}: {back} vs {inertia} (relative error {err})");
+            let (moments, frame) = principal_axes(&inertia);
+            assert!((frame.length() - 1.0).abs() < 1e-12 && moments.min_element() >= 0.0, "{name}");
+        }
+    }
 
     #[test]
     fn box_matches_closed_form() {

@@ -76,59 +76,18 @@ fn small_scale(length: f64) -> f64 {
     (length / REFERENCE_DIAG).sqrt().min(1.0)
 }
 
-/// A body whose shadow along its thinnest direction is narrower than
-/// 1/8 of its diagonal on its narrow side (a rod) is time-scaled by 8 times
-/// that side (see [`DropBody::time_length`]).
-const WIDTH_FACTOR: f64 = 8.0;
-
-impl DropBody {
-    /// The length that sets how fast the body moves on the ground: its
-    /// diagonal, or [`WIDTH_FACTOR`] times the narrow side of its shadow
-    /// along its thinnest direction (a face normal of its collider's hull)
-    /// when that is smaller. A rod rolls and rocks about its long axis as
-    /// fast as a small object does: a hexagonal pencil scaled to 0.15 m
-    /// (5 mm thick) had 16 % of its drops settled at absolute steps, the same
-    /// pencil at 0.6 m 100 %. A flat sheet is thin in one direction only and
-    /// keeps its diagonal (it cannot roll; time-scaled by its thickness, 0.1
-    /// mm, it settled 97.7 % instead of 100 %).
-    pub fn time_length(&self) -> f64 {
-        let Ok((v, t)) = crate::mesh::mass::convex_hull(&self.support) else { return self.diagonal };
-        let extent = |n: DVec3| {
-            let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(n.dot(*p)), h.max(n.dot(*p))));
-            hi - lo
-        };
-        let normals = crate::mesh::mass::hull_planes(&v, &t).into_iter().map(|(n, _)| n).filter(|n| *n != DVec3::ZERO);
-        let Some(thin) = normals.min_by(|a, b| extent(*a).total_cmp(&extent(*b))) else { return self.diagonal };
-        let (u, w) = thin.any_orthonormal_pair();
-        let shadow: Vec<DVec2> = v.iter().map(|p| DVec2::new(p.dot(u), p.dot(w))).collect();
-        let poly = crate::physical::support::convex_hull(&shadow);
-        if poly.len() < 3 {
-            return self.diagonal; // no area: not a solid (prepare refuses those)
-        }
-        let narrow = (0..poly.len())
-            .map(|i| {
-                let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
-                let n = (b - a).perp().normalize_or_zero();
-                poly.iter().map(|p| n.dot(*p - a).abs()).fold(0.0, f64::max)
-            })
-            .fold(f64::INFINITY, f64::min);
-        self.diagonal.min(WIDTH_FACTOR * narrow)
-    }
-}
-
 impl SimParams {
-    /// The parameters a drop of an object runs with, given its
-    /// time-scaling length (its diagonal, or less for a thin object:
-    /// [`DropBody::time_length`]). Below [`REFERENCE_DIAG`] every time (step, calm time,
+    /// The parameters a drop of an object of bounding diagonal `length`
+    /// runs with. Below [`REFERENCE_DIAG`] every time (step, calm time,
     /// cap) is multiplied by s = √(diagonal / 0.15 m) and every speed
     /// threshold divided by it (and rapier's contact springs stiffened by
     /// 1 / s in [`empty_world`]): with gravity fixed and lengths already in
     /// diagonals, the drop is then the 0.15 m drop played faster (Froude
-    /// similarity), which settles. With absolute times a small object rocked
-    /// on its face for good: the rock `random_000.obj` scaled to 5 cm had
-    /// 55 % of its drops settled within 10 s and at 1 cm 52 % (pybullet
-    /// 99.7 %), against 100 % at 0.15 m. Objects of 0.15 m and larger are
-    /// unchanged.
+    /// similarity), which settles, in as many steps as at 0.15 m. With
+    /// absolute times a small object rocks on its face for long: the rock
+    /// `random_000.obj` scaled to 1 cm had 81 % of its drops settled within
+    /// 10 s (552 steps per drop), a 1 cm pencil 40 %, against 100 % (176 and
+    /// 88 steps) time-scaled. Objects of 0.15 m and larger are unchanged.
     pub fn for_size(&self, length: f64) -> SimParams {
         let s = small_scale(length);
         SimParams {
@@ -330,9 +289,8 @@ fn run_world(
     mut times: Option<&mut DropTimes>,
 ) -> Vec<DropResult> {
     let t_setup = times.is_some().then(std::time::Instant::now);
-    let length = body.time_length();
-    let params = &params.for_size(length);
-    let mut world = empty_world(body, params, length);
+    let params = &params.for_size(body.diagonal);
+    let mut world = empty_world(body, params);
     let mut slots: Vec<Slot> = members
         .enumerate()
         .map(|(j, index)| {
@@ -356,10 +314,9 @@ fn groups(ground: bool) -> InteractionGroups {
     InteractionGroups::new(me, other, InteractionTestMode::And)
 }
 
-/// A world with the ground half-space and no body yet, for a body of
-/// time-scaling length `length` ([`DropBody::time_length`]) whose
+/// A world with the ground half-space and no body yet, for `body` whose
 /// `params` are already [`SimParams::for_size`].
-fn empty_world(body: &DropBody, params: &SimParams, length: f64) -> PhysicsWorld {
+fn empty_world(body: &DropBody, params: &SimParams) -> PhysicsWorld {
     let mut world = PhysicsWorld::new();
     world.gravity = Vec3::new(0.0, 0.0, -9.81);
     let ip = &mut world.integration_parameters;
@@ -372,7 +329,7 @@ fn empty_world(body: &DropBody, params: &SimParams, length: f64) -> PhysicsWorld
     // 60 Hz against the ground); a small object, time-scaled by
     // SimParams::for_size, gets them stiffened by the same factor, so it
     // meets the contact as a 0.15 m object does.
-    let stiffen = (1.0 / small_scale(length)) as f32;
+    let stiffen = (1.0 / small_scale(body.diagonal)) as f32;
     ip.contact_softness.natural_frequency *= stiffen;
     ip.static_contact_softness.natural_frequency *= stiffen;
     if !params.ccd {
