@@ -198,3 +198,45 @@ fn trace_write_error_is_reported() {
     assert!(stderr.contains("cannot write the trace /dev/full"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
+
+/// Ctrl-C (or SIGTERM) during a long run finishes the trace at the path
+/// asked for (no hidden `.partial` file left), exits with 128 + the
+/// signal, and leaves the run's database resumable.
+#[cfg(unix)]
+#[test]
+fn interrupted_run_leaves_its_trace() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/pybullet/duck_vhacd.obj");
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let trace = dir.path().join(format!("trace{code}.json"));
+        let db = dir.path().join(format!("drops{code}.sqlite"));
+        let mut child = plausible()
+            .args(["stable-poses", "--drops", "10000000", "--threads", "1", "--db"])
+            .arg(&db)
+            .arg(&mesh)
+            .arg("--trace")
+            .arg(&trace)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // The signals are taken once the trace file exists; wait for the
+        // drops to start (the database), then interrupt.
+        let start = std::time::Instant::now();
+        while !db.exists() && start.elapsed().as_secs() < 120 {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(500));
+        let k = Command::new("kill").arg(signal).arg(child.id().to_string()).status().unwrap();
+        assert!(k.success());
+        let o = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(code), "{stderr}");
+        assert!(stderr.contains("interrupted"), "{stderr}");
+        let ev = events(&trace);
+        assert!(ev.iter().any(|e| e["name"] == "plausible stable-poses"), "{ev:?}");
+        let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().ends_with(".partial")).collect();
+        assert!(left.is_empty(), "{left:?}");
+        let show = plausible().args(["stable-poses", "show", "--db"]).arg(&db).output().unwrap();
+        assert!(show.status.success(), "{}", String::from_utf8_lossy(&show.stderr));
+    }
+}

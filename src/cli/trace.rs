@@ -45,6 +45,8 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
         tracing_subscriber::fmt().with_env_filter(env()).with_writer(std::io::stderr).with_ansi(colour()).without_time().init();
         return Ok(());
     };
+    #[cfg(unix)]
+    finish_on_signal()?;
     let partial = partial_path(path);
     let file = create(path, &partial)?;
     let error = Arc::new(Mutex::new(None));
@@ -61,6 +63,48 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
     let traced = Targets::new().with_target("plausible", LevelFilter::TRACE);
     tracing_subscriber::registry().with(fmt).with(chrome.with_filter(traced)).init();
     *TRACE.lock().unwrap_or_else(|e| e.into_inner()) = Some(TraceFile { path: path.to_path_buf(), partial, guard, error });
+    Ok(())
+}
+
+/// Makes Ctrl-C, SIGTERM and SIGHUP finish the trace before the process
+/// ends (exit status 128 + the signal), so an interrupted run leaves its
+/// trace so far at the path asked for, not a hidden `.partial` file. The
+/// signals are blocked in this thread before any other exists (threads
+/// inherit the mask) and taken by one thread in `sigwait`: no work is done
+/// in a signal handler. Only with `--trace`: without it the signals keep
+/// their default action. The command's own files are left as a kill leaves
+/// them (each is resumable or written whole by a rename).
+#[cfg(unix)]
+fn finish_on_signal() -> Result<()> {
+    // SAFETY: sigset_t is plain data, initialised by sigemptyset before use;
+    // called from init, before the trace writer, rayon or wgpu start a
+    // thread.
+    let set = unsafe {
+        let mut set: libc::sigset_t = std::mem::zeroed();
+        libc::sigemptyset(&mut set);
+        for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+            libc::sigaddset(&mut set, sig);
+        }
+        if libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut()) != 0 {
+            bail!("--trace: cannot block the interrupt signals");
+        }
+        set
+    };
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            let mut sig = 0;
+            // SAFETY: `set` is a valid signal set, `sig` a valid out pointer.
+            if unsafe { libc::sigwait(&set, &mut sig) } != 0 {
+                return;
+            }
+            match finish() {
+                Ok(()) => eprintln!("interrupted: the trace holds the run so far"),
+                Err(e) => eprintln!("interrupted; error: {e:#}"),
+            }
+            std::process::exit(128 + sig);
+        })
+        .map_err(|e| anyhow::anyhow!("--trace: cannot start the signal thread: {e}"))?;
     Ok(())
 }
 
