@@ -382,14 +382,16 @@ impl Frame {
 }
 
 /// Evaluates `results` on `targets` of `ds`. `progress(images_done)` is
-/// called as images finish. Returns the report and every pair's errors.
+/// called as images finish; an error it returns stops the evaluation there
+/// and is returned (a caller's interrupt). Returns the report and every
+/// pair's errors.
 pub fn evaluate(
     ds: &Dataset,
     results: &[Estimate],
     targets: &[Target],
     device: &Device,
     opts: &EvalOptions,
-    progress: &mut dyn FnMut(usize),
+    progress: &mut dyn FnMut(usize) -> Result<()>,
 ) -> Result<(EvalReport, Vec<ErrorRecord>)> {
     opts.validate()?;
     let t_start = Instant::now();
@@ -442,7 +444,7 @@ pub fn evaluate(
             all_targets.extend(t);
             records.extend(r);
             done += batch.len();
-            progress(done);
+            progress(done)?;
         }
     }
     report.n_estimates = all_targets.iter().map(|t| t.estimates.len()).sum();

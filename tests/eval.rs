@@ -30,7 +30,7 @@ fn all_errors() -> EvalOptions {
 
 fn run(ds: &Dataset, results: &[Estimate], device: &Device, opts: &EvalOptions) -> EvalReport {
     let (targets, _) = ds.targets(None).unwrap();
-    evaluate(ds, results, &targets, device, opts, &mut |_| {}).unwrap().0
+    evaluate(ds, results, &targets, device, opts, &mut |_| Ok(())).unwrap().0
 }
 
 /// The CPU twin and the GPU (tests using this have `gpu` in their names).
@@ -280,8 +280,25 @@ fn bad_results_files_name_the_file_and_line() {
     let mut res = gt_as_results(&ds, &targets).unwrap();
     res[0].obj_id = 77;
     res[0].line = 5;
-    let e = err_of(evaluate(&ds, &res, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| {}));
+    let e = err_of(evaluate(&ds, &res, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())));
     assert!(e.contains("line 5") && e.contains("object 77"), "{e}");
+}
+
+/// A progress callback's error stops the evaluation after that batch and
+/// is what `evaluate` returns (how the Python package ends on Ctrl-C).
+#[test]
+fn progress_can_stop_an_evaluation() {
+    let ds = dataset();
+    let (targets, _) = ds.targets(None).unwrap();
+    let gt = gt_as_results(&ds, &targets).unwrap();
+    let opts = EvalOptions { batch_images: 1, ..EvalOptions::default() };
+    let mut calls = 0;
+    let e = err_of(evaluate(&ds, &gt, &targets, &Device::Cpu, &opts, &mut |_| {
+        calls += 1;
+        Err(plausible::Error::InvalidInput("stopped by the caller".into()))
+    }));
+    assert_eq!(calls, 1);
+    assert!(e.contains("stopped by the caller"), "{e}");
 }
 
 #[test]
@@ -299,7 +316,7 @@ fn bad_dataset_files_are_clear_errors() {
             Err(e) => return e.to_string(),
         };
         let gt = gt_as_results(&dataset(), &dataset().targets(None).unwrap().0).unwrap();
-        err_of(evaluate(&ds, &gt, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| {}))
+        err_of(evaluate(&ds, &gt, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())))
     };
     let e = corrupt("test/000002/scene_gt.json", &|p| std::fs::write(p, "{\"3\": [{\"cam_R_m2c\": [1, 0]}]}").unwrap());
     assert!(e.contains("scene_gt.json") && e.contains("line 1"), "{e}");

@@ -210,7 +210,7 @@ fn interrupted_run_leaves_its_trace() {
     for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
         let trace = dir.path().join(format!("trace{code}.json"));
         let db = dir.path().join(format!("drops{code}.sqlite"));
-        let mut child = plausible()
+        let child = plausible()
             .args(["stable-poses", "--drops", "10000000", "--threads", "1", "--db"])
             .arg(&db)
             .arg(&mesh)

@@ -100,20 +100,18 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
     let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let params = RunParams { drops, seed, collider, ..Default::default() };
     let m = mesh.inner.clone();
-    let (prepared, results) = py
-        .detach(|| -> plausible::Result<_> {
-            let name = m.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "<arrays>".into());
-            let prepared = stable::prepare(m, &name, &params)?;
-            let indices: Vec<u64> = (0..drops).collect();
-            let mut results = Vec::with_capacity(drops as usize);
-            stable::run_drops(&prepared, &params, &indices, threads, |r| {
-                results.push(r);
-                Ok(())
-            })?;
-            results.sort_by_key(|r| r.index);
-            Ok((prepared, results))
-        })
-        .map_err(to_py)?;
+    let (prepared, results) = crate::interruptible(py, |look| {
+        let name = m.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "<arrays>".into());
+        let prepared = stable::prepare(m, &name, &params)?;
+        let indices: Vec<u64> = (0..drops).collect();
+        let mut results = Vec::with_capacity(drops as usize);
+        stable::run_drops(&prepared, &params, &indices, threads, |r| {
+            results.push(r);
+            look()
+        })?;
+        results.sort_by_key(|r| r.index);
+        Ok((prepared, results))
+    })?;
     let clusters = stable::cluster::cluster(&results, Default::default());
     let (poses, families) = stable::export::split(&clusters);
     let settled = results.iter().filter(|r| r.settled).count();
@@ -197,18 +195,16 @@ pub fn evaluate<'py>(
     }
     opts.validate().map_err(to_py)?;
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let (report, recs) = py
-        .detach(|| -> plausible::Result<_> {
-            let ds = plausible::bop::Dataset::open(&dataset, split)?;
-            let (targets, _) = ds.targets(targets.as_deref())?;
-            if targets.is_empty() {
-                return Err(plausible::Error::InvalidInput("no targets to evaluate".into()));
-            }
-            let results = plausible::bop::read_results(&results)?;
-            let device = Device::open(choice, adapter, false)?.device;
-            evaluate(&ds, &results, &targets, &device, &opts, &mut |_| {})
-        })
-        .map_err(to_py)?;
+    let (report, recs) = crate::interruptible(py, |look| {
+        let ds = plausible::bop::Dataset::open(&dataset, split)?;
+        let (targets, _) = ds.targets(targets.as_deref())?;
+        if targets.is_empty() {
+            return Err(plausible::Error::InvalidInput("no targets to evaluate".into()));
+        }
+        let results = plausible::bop::read_results(&results)?;
+        let device = Device::open(choice, adapter, false)?.device;
+        evaluate(&ds, &results, &targets, &device, &opts, &mut |_| look())
+    })?;
     let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;
     if records {
         v["records"] = serde_json::to_value(&recs).map_err(|e| value_error(e.to_string()))?;

@@ -28,6 +28,37 @@ pub(crate) fn to_py(e: plausible::Error) -> PyErr {
     }
 }
 
+/// Runs `work` without the GIL, looking for Ctrl-C (a pending Python
+/// signal) about every 50 ms through `look`, which `work` calls at its
+/// cancellation points (between drops, chunks, images). On an interrupt
+/// `look` returns an error for `work` to stop on, and this returns the
+/// `KeyboardInterrupt` (or what the signal handler raised) instead of the
+/// work's result: a long call ends at once instead of after all its work.
+pub(crate) fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce(&mut dyn FnMut() -> plausible::Result<()>) -> plausible::Result<T> + Send) -> PyResult<T> {
+    let mut raised: Option<PyErr> = None;
+    let mut last = std::time::Instant::now();
+    let result = py.detach(|| {
+        let mut look = || {
+            if last.elapsed() < std::time::Duration::from_millis(50) {
+                return Ok(());
+            }
+            last = std::time::Instant::now();
+            match Python::attach(|py| py.check_signals()) {
+                Ok(()) => Ok(()),
+                Err(e) => {
+                    raised = Some(e);
+                    Err(plausible::Error::InvalidInput("interrupted".into()))
+                }
+            }
+        };
+        work(&mut look)
+    });
+    match raised {
+        Some(e) => Err(e),
+        None => result.map_err(to_py),
+    }
+}
+
 /// A `ValueError` with `msg`.
 pub(crate) fn value_error(msg: impl Into<String>) -> PyErr {
     PyValueError::new_err(msg.into())

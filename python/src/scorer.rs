@@ -23,7 +23,7 @@ use crate::{to_py, value_error};
 const BATCH_HINT: usize = 4096;
 
 /// The support plane and sampling a cached [`PlanePhysics`] was built for.
-#[derive(PartialEq)]
+#[derive(Clone, PartialEq)]
 struct PhysicsKey {
     point: [f64; 3],
     normal: [f64; 3],
@@ -114,7 +114,16 @@ impl Scorer {
         let poses = convert::poses(r, t, orthonormalize)?;
         let Some((point, normal)) = plane else {
             let scorer = &self.scorer;
-            let records = py.detach(|| scorer.score(&poses, &mut |_| {})).map_err(to_py)?.0;
+            // In chunks of the batch size, so that Ctrl-C ends a long call
+            // after the chunk in flight (each pose's record is its own).
+            let records = crate::interruptible(py, |look| {
+                let mut records = Vec::with_capacity(poses.len());
+                for chunk in poses.chunks(BATCH_HINT) {
+                    look()?;
+                    records.extend(scorer.score(chunk, &mut |_| {})?.0);
+                }
+                Ok(records)
+            })?;
             let rank = ranks(&records);
             return records_dict(py, &records, &rank);
         };
@@ -125,7 +134,16 @@ impl Scorer {
             seed,
             epsilon,
         };
-        let (records, evals) = py.detach(|| self.score_physics(key, &poses)).map_err(to_py)?;
+        let (records, evals) = crate::interruptible(py, |look| {
+            let (mut records, mut evals) = (Vec::with_capacity(poses.len()), Vec::with_capacity(poses.len()));
+            for chunk in poses.chunks(BATCH_HINT) {
+                look()?;
+                let (r, e) = self.score_physics(key.clone(), chunk)?;
+                records.extend(r);
+                evals.extend(e);
+            }
+            Ok((records, evals))
+        })?;
         let rank = ranks_with_physics(&records, &evals);
         let d = records_dict(py, &records, &rank)?;
         add_physics(py, &d, &evals)?;

@@ -1,7 +1,10 @@
 """The module's functions: plane fitting, scene checks, stable poses,
 hypotheses, reading BOP frames and BOP evaluation."""
 
+import _thread
 import json
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +61,40 @@ def test_stable_poses_of_a_cube_are_its_six_faces():
     assert [c["count"] for c in again] == [c["count"] for c in poses]
     with pytest.raises(ValueError):
         pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=0)
+
+
+def _interrupt_after(seconds: float) -> threading.Timer:
+    """Ctrl-C as the interpreter sees it (the SIGINT flag set from another
+    thread), `seconds` from now."""
+    timer = threading.Timer(seconds, _thread.interrupt_main)
+    timer.start()
+    return timer
+
+
+def test_long_calls_end_on_ctrl_c(demo):
+    # Ten million drops take more than an hour; Ctrl-C ends the call within
+    # a world of drops, not after all of them.
+    start = time.monotonic()
+    timer = _interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=10_000_000)
+    timer.join()
+    assert time.monotonic() - start < 30
+    # The demo's hypotheses 256 times (a million poses) take minutes on the
+    # CPU twin; Ctrl-C ends the call after the chunk of 4096 in flight. The
+    # scorer stays usable.
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    scorer = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu")
+    p = json.loads((demo / "poses.json").read_text())
+    R = np.tile(np.array([q["cam_R_m2c"] for q in p], dtype=float).reshape(-1, 3, 3), (256, 1, 1))
+    t = np.tile(np.array([q["cam_t_m2c"] for q in p], dtype=float) * 1e-3, (256, 1))
+    start = time.monotonic()
+    timer = _interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        scorer.score(R, t)
+    timer.join()
+    assert time.monotonic() - start < 30
+    assert len(scorer.score(R[:8], t[:8])) == 8
 
 
 def test_hypotheses_on_the_plane_contain_a_good_one(demo):

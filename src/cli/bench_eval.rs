@@ -90,11 +90,11 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
         for device in &devices {
             let opts = EvalOptions { errors: errors.clone(), ..Default::default() };
             // Warm-up: pipelines compiled, files in the page cache.
-            evaluate(&ds, &results, &targets, device, &opts, &mut |_| {})?;
+            evaluate(&ds, &results, &targets, device, &opts, &mut |_| Ok(()))?;
             let mut runs = Vec::new();
             for _ in 0..a.repeat {
                 let t = Instant::now();
-                let (r, _) = evaluate(&ds, &results, &targets, device, &opts, &mut |_| {})?;
+                let (r, _) = evaluate(&ds, &results, &targets, device, &opts, &mut |_| Ok(()))?;
                 runs.push((t.elapsed().as_secs_f64(), r));
             }
             runs.sort_by(|x, y| x.0.total_cmp(&y.0));

@@ -118,7 +118,10 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     }
     let results_name = a.results.as_ref().or(a.gt_as_results.as_ref()).map(|p| p.display().to_string()).unwrap_or_default();
     let (report, records) = tracing::trace_span!("evaluate")
-        .in_scope(|| evaluate(&ds, &results, &targets, &device, &opts, &mut |done| pb.set_position(done as u64)))
+        .in_scope(|| evaluate(&ds, &results, &targets, &device, &opts, &mut |done| {
+            pb.set_position(done as u64);
+            Ok(())
+        }))
         .with_context(|| format!("evaluating {results_name}"))?;
     pb.finish_and_clear();
     tracing::trace_span!("report").in_scope(|| print_report(&report, &opts));
