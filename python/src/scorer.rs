@@ -114,16 +114,7 @@ impl Scorer {
         let poses = convert::poses(r, t, orthonormalize)?;
         let Some((point, normal)) = plane else {
             let scorer = &self.scorer;
-            // In chunks of the batch size, so that Ctrl-C ends a long call
-            // after the chunk in flight (each pose's record is its own).
-            let records = crate::interruptible(py, |look| {
-                let mut records = Vec::with_capacity(poses.len());
-                for chunk in poses.chunks(BATCH_HINT) {
-                    look()?;
-                    records.extend(scorer.score(chunk, &mut |_| {})?.0);
-                }
-                Ok(records)
-            })?;
+            let records = in_chunks(py, &poses, |chunk| Ok(scorer.score(chunk, &mut |_| {})?.0))?;
             let rank = ranks(&records);
             return records_dict(py, &records, &rank);
         };
@@ -134,16 +125,12 @@ impl Scorer {
             seed,
             epsilon,
         };
-        let (records, evals) = crate::interruptible(py, |look| {
-            let (mut records, mut evals) = (Vec::with_capacity(poses.len()), Vec::with_capacity(poses.len()));
-            for chunk in poses.chunks(BATCH_HINT) {
-                look()?;
-                let (r, e) = self.score_physics(key.clone(), chunk)?;
-                records.extend(r);
-                evals.extend(e);
-            }
-            Ok((records, evals))
-        })?;
+        let (records, evals): (Vec<_>, Vec<_>) = in_chunks(py, &poses, |chunk| {
+            let (r, e) = self.score_physics(key.clone(), chunk)?;
+            Ok(r.into_iter().zip(e).collect())
+        })?
+        .into_iter()
+        .unzip();
         let rank = ranks_with_physics(&records, &evals);
         let d = records_dict(py, &records, &rank)?;
         add_physics(py, &d, &evals)?;
@@ -191,6 +178,30 @@ impl Scorer {
         let (records, evals, _) = score_poses_with_physics(&self.device, &self.rmesh, &self.target, poses, self.params, physics, |_| {})?;
         Ok((records, evals))
     }
+}
+
+/// `score` over `poses` in chunks, with Ctrl-C looked for between them
+/// (each pose's result is its own, so chunks change nothing). The first
+/// chunk is [`BATCH_HINT`] poses and each one that took under 0.25 s
+/// doubles the next: a fast GPU makes few calls (a call with physics
+/// builds its GPU scorer), a software one still ends within about a second
+/// of Ctrl-C.
+fn in_chunks<T: Send>(py: Python<'_>, poses: &[Pose], mut score: impl FnMut(&[Pose]) -> plausible::Result<Vec<T>> + Send) -> PyResult<Vec<T>> {
+    crate::interruptible(py, |look| {
+        let mut out = Vec::with_capacity(poses.len());
+        let (mut at, mut size) = (0, BATCH_HINT);
+        while at < poses.len() {
+            look()?;
+            let chunk = &poses[at..at.saturating_add(size).min(poses.len())];
+            at += chunk.len();
+            let start = std::time::Instant::now();
+            out.extend(score(chunk)?);
+            if start.elapsed() < std::time::Duration::from_millis(250) {
+                size = size.saturating_mul(2);
+            }
+        }
+        Ok(out)
+    })
 }
 
 /// The visual columns, one numpy array each.
