@@ -68,12 +68,14 @@ pub struct RunArgs {
     #[arg(long, default_value_t = 5.0)]
     pub cluster_deg: f64,
     /// Cap on simulated time per drop (seconds) for a 0.15 m object; other
-    /// sizes get it times √(diagonal / 0.15 m) (a smaller object's whole
-    /// drop is time-scaled so: it moves faster under gravity).
+    /// sizes get it times √(diagonal / 0.15 m) (the whole drop is
+    /// time-scaled so: a smaller object moves faster under gravity, a larger
+    /// one slower).
     #[arg(long, default_value_t = 10.0)]
     pub max_time: f64,
-    /// Simulation steps per second for a 0.15 m object (and larger ones;
-    /// smaller ones step √(0.15 m / diagonal) times as often). 240 gives
+    /// Simulation steps per second for a 0.15 m object (others step
+    /// √(0.15 m / diagonal) times as often, so every size takes the same
+    /// steps per drop). 240 gives
     /// converged pose frequencies; 60 is about 4x faster with the same poses
     /// but shifted frequencies.
     #[arg(long, default_value_t = 240.0)]

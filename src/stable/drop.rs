@@ -29,11 +29,9 @@ pub struct SimParams {
     /// frequencies shift (e.g. 16 % vs 8 % for the upright duck).
     pub dt: f64,
     /// Simulated-time cap per drop (s) for an object of [`REFERENCE_DIAG`];
-    /// drops not at rest by then are unsettled. Heights and speed
-    /// thresholds scale with the diagonal, so free-motion times grow with
-    /// its square root: larger objects get `max_time · √(diag / 0.15 m)`
-    /// (a 1.6 m object, 33 s); smaller ones are time-scaled as a whole
-    /// (see [`SimParams::for_size`]).
+    /// drops not at rest by then are unsettled. Other sizes are
+    /// time-scaled as a whole (see [`SimParams::for_size`]): a 1.6 m object
+    /// gets 33 s.
     pub max_time: f64,
     /// Drop height: gap between the lowest hull point and the plane at
     /// release, in bounding diagonals (1.5 ≈ the pybullet peer's 0.3 m drop
@@ -70,26 +68,32 @@ pub struct SimParams {
 /// Object size (bounding diagonal, m) that [`SimParams::max_time`] is given for.
 pub const REFERENCE_DIAG: f64 = 0.15;
 
-/// How much faster than a [`REFERENCE_DIAG`] object one of size `length`
-/// moves under gravity: √(length / 0.15 m), at most 1.
-fn small_scale(length: f64) -> f64 {
-    (length / REFERENCE_DIAG).sqrt().min(1.0)
+/// How much slower than a [`REFERENCE_DIAG`] object one of size `length`
+/// moves under gravity: √(length / 0.15 m) (Froude similarity).
+fn time_scale(length: f64) -> f64 {
+    (length / REFERENCE_DIAG).sqrt()
 }
 
 impl SimParams {
     /// The parameters a drop of an object of bounding diagonal `length`
-    /// runs with. Below [`REFERENCE_DIAG`] every time (step, calm time,
-    /// cap) is multiplied by s = √(diagonal / 0.15 m) and every speed
-    /// threshold divided by it (and rapier's contact springs stiffened by
-    /// 1 / s in [`empty_world`]): with gravity fixed and lengths already in
-    /// diagonals, the drop is then the 0.15 m drop played faster (Froude
-    /// similarity), which settles, in as many steps as at 0.15 m. With
-    /// absolute times a small object rocks on its face for long: the rock
-    /// `random_000.obj` scaled to 1 cm had 81 % of its drops settled within
-    /// 10 s (552 steps per drop), a 1 cm pencil 40 %, against 100 % (176 and
-    /// 88 steps) time-scaled. Objects of 0.15 m and larger are unchanged.
+    /// runs with: every time (step, calm time, cap) is multiplied by s =
+    /// √(diagonal / 0.15 m) and every speed threshold divided by it (and
+    /// rapier's contact springs' frequencies divided by s in
+    /// [`empty_world`]). With gravity fixed and lengths already in
+    /// diagonals, the drop is then the 0.15 m drop played faster or slower
+    /// (Froude similarity), in as many steps, with the same resting poses:
+    /// a rigid body's are the same at any size. With absolute times a small
+    /// object rocked on its face for long (the rock `random_000.obj` at 1 cm:
+    /// 81 % of drops settled within 10 s, 552 steps per drop; a 1 cm pencil
+    /// 40 %; time-scaled 100 %, 176 and 88 steps), and a large one was taken
+    /// to be at rest while still tipping, its angular speed under the
+    /// absolute 0.05 rad/s (pybullet's `duck_vhacd.obj` at its own 2.5 m:
+    /// clusters of 0.38 and 0.09 at 3° and 11° from its top facet; at 10 m
+    /// none above 6 %). Time-scaled, it has the same clusters as at 0.15 m
+    /// at every size tried from 3 mm to 10 m, in ~430 steps per drop (1,950
+    /// drops/s at 10 m, 342 before).
     pub fn for_size(&self, length: f64) -> SimParams {
-        let s = small_scale(length);
+        let s = time_scale(length);
         SimParams {
             dt: self.dt * s,
             calm_time: self.calm_time * s,
@@ -326,10 +330,10 @@ fn empty_world(body: &DropBody, params: &SimParams) -> PhysicsWorld {
     // normalized_prediction_distance is in units of length_unit (= diagonal).
     ip.normalized_prediction_distance = params.prediction_diag as f32;
     // rapier's contact springs have absolute natural frequencies (30 Hz,
-    // 60 Hz against the ground); a small object, time-scaled by
-    // SimParams::for_size, gets them stiffened by the same factor, so it
-    // meets the contact as a 0.15 m object does.
-    let stiffen = (1.0 / small_scale(body.diagonal)) as f32;
+    // 60 Hz against the ground); a body time-scaled by SimParams::for_size
+    // gets them scaled by the same factor (stiffer when small, softer when
+    // large), so it meets the contact as a 0.15 m object does.
+    let stiffen = (1.0 / time_scale(body.diagonal)) as f32;
     ip.contact_softness.natural_frequency *= stiffen;
     ip.static_contact_softness.natural_frequency *= stiffen;
     if !params.ccd {
@@ -428,8 +432,7 @@ fn outcome(index: u64, settled: bool, steps: u32, b: &RigidBody) -> DropResult {
 /// stable pose (it then leaves the world), or the (size-scaled) time cap,
 /// which leaves the rest unsettled.
 fn run_until_settled(world: &mut PhysicsWorld, slots: &mut [Slot], body: &DropBody, params: &SimParams, mut times: Option<&mut DropTimes>) {
-    let time_scale = (body.diagonal / REFERENCE_DIAG).sqrt().max(1.0);
-    let max_steps = (params.max_time * time_scale / params.dt).ceil().max(1.0) as u32;
+    let max_steps = (params.max_time / params.dt).ceil().max(1.0) as u32;
     let calm_needed = (params.calm_time / params.dt).ceil().max(1.0) as u32;
     let lin_tol = (params.lin_tol_diag * body.diagonal) as f32;
     let ang_tol = params.ang_tol as f32;

@@ -110,7 +110,7 @@ impl Default for RunParams {
 /// ([`drop::SimParams::for_size`]); 6: the body's principal axes of inertia
 /// are computed in f64 ([`crate::mesh::mass::principal_axes`]), not by
 /// parry's eigensolver, which gave light bodies (under about 1e-5 kg·m²)
-/// wrong axes.
+/// wrong axes, and objects larger than 0.15 m are time-scaled too.
 pub const DROP_REVISION: u32 = 6;
 
 /// The run parameters as stored and hashed into the run key.
