@@ -305,7 +305,7 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
 /// depend on the units or the size of the body (see
 /// [`MassProperties::to_rapier`]); negative round-off moments become zero.
 pub fn principal_axes(inertia: &DMat3) -> (DVec3, glam::DQuat) {
-    let scale = inertia.to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let scale = max_abs(inertia);
     if !(scale > 0.0 && scale.is_finite()) {
         return (DVec3::ZERO, glam::DQuat::IDENTITY);
     }
@@ -319,6 +319,11 @@ pub fn principal_axes(inertia: &DMat3) -> (DVec3, glam::DQuat) {
     let z = x.cross(y);
     let moments = DVec3::new(eig.eigenvalues[0], eig.eigenvalues[1], eig.eigenvalues[2]);
     (moments.max(DVec3::ZERO) * scale, glam::DQuat::from_mat3(&DMat3::from_cols(x, y, z)))
+}
+
+/// The largest absolute element of `m`.
+fn max_abs(m: &DMat3) -> f64 {
+    m.to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()))
 }
 
 #[cfg(test)]
@@ -350,8 +355,7 @@ mod tests {
             };
             let back = props.to_rapier(1000.0).reconstruct_inertia_matrix();
             let back = DMat3::from_cols(back.x_axis.as_dvec3(), back.y_axis.as_dvec3(), back.z_axis.as_dvec3());
-            let scale = inertia.to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let err = (back - inertia).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs())) / scale;
+            let err = max_abs(&(back - inertia)) / max_abs(&inertia);
             assert!(err < 1e-5, "{name}: {back} vs {inertia} (relative error {err})");
             let (moments, frame) = principal_axes(&inertia);
             assert!((frame.length() - 1.0).abs() < 1e-12 && moments.min_element() >= 0.0, "{name}");

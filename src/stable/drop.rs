@@ -68,14 +68,15 @@ pub struct SimParams {
 /// Object size (bounding diagonal, m) that [`SimParams::max_time`] is given for.
 pub const REFERENCE_DIAG: f64 = 0.15;
 
-/// How much slower than a [`REFERENCE_DIAG`] object one of size `length`
-/// moves under gravity: √(length / 0.15 m) (Froude similarity).
-fn time_scale(length: f64) -> f64 {
-    (length / REFERENCE_DIAG).sqrt()
+/// How much slower than a [`REFERENCE_DIAG`] object one of bounding
+/// diagonal `diagonal` moves under gravity: √(diagonal / 0.15 m) (Froude
+/// similarity).
+fn time_scale(diagonal: f64) -> f64 {
+    (diagonal / REFERENCE_DIAG).sqrt()
 }
 
 impl SimParams {
-    /// The parameters a drop of an object of bounding diagonal `length`
+    /// The parameters a drop of an object of bounding diagonal `diagonal`
     /// runs with: every time (step, calm time, cap) is multiplied by s =
     /// √(diagonal / 0.15 m) and every speed threshold divided by it (and
     /// rapier's contact springs' frequencies divided by s in
@@ -92,8 +93,8 @@ impl SimParams {
     /// none above 6 %). Time-scaled, it has the same clusters as at 0.15 m
     /// at every size tried from 3 mm to 10 m, in ~430 steps per drop (1,950
     /// drops/s at 10 m, 342 before).
-    pub fn for_size(&self, length: f64) -> SimParams {
-        let s = time_scale(length);
+    pub fn for_size(&self, diagonal: f64) -> SimParams {
+        let s = time_scale(diagonal);
         SimParams {
             dt: self.dt * s,
             calm_time: self.calm_time * s,
