@@ -17,12 +17,17 @@ fn asset(rel: &str) -> PathBuf {
         .join(rel)
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("plausible-stable-tests-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
-    let _ = std::fs::remove_file(&p);
-    p
+/// A scratch folder for one test, removed when the test ends, passed or failed.
+struct Scratch(tempfile::TempDir);
+
+impl Scratch {
+    fn new() -> Self {
+        Self(tempfile::Builder::new().prefix("plausible-stable-tests-").tempdir().unwrap())
+    }
+
+    fn file(&self, name: &str) -> PathBuf {
+        self.0.path().join(name)
+    }
 }
 
 /// Runs `params.drops` drops of `mesh` into a fresh database and returns it.
@@ -79,6 +84,7 @@ fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 #[test]
 fn cube_six_faces_each_within_ci_of_one_sixth() {
+    let scratch = Scratch::new();
     // A fixed seed: for an unbiased simulator all six 95 % intervals contain
     // 1/6 with probability of about 0.74, so some seeds fail this check by
     // chance (seeds 1 and 6 of 0..10 do). The chi-square test below is the
@@ -95,7 +101,7 @@ fn cube_six_faces_each_within_ci_of_one_sixth() {
     for a in &prepared.analytic.poses {
         assert!((a.probability - 1.0 / 6.0).abs() < 1e-9);
     }
-    let db = run_db(&tmp("cube.sqlite"), cube, "cube", &params, None, 2);
+    let db = run_db(&scratch.file("cube.sqlite"), cube, "cube", &params, None, 2);
     let run = &db.runs().unwrap()[0];
     let drops = db.drops(run.id).unwrap();
     assert_eq!(drops.len(), 1000);
@@ -134,6 +140,7 @@ fn cube_six_faces_each_within_ci_of_one_sixth() {
 
 #[test]
 fn box_three_pairs_largest_face_most_probable() {
+    let scratch = Scratch::new();
     let half = DVec3::new(0.015, 0.03, 0.05);
     let params = RunParams {
         drops: 600,
@@ -141,7 +148,7 @@ fn box_three_pairs_largest_face_most_probable() {
         ..Default::default()
     };
     let db = run_db(
-        &tmp("box.sqlite"),
+        &scratch.file("box.sqlite"),
         shapes::cuboid(half),
         "box",
         &params,
@@ -201,13 +208,14 @@ fn box_three_pairs_largest_face_most_probable() {
 
 #[test]
 fn cylinder_two_end_faces_and_a_rolling_family() {
+    let scratch = Scratch::new();
     let params = RunParams {
         drops: 400,
         seed: 3,
         ..Default::default()
     };
     let db = run_db(
-        &tmp("cyl.sqlite"),
+        &scratch.file("cyl.sqlite"),
         shapes::cylinder(0.03, 0.05, 64),
         "cylinder",
         &params,
@@ -257,13 +265,14 @@ fn check_against_analytic(
     min_p: f64,
     max_deg: f64,
 ) -> (f64, f64) {
+    let scratch = Scratch::new();
     let params = RunParams {
         drops,
         seed: 4,
         ..Default::default()
     };
     let db = run_db(
-        &tmp(&format!("{name}.sqlite")),
+        &scratch.file(&format!("{name}.sqlite")),
         mesh,
         name,
         &params,
@@ -373,6 +382,7 @@ fn light_rods_settle_on_their_faces() {
 
 #[test]
 fn same_seed_gives_identical_databases_for_one_and_two_threads() {
+    let scratch = Scratch::new();
     let (mesh, _) = Mesh::load(asset("pybullet/duck_vhacd.obj"), MeshUnits::Metres).unwrap();
     let mesh = mesh.normalized(0.15);
     let params = RunParams {
@@ -381,7 +391,7 @@ fn same_seed_gives_identical_databases_for_one_and_two_threads() {
         ..Default::default()
     };
     let a = run_db(
-        &tmp("det1.sqlite"),
+        &scratch.file("det1.sqlite"),
         mesh.clone(),
         "duck_vhacd",
         &params,
@@ -389,7 +399,7 @@ fn same_seed_gives_identical_databases_for_one_and_two_threads() {
         1,
     );
     let b = run_db(
-        &tmp("det2.sqlite"),
+        &scratch.file("det2.sqlite"),
         mesh.clone(),
         "duck_vhacd",
         &params,
@@ -399,7 +409,7 @@ fn same_seed_gives_identical_databases_for_one_and_two_threads() {
     assert_same_contents(&a, &b);
     // A different seed gives different drops.
     let c = run_db(
-        &tmp("det3.sqlite"),
+        &scratch.file("det3.sqlite"),
         mesh,
         "duck_vhacd",
         &RunParams { seed: 6, ..params },
@@ -411,23 +421,24 @@ fn same_seed_gives_identical_databases_for_one_and_two_threads() {
 
 #[test]
 fn shards_merged_equal_a_single_run() {
+    let scratch = Scratch::new();
     let mesh = shapes::cuboid(DVec3::new(0.02, 0.03, 0.045));
     let params = RunParams {
         drops: 90,
         seed: 7,
         ..Default::default()
     };
-    let single = run_db(&tmp("single.sqlite"), mesh.clone(), "box", &params, None, 2);
+    let single = run_db(&scratch.file("single.sqlite"), mesh.clone(), "box", &params, None, 2);
     let mut shard_paths = Vec::new();
     for k in 1..=3 {
-        let p = tmp(&format!("shard{k}.sqlite"));
+        let p = scratch.file(&format!("shard{k}.sqlite"));
         let shard = Shard { k, n: 3 };
         let db = run_db(&p, mesh.clone(), "box", &params, Some(shard), 1);
         // Whole worlds of 32 drops per shard: 32, 32 and 26.
         assert_eq!(db.drops(db.runs().unwrap()[0].id).unwrap().len() as u64, shard.count(90));
         shard_paths.push(p);
     }
-    let mut merged = Db::open(tmp("merged.sqlite")).unwrap();
+    let mut merged = Db::open(scratch.file("merged.sqlite")).unwrap();
     // Merge in a scrambled order, one shard twice: nothing is duplicated.
     for p in [
         &shard_paths[2],
@@ -442,10 +453,11 @@ fn shards_merged_equal_a_single_run() {
 
 #[test]
 fn a_run_asked_for_more_drops_goes_on_from_the_stored_ones() {
+    let scratch = Scratch::new();
     // 40 drops, then 90 into the same database: one run whose drops equal
     // a single run of 90 (drop i does not depend on the count).
     let mesh = shapes::cuboid(DVec3::new(0.02, 0.03, 0.045));
-    let p = tmp("grown.sqlite");
+    let p = scratch.file("grown.sqlite");
     let small = RunParams { drops: 40, seed: 7, ..Default::default() };
     drop(run_db(&p, mesh.clone(), "box", &small, None, 2));
     let prepared = stable::prepare(mesh.clone(), "box", &small).unwrap();
@@ -455,16 +467,17 @@ fn a_run_asked_for_more_drops_goes_on_from_the_stored_ones() {
     assert_eq!(summary.reused, 40);
     let runs = db.runs().unwrap();
     assert_eq!((runs.len(), runs[0].drops), (1, 90));
-    let single = run_db(&tmp("single90.sqlite"), mesh, "box", &big, None, 2);
+    let single = run_db(&scratch.file("single90.sqlite"), mesh, "box", &big, None, 2);
     assert_eq!(db.drops(runs[0].id).unwrap(), single.drops(single.runs().unwrap()[0].id).unwrap());
 }
 
 #[test]
 fn killed_run_resumes_without_loss_or_duplicates() {
+    let scratch = Scratch::new();
     let bin = env!("CARGO_BIN_EXE_plausible");
     let mesh = asset("pybullet/duck.obj");
-    let killed = tmp("killed.sqlite");
-    let full = tmp("full.sqlite");
+    let killed = scratch.file("killed.sqlite");
+    let full = scratch.file("full.sqlite");
     let args = |db: &Path| {
         vec![
             "stable-poses".to_string(),
@@ -527,13 +540,14 @@ fn killed_run_resumes_without_loss_or_duplicates() {
 
 #[test]
 fn cli_show_merge_export_and_json() {
+    let scratch = Scratch::new();
     let bin = env!("CARGO_BIN_EXE_plausible");
     let mesh = asset("pybullet/duck_vhacd.obj");
     let (s1, s2, merged, json) = (
-        tmp("cli1.sqlite"),
-        tmp("cli2.sqlite"),
-        tmp("cli_m.sqlite"),
-        tmp("cli.json"),
+        scratch.file("cli1.sqlite"),
+        scratch.file("cli2.sqlite"),
+        scratch.file("cli_m.sqlite"),
+        scratch.file("cli.json"),
     );
     for (db, shard) in [(&s1, "1/2"), (&s2, "2/2")] {
         let out = Command::new(bin)
@@ -606,6 +620,7 @@ fn cli_show_merge_export_and_json() {
 
 #[test]
 fn bad_inputs_give_clear_errors_or_warnings() {
+    let scratch = Scratch::new();
     // Zero volume: a flat square.
     let flat = Mesh::from_raw(
         "flat",
@@ -626,13 +641,13 @@ fn bad_inputs_give_clear_errors_or_warnings() {
     assert!(err.contains("volume"), "{err}");
     // Unsupported file.
     let bin = env!("CARGO_BIN_EXE_plausible");
-    let bad = tmp("mesh.xyz");
+    let bad = scratch.file("mesh.xyz");
     std::fs::write(&bad, "1 2 3\n").unwrap();
     let out = Command::new(bin)
         .args(["stable-poses"])
         .arg(&bad)
         .args(["--db"])
-        .arg(tmp("bad.sqlite"))
+        .arg(scratch.file("bad.sqlite"))
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -641,7 +656,7 @@ fn bad_inputs_give_clear_errors_or_warnings() {
         "{stderr}"
     );
     // A millimetre-scale mesh: the unit check speaks and converts it.
-    let mm = tmp("cube_mm.obj");
+    let mm = scratch.file("cube_mm.obj");
     let mut obj = String::new();
     let c = shapes::cuboid(DVec3::splat(40.0));
     for v in &c.vertices {
@@ -651,7 +666,7 @@ fn bad_inputs_give_clear_errors_or_warnings() {
         obj.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
     }
     std::fs::write(&mm, obj).unwrap();
-    let mm_db = tmp("mm.sqlite");
+    let mm_db = scratch.file("mm.sqlite");
     let out = Command::new(bin)
         .args(["stable-poses"])
         .arg(&mm)
@@ -673,7 +688,7 @@ fn bad_inputs_give_clear_errors_or_warnings() {
         m.volume
     );
     // An open mesh (a box without its top): warning, hull fallback for the mass.
-    let open = tmp("open_box.obj");
+    let open = scratch.file("open_box.obj");
     let mut obj = String::new();
     let c = shapes::cuboid(DVec3::new(0.03, 0.04, 0.05));
     for v in &c.vertices {
@@ -689,7 +704,7 @@ fn bad_inputs_give_clear_errors_or_warnings() {
         obj.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
     }
     std::fs::write(&open, obj).unwrap();
-    let open_db = tmp("open.sqlite");
+    let open_db = scratch.file("open.sqlite");
     let out = Command::new(bin)
         .args(["stable-poses"])
         .arg(&open)
