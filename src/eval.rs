@@ -789,11 +789,11 @@ pub fn visible_fractions(ds: &Dataset, scene: &Scene, device: &Device, max_image
         let k = scene.intrinsics(im, depth.width, depth.height)?;
         let kk = scene.frame_camera(im)?.k;
         for g in gt {
-            if !meshes.contains_key(&g.obj_id) {
+            if let std::collections::hash_map::Entry::Vacant(e) = meshes.entry(g.obj_id) {
                 let path = ds.model_path(g.obj_id);
                 let mesh =
                     if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
-                meshes.insert(g.obj_id, mesh);
+                e.insert(mesh);
             }
         }
         let mesh_of = |obj: u32| meshes.get(&obj).and_then(Option::as_ref);
@@ -889,10 +889,10 @@ pub fn gt_as_results(ds: &Dataset, targets: &[Target]) -> Result<Vec<Estimate>> 
     let mut out = Vec::new();
     let mut scenes: BTreeMap<u32, Scene> = BTreeMap::new();
     for t in targets {
-        if !scenes.contains_key(&t.scene_id) {
-            scenes.insert(t.scene_id, ds.scene(t.scene_id)?);
-        }
-        let scene = &scenes[&t.scene_id];
+        let scene = match scenes.entry(t.scene_id) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => e.insert(ds.scene(t.scene_id)?),
+        };
         let gt = scene.gt.get(&t.im_id).ok_or_else(|| Error::BadJson {
             path: scene.dir.join("scene_gt.json"),
             reason: format!("target image {} is not annotated", t.im_id),

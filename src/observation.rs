@@ -177,7 +177,7 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
         }
     }
     let intrinsics = Intrinsics::from_k(&cam.cam_k, w, h)?;
-    intrinsics.check_against_image().map_err(|reason| bad(reason))?;
+    intrinsics.check_against_image().map_err(bad)?;
     let img = image::open(path).map_err(|e| bad(e.to_string()))?;
     let img = match img {
         image::DynamicImage::ImageLuma16(i) => i,

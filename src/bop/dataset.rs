@@ -532,10 +532,11 @@ fn image_targets(path: &Path, ds: &Dataset, raw: &[RawTarget]) -> Result<Vec<Tar
         if !seen.insert((t.scene_id, t.im_id)) {
             return Err(bad(format!("scene {}, image {} is listed twice", t.scene_id, t.im_id)));
         }
-        if !scenes.contains_key(&t.scene_id) {
-            scenes.insert(t.scene_id, ds.scene(t.scene_id)?);
-        }
-        let insts = scenes[&t.scene_id].gt.get(&t.im_id).ok_or_else(|| bad(format!("image {} of scene {} is not annotated", t.im_id, t.scene_id)))?;
+        let scene = match scenes.entry(t.scene_id) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => e.insert(ds.scene(t.scene_id)?),
+        };
+        let insts = scene.gt.get(&t.im_id).ok_or_else(|| bad(format!("image {} of scene {} is not annotated", t.im_id, t.scene_id)))?;
         out.extend(instance_targets(t.scene_id, t.im_id, insts));
     }
     Ok(out)

@@ -356,10 +356,12 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     let mut scenes = std::collections::HashMap::new();
     let mut total = ImageStats::default();
     for job in &jobs {
-        if !scenes.contains_key(&job.scene_id) {
-            scenes.insert(job.scene_id, ds.scene(job.scene_id).with_context(|| format!("scene {}", job.scene_id))?);
-        }
-        let scene = &scenes[&job.scene_id];
+        let scene = match scenes.entry(job.scene_id) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                e.insert(ds.scene(job.scene_id).with_context(|| format!("scene {}", job.scene_id))?)
+            }
+        };
         let r = refine_image(scene, job, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
         a.run.save_picture(job.scene_id, job.im_id, r.picture.as_ref())?;

@@ -415,7 +415,7 @@ fn validate_and_clean(
     // or 0.15 mm "object" scores 0 everywhere without anything else noting it.
     if units != MeshUnits::Auto {
         let d = diag * report.scale_to_metres;
-        if d > MAX_DIAGONAL_M || d < MIN_DIAGONAL_M {
+        if !(MIN_DIAGONAL_M..=MAX_DIAGONAL_M).contains(&d) {
             report.warnings.push(format!(
                 "with the stated units the object's bounding-box diagonal is {d:.4} m: is that its real size? (the units may be wrong)"
             ));
