@@ -25,12 +25,6 @@ pub struct EstimateArgs {
     /// annotated object of every image).
     #[arg(long)]
     pub targets: Option<PathBuf>,
-    /// Only these scenes (comma-separated ids).
-    #[arg(long, value_delimiter = ',')]
-    pub scenes: Vec<u32>,
-    /// Only these images (comma-separated ids).
-    #[arg(long, value_delimiter = ',')]
-    pub images: Vec<u32>,
     /// Resting poses: a `stable-poses` database (SQLite) or its `export`
     /// JSON holding the dataset's models (default: the quasi-static
     /// analysis of each convex hull).
@@ -105,26 +99,12 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(a.targets.as_deref()).context("--targets")?;
-    for s in &a.scenes {
-        if !targets.iter().any(|t| t.scene_id == *s) {
-            bail!("--scenes {s}: no target in scene {s} (the dataset's scenes with targets: {})", id_list(targets.iter().map(|t| t.scene_id)));
-        }
-    }
-    for i in &a.images {
-        if !targets.iter().any(|t| t.im_id == *i && (a.scenes.is_empty() || a.scenes.contains(&t.scene_id))) {
-            bail!("--images {i}: no target in image {i} of the chosen scenes");
-        }
-    }
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
     for t in targets {
-        if (a.scenes.is_empty() || a.scenes.contains(&t.scene_id)) && (a.images.is_empty() || a.images.contains(&t.im_id)) {
-            by_image.entry((t.scene_id, t.im_id)).or_default().push(t);
-        }
+        by_image.entry((t.scene_id, t.im_id)).or_default().push(t);
     }
-    if by_image.is_empty() {
-        bail!("no targets in the chosen scenes and images");
-    }
-    let mut jobs: Vec<((u32, u32), Vec<_>)> = shard_of(by_image.into_iter().collect(), shard);
+    let by_image = a.run.select_images(by_image.into_iter().collect(), |(k, _)| *k, "targets")?;
+    let mut jobs: Vec<((u32, u32), Vec<_>)> = shard_of(by_image, shard);
     // What decides an image's estimates (not which images: those may be
     // added to one output by scene, image or shard).
     let settings = serde_json::json!({
@@ -145,6 +125,8 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();
     objs.dedup();
+    let mask_keys: Vec<(u32, u32, u32)> = jobs.iter().flat_map(|((s, i), ts)| ts.iter().map(|t| (*s, *i, t.obj_id))).collect::<std::collections::BTreeSet<_>>().into_iter().collect();
+    a.run.check_masks(&masks, &mask_keys, "those objects are not estimated")?;
     let device = a.run.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());
@@ -201,14 +183,4 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         })?;
     }
     Ok(())
-}
-
-/// Distinct ids, in order, for a message (the first 20).
-fn id_list(ids: impl Iterator<Item = u32>) -> String {
-    let set: std::collections::BTreeSet<u32> = ids.collect();
-    let mut s: Vec<String> = set.iter().take(20).map(u32::to_string).collect();
-    if set.len() > 20 {
-        s.push("...".into());
-    }
-    s.join(", ")
 }

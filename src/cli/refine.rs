@@ -74,6 +74,13 @@ pub struct ImageRunArgs {
     /// object id).
     #[arg(long, default_value = "oracle")]
     pub masks: String,
+    /// Only these scenes (comma-separated ids).
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<u32>,
+    /// Only these images (comma-separated ids; with --scenes, of those
+    /// scenes).
+    #[arg(long, value_delimiter = ',')]
+    pub images: Vec<u32>,
     /// Only images i (0-based, in scene/image order) with i mod n = k - 1:
     /// run shards 1/n .. n/n apart and concatenate their outputs (each
     /// after its header line).
@@ -110,6 +117,48 @@ impl ImageRunArgs {
         }
     }
 
+    /// The jobs of the images chosen by `--scenes` and `--images` (all
+    /// without them); `key` gives a job's (scene, image), `what` names
+    /// where the jobs come from. A chosen scene or image without a job is
+    /// an error, not an empty run.
+    pub fn select_images<T>(&self, jobs: Vec<T>, key: impl Fn(&T) -> (u32, u32), what: &str) -> Result<Vec<T>> {
+        let in_scenes = |s: u32| self.scenes.is_empty() || self.scenes.contains(&s);
+        for s in &self.scenes {
+            if !jobs.iter().any(|j| key(j).0 == *s) {
+                bail!("--scenes {s}: no {what} in scene {s} (the scenes with {what}: {})", id_list(jobs.iter().map(|j| key(j).0)));
+            }
+        }
+        for i in &self.images {
+            if !jobs.iter().any(|j| key(j).1 == *i && in_scenes(key(j).0)) {
+                bail!("--images {i}: no {what} in image {i} of the chosen scenes");
+            }
+        }
+        let jobs: Vec<T> = jobs.into_iter().filter(|j| in_scenes(key(j).0) && (self.images.is_empty() || self.images.contains(&key(j).1))).collect();
+        if jobs.is_empty() {
+            let chosen = if self.scenes.is_empty() && self.images.is_empty() { "" } else { " in the chosen scenes and images" };
+            bail!("no {what}{chosen}");
+        }
+        Ok(jobs)
+    }
+
+    /// With a folder of masks: refuses a run where none of the wanted
+    /// (scene, image, object) masks is there (another naming, the wrong
+    /// folder) and warns when some are missing, whose objects are left out.
+    pub fn check_masks(&self, masks: &Masks, wanted: &[(u32, u32, u32)], consequence: &str) -> Result<()> {
+        let missing = masks.missing(wanted);
+        if missing.is_empty() {
+            return Ok(());
+        }
+        let Masks::Dir(d) = masks else { return Ok(()) };
+        let (s, i, o) = missing[0];
+        let example = Masks::dir_file(d, s, i, o);
+        if missing.len() == wanted.len() {
+            bail!("--masks {}: none of the {} masks the images need is there (the first: {}; the folder holds SSSSSS/IIIIII_OOOOOO.png by scene, image and object id)", d.display(), wanted.len(), example.display());
+        }
+        eprintln!("warning: --masks {}: {} of {} masks are missing (the first: {}); {consequence}", d.display(), missing.len(), wanted.len(), example.display());
+        Ok(())
+    }
+
     /// Checks that `--summary` can be written and makes the `--explain`
     /// folder, before any work, so a bad path fails fast.
     pub fn prepare_outputs(&self) -> Result<()> {
@@ -142,6 +191,16 @@ impl ImageRunArgs {
         }
         Ok(())
     }
+}
+
+/// Distinct ids, in order, for a message (the first 20).
+fn id_list(ids: impl Iterator<Item = u32>) -> String {
+    let set: std::collections::BTreeSet<u32> = ids.collect();
+    let mut s: Vec<String> = set.iter().take(20).map(u32::to_string).collect();
+    if set.len() > 20 {
+        s.push("...".into());
+    }
+    s.join(", ")
 }
 
 /// `oracle` or a folder of masks.
@@ -323,7 +382,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     }
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let init = read_results(&a.init).context("--init")?;
-    let mut jobs = shard_of(image_jobs(&init), shard);
+    let mut jobs = shard_of(a.run.select_images(image_jobs(&init), |j| (j.scene_id, j.im_id), "estimates")?, shard);
     // What decides an image's refined poses (not which images).
     let settings = serde_json::json!({
         "command": "refine",
@@ -348,6 +407,8 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if let Some(o) = objs.iter().find(|o| !ds.models_info.contains_key(o)) {
         bail!("--init: object {o} is not in the dataset's models_info.json");
     }
+    let mask_keys: Vec<(u32, u32, u32)> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| (j.scene_id, j.im_id, e.obj_id))).collect::<std::collections::BTreeSet<_>>().into_iter().collect();
+    a.run.check_masks(&masks, &mask_keys, "those objects' estimates are written as they were")?;
     let device = a.run.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;

@@ -50,9 +50,25 @@ impl Masks {
                 })
                 .unwrap_or_default(),
             Masks::Dir(d) => {
-                let p = d.join(format!("{:06}", scene.id)).join(format!("{im_id:06}_{obj_id:06}.png"));
+                let p = Masks::dir_file(d, scene.id, im_id, obj_id);
                 if p.exists() { vec![p] } else { vec![] }
             }
+        }
+    }
+
+    /// The file of an object's mask in an image in a folder of masks.
+    pub fn dir_file(dir: &Path, scene_id: u32, im_id: u32, obj_id: u32) -> PathBuf {
+        dir.join(format!("{scene_id:06}")).join(format!("{im_id:06}_{obj_id:06}.png"))
+    }
+
+    /// Of the (scene, image, object) triples, those without a mask file
+    /// (always none for the oracle, whose missing masks are unseen
+    /// instances). Lets a run with a folder of masks under another naming
+    /// be refused before any work instead of leaving every object as it was.
+    pub fn missing<'a>(&self, wanted: impl IntoIterator<Item = &'a (u32, u32, u32)>) -> Vec<(u32, u32, u32)> {
+        match self {
+            Masks::Oracle => vec![],
+            Masks::Dir(d) => wanted.into_iter().filter(|(s, i, o)| !Masks::dir_file(d, *s, *i, *o).exists()).copied().collect(),
         }
     }
 
