@@ -47,8 +47,28 @@ impl DepthImage {
         if dmax > 100.0 {
             return Err(bad(format!("largest depth is {dmax:.0} m: are the values in millimetres? (give units=\"mm\")")));
         }
+        let median = median_depth(&depth);
+        if median < MIN_MEDIAN_DEPTH_M {
+            return Err(bad(format!("median depth is {:.1} mm: no depth camera sees a scene that close; are the values in another unit than metres?", median * 1e3)));
+        }
         Ok(DepthImage { intrinsics, depth })
     }
+}
+
+/// A median measured depth below this (metres) is no real depth image but
+/// one read in the wrong unit or with the wrong depth_scale (depth cameras
+/// see from about 10 cm): it would put the support plane and every point
+/// 10-1000 times too close, and score every pose zero without a word.
+pub const MIN_MEDIAN_DEPTH_M: f32 = 0.05;
+
+/// The median of the measured (non-zero) depths; 0 when there is none.
+fn median_depth(depth: &[f32]) -> f32 {
+    let mut valid: Vec<f32> = depth.iter().copied().filter(|&d| d > 0.0).collect();
+    if valid.is_empty() {
+        return 0.0;
+    }
+    let mid = valid.len() / 2;
+    *valid.select_nth_unstable_by(mid, f32::total_cmp).1
 }
 
 /// Checks a mask given as data (not a file) against its depth image: the
@@ -197,6 +217,14 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
     if dmax > 100.0 {
         return Err(bad(format!(
             "largest depth is {dmax:.0} m: depth_scale {} looks wrong (value x depth_scale must be millimetres)",
+            cam.depth_scale
+        )));
+    }
+    let median = median_depth(&depth);
+    if median < MIN_MEDIAN_DEPTH_M {
+        return Err(bad(format!(
+            "median depth is {:.1} mm, closer than any depth camera sees a scene: depth_scale {} looks wrong (value x depth_scale must be millimetres)",
+            median * 1e3,
             cam.depth_scale
         )));
     }

@@ -233,27 +233,30 @@ pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, 
         let t = [p.cam_t_m2c[0] * scale, p.cam_t_m2c[1] * scale, p.cam_t_m2c[2] * scale];
         out.push(Pose::from_row_major(r, t).validated(i, orthonormalize)?);
     }
-    // A median camera-to-object distance under 2 cm, or over 50 m, is no
-    // real scene: the file almost certainly holds the other unit.
-    let mut d: Vec<f64> = out.iter().map(|p| p.t.length()).collect();
+    check_camera_distances(&out, units).map_err(|reason| bad(reason))?;
+    Ok(out)
+}
+
+/// Refuses poses whose median camera-to-object distance is no real scene,
+/// under 2 cm or over 50 m: their translations almost certainly hold the
+/// other unit (`read_as` says which one they were taken for), and scoring
+/// them would give every pose zero without a word. Returns the reason.
+pub fn check_camera_distances(poses: &[Pose], read_as: PoseUnits) -> std::result::Result<(), String> {
+    let mut d: Vec<f64> = poses.iter().map(|p| p.t.length()).collect();
+    if d.is_empty() {
+        return Ok(());
+    }
     d.sort_by(f64::total_cmp);
     let median = d[d.len() / 2];
-    match units {
-        PoseUnits::Millimetres if median < 0.02 => {
-            return Err(bad(format!(
-                "median camera distance is {:.1} mm: cam_t_m2c looks like metres, but BOP poses are in \
-                 millimetres (pass --pose-units m if the file really holds metres)",
-                median * 1e3
-            )));
-        }
-        PoseUnits::Metres if median > 50.0 => {
-            return Err(bad(format!(
-                "median camera distance is {median:.1} m: cam_t_m2c looks like millimetres (BOP's unit), read as metres"
-            )));
-        }
-        _ => {}
+    match read_as {
+        PoseUnits::Millimetres if median < 0.02 => Err(format!(
+            "median camera distance is {:.1} mm: the translations look like metres, but were read as millimetres (read them as metres if they really are)",
+            median * 1e3
+        )),
+        PoseUnits::Metres if median > 50.0 => Err(format!("median camera distance is {median:.1} m: the translations look like millimetres, but were read as metres")),
+        PoseUnits::Metres if median < 0.02 => Err(format!("median camera distance is {:.1} mm: the objects would touch the camera; are the translations in metres?", median * 1e3)),
+        _ => Ok(()),
     }
-    Ok(out)
 }
 
 /// Writes poses in the BOP pose JSON format (translations in millimetres).

@@ -282,6 +282,11 @@ fn depth_png_errors() {
     let p1 = d.path().join("d1.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([700u16])).save(&p1).unwrap();
     assert!(err_text(read_depth_png(&p1, &big)).contains("depth_scale"));
+    // One 100 times too small (0.001 for LM-O's 0.1): 7000 units read as
+    // 7 mm instead of 0.7 m would put every point at the lens.
+    let tiny = BopCamera { depth_scale: 0.001, ..cam.clone() };
+    let e = err_text(read_depth_png(&small, &tiny));
+    assert!(e.contains("median depth is 7.0 mm") && e.contains("depth_scale 0.001"), "{e}");
     assert!(err_text(read_depth_png(Path::new("/nonexistent/d.png"), &cam)).contains("not found"));
 }
 
@@ -344,9 +349,14 @@ fn poses_in_metres_where_millimetres_are_expected() {
     let d = tempfile::tempdir().unwrap();
     let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0.01, 0.02, 0.7]}}]"#));
     let e = read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string();
-    assert!(e.contains("looks like metres") && e.contains("--pose-units m"), "{e}");
+    // The library's message names no CLI flag (the CLI adds its own).
+    assert!(e.contains("look like metres") && !e.contains("--"), "{e}");
     let ok = read_poses(&p, PoseUnits::Metres, false).unwrap();
     assert!((ok[0].t.z - 0.7).abs() < 1e-12);
+    // The reverse: millimetres read as metres put the object 700 m away.
+    let mm = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [10, 20, 700]}}]"#));
+    let e = read_poses(&mm, PoseUnits::Metres, false).unwrap_err().to_string();
+    assert!(e.contains("look like millimetres"), "{e}");
 }
 
 #[test]

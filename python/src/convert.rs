@@ -43,7 +43,8 @@ pub fn mask(mask: Option<PyReadonlyArray2<bool>>, obs: &DepthImage) -> PyResult<
 }
 
 /// Poses from rotations (N, 3, 3) and translations (N, 3) in metres,
-/// validated (orthonormal rotation, in front of the camera).
+/// validated (orthonormal rotation, in front of the camera, a median
+/// camera distance between 2 cm and 50 m: millimetres are refused).
 pub fn poses(r: PyReadonlyArray3<f64>, t: PyReadonlyArray2<f64>, orthonormalize: bool) -> PyResult<Vec<Pose>> {
     let n = r.shape()[0];
     if r.shape() != [n, 3, 3] || t.shape() != [n, 3] {
@@ -55,7 +56,7 @@ pub fn poses(r: PyReadonlyArray3<f64>, t: PyReadonlyArray2<f64>, orthonormalize:
     }
     let r = slice(&r, "R")?;
     let t = slice(&t, "t")?;
-    (0..n)
+    let poses = (0..n)
         .map(|i| {
             let m = &r[9 * i..9 * i + 9];
             let rot = DMat3::from_cols_array(&[m[0], m[3], m[6], m[1], m[4], m[7], m[2], m[5], m[8]]);
@@ -65,7 +66,9 @@ pub fn poses(r: PyReadonlyArray3<f64>, t: PyReadonlyArray2<f64>, orthonormalize:
                 value_error(e.to_string().replace("pass --orthonormalize", "pass orthonormalize=True"))
             })
         })
-        .collect()
+        .collect::<PyResult<Vec<Pose>>>()?;
+    plausible::pose::check_camera_distances(&poses, plausible::pose::PoseUnits::Metres).map_err(|r| value_error(format!("t: {r}")))?;
+    Ok(poses)
 }
 
 /// A 3-vector from a length-3 array.

@@ -50,8 +50,8 @@ pub struct ScoreArgs {
     #[arg(long, default_value_t = 0.7)]
     pub alpha: f32,
     /// Level of detail of the mesh the visual score renders: `auto` (the
-    /// coarsest simplification whose geometric error stays within half a
-    /// pixel at the observed object), `off` (the full mesh) or a triangle
+    /// coarsest simplification whose geometric error stays within a quarter
+    /// of a pixel at the observed object), `off` (the full mesh) or a triangle
     /// count. The physical terms always use the full mesh.
     #[arg(long, default_value = "auto")]
     pub lod: LodChoice,
@@ -221,7 +221,12 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     let select = a.obj_id.map(|o| SceneGtSelection { frame: a.obs.frame.as_deref().unwrap_or_default(), obj_id: Some(o) });
     let poses = tracing::trace_span!("poses")
         .in_scope(|| read_poses_selected(&a.poses, units, a.orthonormalize, select))
-        .context("--poses (a BOP scene_gt.json needs --frame and --obj-id)")?;
+        .map_err(|e| {
+            // The library's hints in this command's flags.
+            let msg = e.to_string().replace("read them as metres if they really are", "pass --pose-units m if the file really holds metres");
+            let scene_gt = msg.contains("scene_gt.json");
+            anyhow::anyhow!(msg).context(if scene_gt { "--poses (a BOP scene_gt.json needs --frame and --obj-id)" } else { "--poses" })
+        })?;
     if let Some(&bad) = a.explain_ids.iter().find(|&&i| i >= poses.len()) {
         bail!("--explain-ids {bad}: there are only {} hypotheses (indices start at 0)", poses.len());
     }
