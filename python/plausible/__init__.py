@@ -420,7 +420,7 @@ def fit_plane(
     inlier: float = 0.005,
     iterations: int = 500,
     seed: int = 0,
-    mask_margin: int = 10,
+    mask_margin: int = 5,
 ) -> Dict[str, Any]:
     """Fits the support plane to the depth outside the (grown) mask by
     RANSAC. Returns {"point", "normal", "units", "inliers", "candidates",
@@ -502,10 +502,10 @@ def hypotheses(
     stable: Any = None,
     units: str = "m",
     mesh_units: str = "auto",
-    yaw_steps: int = 36,
+    yaw_steps: int = 24,
     grid_radius: int = 0,
-    grid_step: float = 0.01,
-    min_probability: float = 0.0,
+    grid_step: float = 0.005,
+    min_probability: float = 0.01,
 ) -> Dict[str, np.ndarray]:
     """Pose hypotheses of an object on its support plane: resting poses
     (``stable``: :func:`stable_poses`' list, a stable-pose export or its
@@ -654,7 +654,7 @@ def estimate(
     method: str = "rir",
     steps: int = 2,
     top: int = 5,
-    yaw_steps: int = 36,
+    yaw_steps: int = 24,
     physics: bool = True,
     res: int = 128,
     seed: int = 0,

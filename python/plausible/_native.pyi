@@ -71,7 +71,7 @@ def fit_plane(
     inlier: float = 0.005,
     iterations: int = 500,
     seed: int = 0,
-    mask_margin: int = 10,
+    mask_margin: int = 5,
 ) -> Dict[str, Any]: ...
 def check(
     scene_json: str,
@@ -95,10 +95,10 @@ def hypotheses(
     plane_normal: npt.NDArray[np.float64],
     *,
     stable_export: Optional[str] = None,
-    yaw_steps: int = 36,
+    yaw_steps: int = 24,
     grid_radius: int = 0,
-    grid_step: float = 0.01,
-    min_probability: float = 0.0,
+    grid_step: float = 0.005,
+    min_probability: float = 0.01,
 ) -> Dict[str, npt.NDArray[Any]]: ...
 def evaluate(
     dataset: _Path,
@@ -147,7 +147,7 @@ def estimate(
     method: str = "rir",
     steps: int = 2,
     top: int = 5,
-    yaw_steps: int = 36,
+    yaw_steps: int = 24,
     physics: bool = True,
     res: int = 128,
     seed: int = 0,

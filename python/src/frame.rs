@@ -145,7 +145,7 @@ pub fn refine<'py>(
 /// JSON text per object, or the hull's quasi-static analysis) x yaws on the
 /// support plane, scored, and the best `top` refined among the others.
 #[pyfunction]
-#[pyo3(signature = (k, depth, meshes, masks_in, stable, *, plane = None, method = "rir", steps = 2, top = 5, yaw_steps = 36, physics = true, res = 128, seed = 0, device = "auto", adapter = None))]
+#[pyo3(signature = (k, depth, meshes, masks_in, stable, *, plane = None, method = "rir", steps = 2, top = 5, yaw_steps = 24, physics = true, res = 128, seed = 0, device = "auto", adapter = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn estimate<'py>(
     py: Python<'py>,

@@ -20,7 +20,7 @@ use crate::{to_py, value_error};
 
 /// Fits the support plane to the depth outside the (grown) mask by RANSAC.
 #[pyfunction]
-#[pyo3(signature = (k, depth, mask = None, *, inlier = 0.005, iterations = 500, seed = 0, mask_margin = 10))]
+#[pyo3(signature = (k, depth, mask = None, *, inlier = 0.005, iterations = 500, seed = 0, mask_margin = 5))]
 #[allow(clippy::too_many_arguments)]
 pub fn fit_plane<'py>(
     py: Python<'py>,
@@ -126,7 +126,7 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
 /// export's JSON text, or the quasi-static analysis of the convex hull) x
 /// yaw steps x in-plane offsets around the observed object.
 #[pyfunction]
-#[pyo3(signature = (mesh, k, depth, mask, plane_point, plane_normal, *, stable_export = None, yaw_steps = 36, grid_radius = 0, grid_step = 0.01, min_probability = 0.0))]
+#[pyo3(signature = (mesh, k, depth, mask, plane_point, plane_normal, *, stable_export = None, yaw_steps = 24, grid_radius = 0, grid_step = 0.005, min_probability = 0.01))]
 #[allow(clippy::too_many_arguments)]
 pub fn hypotheses<'py>(
     py: Python<'py>,
