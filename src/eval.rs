@@ -398,13 +398,18 @@ pub fn evaluate(
     let mut report = EvalReport { add_threshold: opts.add_threshold, device: device.describe(), ..Default::default() };
     let target_keys: std::collections::HashSet<(u32, u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id, t.obj_id)).collect();
     let mut index: EstimateIndex = HashMap::new();
-    for e in results {
-        if !ds.models_info.contains_key(&e.obj_id) {
-            return Err(Error::InvalidInput(format!(
-                "results line {}: object {} is not in the dataset's models_info.json",
-                e.line, e.obj_id
-            )));
+    // Rows of objects the dataset does not have are ignored, as the
+    // toolkit does (it never looks at them), and said; a file none of whose
+    // objects is there is for another dataset, an error.
+    let unknown: Vec<&Estimate> = results.iter().filter(|e| !ds.models_info.contains_key(&e.obj_id)).collect();
+    if let Some(first) = unknown.first() {
+        let where_ = format!("results line {}: object {}", first.line, first.obj_id);
+        if unknown.len() == results.len() {
+            return Err(Error::InvalidInput(format!("no results line names an object of the dataset's models_info.json ({where_}): are they for another dataset?")));
         }
+        tracing::warn!("{} results lines name objects not in the dataset's models_info.json (the first: {where_}); they are ignored, as the BOP toolkit does", unknown.len());
+    }
+    for e in results {
         if target_keys.contains(&(e.scene_id, e.im_id, e.obj_id)) {
             index.entry((e.scene_id, e.im_id, e.obj_id)).or_default().push(e);
         } else {

@@ -274,14 +274,21 @@ fn bad_results_files_name_the_file_and_line() {
     std::fs::write(&p, format!("{ok}\n{ok}\n")).unwrap();
     let e = err_of(read_results(&p));
     assert!(e.contains("line 2") && e.contains("duplicates line 1"), "{e}");
-    // Unknown object.
+    // A row of an object the dataset lacks is ignored, as the toolkit does:
+    // its target counts as missed.
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
     let mut res = gt_as_results(&ds, &targets).unwrap();
     res[0].obj_id = 77;
     res[0].line = 5;
+    let (report, _) = evaluate(&ds, &res, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())).unwrap();
+    assert_eq!((report.n_ignored, report.n_estimates, report.n_targets), (1, targets.len() - 1, targets.len()));
+    // A file none of whose objects the dataset has is for another dataset.
+    for r in &mut res {
+        r.obj_id = 77;
+    }
     let e = err_of(evaluate(&ds, &res, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())));
-    assert!(e.contains("line 5") && e.contains("object 77"), "{e}");
+    assert!(e.contains("line 5") && e.contains("object 77") && e.contains("another dataset"), "{e}");
 }
 
 /// A progress callback's error stops the evaluation after that batch and

@@ -549,6 +549,10 @@ fn image_targets(path: &Path, ds: &Dataset, raw: &[RawTarget]) -> Result<Vec<Tar
 pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
     let raw: Vec<RawTarget> = read_json(path)?;
     if !raw.is_empty() && raw.iter().all(|t| t.obj_id.is_none()) {
+        tracing::warn!(
+            "{} names images only (BOP'24 targets): every annotated instance of them is a target with its instance count, scored by the BOP'19 recall metrics (BOP'24's detection AP is not computed)",
+            path.display()
+        );
         return image_targets(path, ds, &raw);
     }
     let mut seen = std::collections::HashMap::new();
