@@ -153,7 +153,7 @@ fn framed(base: &plausible::pose::Pose, mesh: &Mesh) -> plausible::pose::Pose {
 /// 0.15 m diagonal. The 100k mesh is the duck with every triangle split in
 /// 25 (same surface, 25x the triangles).
 pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
-    let load = |rel: &str| -> Result<Mesh> { Ok(Mesh::load(super::asset(rel), MeshUnits::Metres)?.0.normalized(0.15)) };
+    let load = |rel: &str| -> Result<Mesh> { Ok(Mesh::load(super::asset(rel).context("--mesh")?, MeshUnits::Metres)?.0.normalized(0.15)) };
     let duck = load("assets/pybullet/duck.obj")?;
     if quick {
         return Ok(vec![("duck".into(), duck)]);

@@ -45,6 +45,7 @@ pub struct BenchEstimateArgs {
     /// The device measured beside the CPU twin.
     #[arg(long, default_value = "gpu", value_parser = ["gpu", "cpu"])]
     pub device: String,
+    /// With `--device gpu`: the first adapter whose name contains this text.
     #[arg(long)]
     pub adapter: Option<String>,
 }
@@ -73,7 +74,10 @@ pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
     if a.images == 0 || a.images > 100_000 {
         bail!("--images must be between 1 and 100000");
     }
-    let root = a.dataset.clone().unwrap_or_else(|| super::asset("assets/lmo-synth"));
+    let root = match &a.dataset {
+        Some(d) => d.clone(),
+        None => super::asset("assets/lmo-synth").context("--dataset")?,
+    };
     let init_path = a.init.clone().unwrap_or_else(|| root.join("perturbed.csv"));
     let ds = Dataset::open(&root, &a.split).context("--dataset")?;
     // The images (those with targets), each with every annotated object

@@ -34,6 +34,7 @@ pub struct BenchEvalArgs {
     /// lavapipe included) or `cpu` (the twin alone).
     #[arg(long, default_value = "gpu", value_parser = ["gpu", "cpu"])]
     pub device: String,
+    /// With `--device gpu`: the first adapter whose name contains this text.
     #[arg(long)]
     pub adapter: Option<String>,
 }
@@ -74,7 +75,10 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     if a.repeat == 0 || a.repeat > 1000 {
         anyhow::bail!("--repeat must be between 1 and 1000");
     }
-    let root = a.dataset.clone().unwrap_or_else(|| super::asset("assets/lmo-synth"));
+    let root = match &a.dataset {
+        Some(d) => d.clone(),
+        None => super::asset("assets/lmo-synth").context("--dataset")?,
+    };
     let results_path = a.results.clone().unwrap_or_else(|| root.join("perturbed.csv"));
     let ds = Dataset::open(&root, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(None)?;

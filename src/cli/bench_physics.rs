@@ -158,7 +158,7 @@ impl Workload {
     fn new(n: usize, samples: usize, seed: u64) -> Result<Workload> {
         let cube = plausible::shapes::cuboid(DVec3::splat(0.025));
         let body = Body::new(&cube, samples, seed, None)?;
-        let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj"), MeshUnits::Metres)?.0.normalized(0.15);
+        let duck: Mesh = Mesh::load(super::asset("assets/pybullet/duck.obj")?, MeshUnits::Metres)?.0.normalized(0.15);
         let grid = Arc::new(SdfGrid::bake(&duck, DEFAULT_RESOLUTION)?);
         let (lo, hi) = duck.bounds();
         let duck_pose = Pose::new(DMat3::IDENTITY, DVec3::new(0.0, 0.0, -lo.z));

@@ -97,7 +97,7 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
 /// Loads the duck, puts it on a table in its most probable resting pose,
 /// observes it and fits the support plane, printing each step.
 fn build_scene(seed: u64) -> Result<DemoScene> {
-    let mesh_path = super::asset("assets/pybullet/duck.obj");
+    let mesh_path = super::asset("assets/pybullet/duck.obj")?;
     let (mesh, _) = Mesh::load(&mesh_path, MeshUnits::Metres)?;
     let mesh = mesh.normalized(0.15);
     let rmesh = RenderMesh::new(&mesh)?;

@@ -20,7 +20,7 @@ pub mod trace;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, Result};
+use anyhow::{bail, Context as _, Result};
 use plausible::gpu::DeviceChoice;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{read_camera, read_depth_png, read_mask_png, DepthImage};
@@ -163,14 +163,26 @@ pub fn open_device(device: &str, adapter: Option<&str>, verbose: u8, fallback: b
     Ok(opened.device)
 }
 
-/// Finds a shipped asset whether the binary runs from the repository root
-/// or elsewhere.
-pub fn asset(rel: &str) -> PathBuf {
-    let here = Path::new(rel);
-    if here.exists() {
-        return here.to_path_buf();
+/// Finds a shipped asset (`assets/...`, used by the demo and the default
+/// benchmark inputs): in the working directory, in the repository the
+/// binary was built from, or in the one holding the binary
+/// (`REPO/target/release/plausible`). An installed binary whose repository
+/// has gone has none, which is said with the way out.
+pub fn asset(rel: &str) -> Result<PathBuf> {
+    let mut roots = vec![PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
+    if let Some(repo) = std::env::current_exe().ok().and_then(|e| e.parent()?.parent()?.parent().map(Path::to_path_buf)) {
+        roots.push(repo);
     }
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+    for root in &roots {
+        let p = root.join(rel);
+        if p.exists() {
+            return Ok(if root == Path::new(".") { PathBuf::from(rel) } else { p });
+        }
+    }
+    bail!(
+        "{rel}, shipped with the repository, is not here nor in {}: run this from a clone of the repository, or give your own inputs (see --help)",
+        roots[1..].iter().map(|r| r.display().to_string()).collect::<Vec<_>>().join(" or ")
+    )
 }
 
 /// A progress bar on stderr, hidden when stderr is not a terminal.

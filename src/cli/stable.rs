@@ -55,10 +55,11 @@ pub struct RunArgs {
     /// Run only shard k of n (the worlds of 32 consecutive drops with world % n == k-1), e.g. 2/8.
     #[arg(long)]
     pub shard: Option<Shard>,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default, or 0: all logical CPUs).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Collider: a simplified convex hull, or a convex decomposition.
+    /// Collider: `hull` (one simplified convex hull) or `decomposition`
+    /// (the file's connected components when it has several, else VHACD).
     #[arg(long, default_value = "hull")]
     pub collider: ColliderKind,
     /// Vertex budget of each simplified collider hull.
@@ -125,10 +126,11 @@ pub struct BenchStableArgs {
     /// Drops per mesh.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
     pub drops: u64,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default, or 0: all logical CPUs).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Meshes to use (default: the meshes shipped in assets/).
+    /// Meshes to use (default: duck_vhacd.obj, duck.obj and
+    /// 003_cracker_box.stl from assets/).
     #[arg(long)]
     pub mesh: Vec<PathBuf>,
     /// Rescale every mesh to this bounding-box diagonal (m), as the pybullet peer does (1 mm to 10 m).
@@ -136,7 +138,7 @@ pub struct BenchStableArgs {
     pub diameter: f64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Collider for every mesh (default: hull).
+    /// Collider for every mesh: `hull` (default) or `decomposition`.
     #[arg(long)]
     pub collider: Option<ColliderKind>,
     /// Vertex budget of each simplified collider hull.
@@ -161,12 +163,13 @@ pub fn stable_poses(args: StableArgs) -> anyhow::Result<()> {
     }
 }
 
-fn threads(t: Option<usize>) -> usize {
-    t.filter(|&t| t > 0).unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-    })
+/// `--threads`: absent or 0 is every logical CPU; more than 1024 is refused
+/// (each worker holds its own physics world).
+fn threads(t: Option<usize>) -> anyhow::Result<usize> {
+    if let Some(n) = t.filter(|&n| n > 1024) {
+        bail!("--threads {n}: give 1 to 1024 worker threads, or 0 for every logical CPU");
+    }
+    Ok(t.filter(|&t| t > 0).unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)))
 }
 
 /// Drops, clusters and stores every mesh. With `--trace` its span is the
@@ -189,7 +192,6 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("--max-time must be positive");
     }
     let dt = step_dt(args.step_hz)?;
-    let mut db = tracing::trace_span!("open_db").in_scope(|| Db::open(&db_path))?;
     let params = RunParams {
         drops: args.drops,
         seed: args.seed,
@@ -206,16 +208,23 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         cluster_deg: args.cluster_deg,
         ..Default::default()
     };
-    let nthreads = threads(args.threads);
+    let nthreads = threads(args.threads)?;
     let show_progress = !args.quiet && std::io::stderr().is_terminal();
     // Every mesh is read before the first drop: a missing or broken file
     // fails at once, not after hours of simulating the meshes before it.
     let load = tracing::trace_span!("load").entered();
     let mut loaded = Vec::with_capacity(args.meshes.len());
     for path in &args.meshes {
-        loaded.push(Mesh::load(path, args.mesh_units).with_context(|| format!("loading {}", path.display()))?);
+        // `stable-poses --db X show` reads `show` as a mesh: say where a
+        // subcommand goes.
+        let action = ["run", "show", "merge", "export"].iter().find(|a| path.as_os_str() == **a && !path.exists());
+        let hint = action.map_or(String::new(), |a| format!(" (for the `{a}` subcommand, name it first: `plausible stable-poses {a} --db ...`)"));
+        loaded.push(Mesh::load(path, args.mesh_units).with_context(|| format!("loading {}{hint}", path.display()))?);
     }
     drop(load);
+    // Opened once every mesh has loaded: a mistyped command leaves no
+    // empty database behind.
+    let mut db = tracing::trace_span!("open_db").in_scope(|| Db::open(&db_path))?;
     let mut names = Vec::new();
     for (path, (mesh, report)) in args.meshes.iter().zip(loaded) {
         for w in &report.warnings {
@@ -230,10 +239,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         // A finely tessellated round mesh can give a hundred rounding notes:
         // the first few say what happened, the database keeps them all.
         const SHOWN_NOTES: usize = 5;
-        for n in prepared.analytic.notes.iter().take(SHOWN_NOTES) {
+        let shown = if args.quiet { 0 } else { SHOWN_NOTES };
+        for n in prepared.analytic.notes.iter().take(shown) {
             eprintln!("note: {name}: analytic: {n}");
         }
-        if prepared.analytic.notes.len() > SHOWN_NOTES {
+        if !args.quiet && prepared.analytic.notes.len() > SHOWN_NOTES {
             eprintln!("note: {name}: analytic: {} more such notes (kept in the database)", prepared.analytic.notes.len() - SHOWN_NOTES);
         }
         let units = match (args.mesh_units, report.scale_to_metres == 1.0) {
@@ -486,17 +496,13 @@ fn export(args: ExportArgs) -> anyhow::Result<()> {
     write_json(&args.json, &ex)
 }
 
-/// Meshes shipped in assets/ for the benchmark.
-fn bench_meshes() -> Vec<PathBuf> {
-    [
-        "assets/pybullet/duck_vhacd.obj",
-        "assets/pybullet/duck.obj",
-        "assets/ycb/003_cracker_box.stl",
-    ]
-    .iter()
-    .map(|p| super::asset(p))
-    .filter(|p| p.exists())
-    .collect()
+/// Meshes shipped in assets/ for the benchmark: a convex decomposition, a
+/// scanned-style mesh and a box.
+fn bench_meshes() -> anyhow::Result<Vec<PathBuf>> {
+    ["assets/pybullet/duck_vhacd.obj", "assets/pybullet/duck.obj", "assets/ycb/003_cracker_box.stl"]
+        .iter()
+        .map(|p| super::asset(p).context("--mesh"))
+        .collect()
 }
 
 /// Parses a benchmark diameter in metres: finite, 1 mm to 10 m (a larger
@@ -511,19 +517,12 @@ fn diameter_m(s: &str) -> Result<f64, String> {
 
 /// Entry point of `plausible bench stable`.
 pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
-    let nthreads = threads(args.threads);
-    let cpus = threads(None);
+    let nthreads = threads(args.threads)?;
+    let cpus = threads(None)?;
     if nthreads > cpus {
         bail!("--threads {nthreads}: this machine has {cpus} logical CPUs; more threads than that measure contention, and the per-core figure would be wrong");
     }
-    let meshes = if args.mesh.is_empty() {
-        bench_meshes()
-    } else {
-        args.mesh.clone()
-    };
-    if meshes.is_empty() {
-        bail!("no meshes: assets/ not found; pass --mesh FILE");
-    }
+    let meshes = if args.mesh.is_empty() { bench_meshes()? } else { args.mesh.clone() };
     let dt = step_dt(args.step_hz)?;
     let hull_max_points = hull_points(args.hull_points)?;
     let mut rows = Vec::new();
@@ -636,8 +635,9 @@ pub fn bench_stable(args: BenchStableArgs) -> anyhow::Result<()> {
             println!(
                 "{:<24} {:>6} {:>6} {:>9.1} {:>10.1} {:>11.1} {:>10.2} {:>8.1}% {:>8} {:>9.1} {:>8.2} {:>8.2}",
                 r["mesh"].as_str().unwrap_or("?"),
-                r["triangles"],
-                r["collider_points"],
+                // serde_json's Display ignores widths: print the numbers.
+                r["triangles"].as_u64().unwrap_or(0),
+                r["collider_points"].as_u64().unwrap_or(0),
                 r["drops_per_s"].as_f64().unwrap_or(0.0),
                 r["drops_per_s_per_core"].as_f64().unwrap_or(0.0),
                 r["mean_steps_per_drop"].as_f64().unwrap_or(0.0),
