@@ -53,6 +53,19 @@ enum Command {
     Report(cli::report::ReportArgs),
 }
 
+/// The command line, where `--inlier-mm -5` passes -5 to the flag (clap
+/// reads a value starting with '-' as the next flag by default), so a
+/// negative number gets the flag's own range error instead of "unexpected
+/// argument".
+fn parse_args() -> Cli {
+    use clap::{CommandFactory, FromArgMatches};
+    fn negatives(cmd: clap::Command) -> clap::Command {
+        cmd.allow_negative_numbers(true).mut_subcommands(negatives)
+    }
+    let matches = negatives(Cli::command()).get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+}
+
 fn main() {
     // Rust ignores SIGPIPE, so `plausible score ... | head` would panic on
     // the first print after `head` exits. Die quietly like other Unix tools.
@@ -86,7 +99,7 @@ fn main() {
         // SAFETY: first thing in main, no other thread exists yet.
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
-    let cli = Cli::parse();
+    let cli = parse_args();
     if let Err(e) = cli::trace::init(cli.verbose, cli.trace.as_deref()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);

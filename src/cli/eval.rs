@@ -71,7 +71,15 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         batch_images: a.batch_images,
         ..EvalOptions::for_dataset(name.as_deref())
     };
-    opts.validate().context("check --errors, --add-threshold and --batch-images")?;
+    opts.validate().map_err(|e| {
+        // The library names the setting; say which flag gave it.
+        let msg = e.to_string();
+        let flag = [("error types", "--errors"), ("ADD threshold", "--add-threshold"), ("batch size", "--batch-images")]
+            .iter()
+            .find(|(what, _)| msg.contains(what))
+            .map_or("the dataset's evaluation settings", |(_, f)| f);
+        anyhow::anyhow!(e).context(flag)
+    })?;
     super::distinct_files(
         &[("--out", a.out.as_deref()), ("--errors-out", a.errors_out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())],
         &[("--results", a.results.as_deref()), ("--targets", a.targets.as_deref())],

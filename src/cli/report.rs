@@ -74,7 +74,12 @@ fn summary(inputs: &[Input]) -> String {
         (count(|k| matches!(k, Kind::Eval(_))), "eval"),
         (count(|k| matches!(k, Kind::Png { .. })), "pictures"),
     ];
-    parts.iter().filter(|(n, _)| *n > 0).map(|(n, w)| format!("{n} {w}")).collect::<Vec<_>>().join(", ")
+    parts
+        .iter()
+        .filter(|(n, _)| *n > 0)
+        .map(|(n, w)| if *n == 1 && *w == "pictures" { "1 picture".to_string() } else { format!("{n} {w}") })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The page: sections in a fixed order (score, check, stable poses, eval),

@@ -158,9 +158,11 @@ pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
         let (b, g, mp) = match found {
             Some((_, b, g, mp)) => (b.clone(), g.clone(), mp.clone()),
             None => {
-                let b = Body::new(&o.mesh, opts.samples, opts.seed, opts.epsilon)?;
-                let g = Arc::new(SdfGrid::bake(&o.mesh, opts.sdf_resolution)?);
-                let (mp, _) = MassProperties::of_mesh(&o.mesh)?;
+                // A mesh's error names the object (a scene may hold dozens).
+                let named = |e: crate::Error| crate::Error::InvalidInput(format!("object '{}' ({}): {e}", o.name, o.mesh_path.display()));
+                let b = Body::new(&o.mesh, opts.samples, opts.seed, opts.epsilon).map_err(named)?;
+                let g = Arc::new(SdfGrid::bake(&o.mesh, opts.sdf_resolution).map_err(named)?);
+                let (mp, _) = MassProperties::of_mesh(&o.mesh).map_err(named)?;
                 done.push((o.mesh.clone(), b.clone(), g.clone(), mp.clone()));
                 (b, g, mp)
             }

@@ -234,7 +234,7 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
             let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             let (rests, how) = crate::hypotheses::on_plane::resting_poses(&mesh, stable, &name)?;
             if how == Some(crate::hypotheses::on_plane::ExportMatch::OnlyEntry) {
-                return Err(Error::InvalidInput(format!("the stable-pose export has no entry for {name} (object {id})")));
+                return Err(Error::InvalidInput(format!("the stable poses given (a database or its export) have no entry for {name} (object {id}): drop-test that model too")));
             }
             Ok((id, EstimateModel { model: Model::new(mesh, p)?, rests }))
         })
