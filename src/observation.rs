@@ -61,9 +61,16 @@ impl DepthImage {
 /// 10-1000 times too close, and score every pose zero without a word.
 pub const MIN_MEDIAN_DEPTH_M: f32 = 0.05;
 
-/// The median of the measured (non-zero) depths; 0 when there is none.
+/// The median of the measured (non-zero) depths, over at most about 16k
+/// pixels spread evenly over the image (a plausibility check; reading
+/// every image of a dataset should not pay for a full sort); 0 when there
+/// is none.
 fn median_depth(depth: &[f32]) -> f32 {
-    let mut valid: Vec<f32> = depth.iter().copied().filter(|&d| d > 0.0).collect();
+    let stride = (depth.len() / 16_384).max(1);
+    let mut valid: Vec<f32> = depth.iter().step_by(stride).copied().filter(|&d| d > 0.0).collect();
+    if valid.is_empty() {
+        valid = depth.iter().copied().filter(|&d| d > 0.0).collect();
+    }
     if valid.is_empty() {
         return 0.0;
     }
