@@ -97,6 +97,9 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
         "decomposition" => ColliderKind::Decomposition,
         c => return Err(value_error(format!("collider '{c}': expected \"hull\" or \"decomposition\""))),
     };
+    if let Some(t) = threads.filter(|t| !(1..=1024).contains(t)) {
+        return Err(value_error(format!("threads {t}: between 1 and 1024 (None: every logical CPU)")));
+    }
     let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let params = RunParams { drops, seed, collider, ..Default::default() };
     let m = mesh.inner.clone();

@@ -61,6 +61,8 @@ def test_stable_poses_of_a_cube_are_its_six_faces():
     assert [c["count"] for c in again] == [c["count"] for c in poses]
     with pytest.raises(ValueError):
         pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=0)
+    with pytest.raises(ValueError):
+        pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=8, threads=100_000)
 
 
 def _interrupt_after(seconds: float) -> threading.Timer:
