@@ -327,7 +327,13 @@ fn load_models(ds: &Dataset, obj_ids: &[u32], opts: &EvalOptions, need_render: b
         .map(|&id| {
             let info = ds.models_info[&id].clone();
             let path = ds.model_path(id);
-            let (pts, tris) = crate::mesh::load_positions(&path)?;
+            let (pts, tris) = crate::mesh::load_positions(&path).map_err(|e| match e {
+                Error::NotFound { .. } => Error::InvalidInput(format!(
+                    "object {id} is a target but its model {} was not found (without a targets file every annotated object is one)",
+                    path.display()
+                )),
+                e => e,
+            })?;
             let render = if need_render {
                 let metres: Vec<DVec3> = pts.iter().map(|p| *p * 1e-3).collect();
                 let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
@@ -415,6 +421,12 @@ pub fn evaluate(
         } else {
             report.n_ignored += 1;
         }
+    }
+    if index.is_empty() && !results.is_empty() {
+        tracing::warn!(
+            "none of the {} results lines is for a target (scene, image and object of the targets): every target is a miss; are the results for another split or targets file?",
+            results.len()
+        );
     }
     report.average_time_per_image = average_time_per_image(results);
     let mut obj_ids: Vec<u32> = targets.iter().map(|t| t.obj_id).collect();

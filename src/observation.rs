@@ -61,6 +61,25 @@ impl DepthImage {
 /// 10-1000 times too close, and score every pose zero without a word.
 pub const MIN_MEDIAN_DEPTH_M: f32 = 0.05;
 
+/// Refuses depth read with a wrong `depth_scale`: a largest depth beyond
+/// 100 m or a median under [`MIN_MEDIAN_DEPTH_M`]. `depth` holds values in
+/// units of `metres_per_unit` (1 for metres, 1e-3 for millimetres); an image
+/// without a measurement passes (its reader decides). Returns the reason.
+pub(crate) fn check_depth_scale(depth: &[f32], metres_per_unit: f32, depth_scale: f64) -> std::result::Result<(), String> {
+    let dmax = depth.iter().cloned().fold(0.0f32, f32::max) * metres_per_unit;
+    if dmax > 100.0 {
+        return Err(format!("largest depth is {dmax:.0} m: depth_scale {depth_scale} looks wrong (value x depth_scale must be millimetres)"));
+    }
+    let median = median_depth(depth) * metres_per_unit;
+    if dmax > 0.0 && median < MIN_MEDIAN_DEPTH_M {
+        return Err(format!(
+            "median depth is {:.1} mm, closer than any depth camera sees a scene: depth_scale {depth_scale} looks wrong (value x depth_scale must be millimetres)",
+            median * 1e3
+        ));
+    }
+    Ok(())
+}
+
 /// The median of the measured (non-zero) depths, over at most about 16k
 /// pixels spread evenly over the image (a plausibility check; reading
 /// every image of a dataset should not pay for a full sort); 0 when there
@@ -220,21 +239,7 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
     if depth.iter().all(|&d| d == 0.0) {
         return Err(bad("depth image has no valid (non-zero) pixel".into()));
     }
-    let dmax = depth.iter().cloned().fold(0.0f32, f32::max);
-    if dmax > 100.0 {
-        return Err(bad(format!(
-            "largest depth is {dmax:.0} m: depth_scale {} looks wrong (value x depth_scale must be millimetres)",
-            cam.depth_scale
-        )));
-    }
-    let median = median_depth(&depth);
-    if median < MIN_MEDIAN_DEPTH_M {
-        return Err(bad(format!(
-            "median depth is {:.1} mm, closer than any depth camera sees a scene: depth_scale {} looks wrong (value x depth_scale must be millimetres)",
-            median * 1e3,
-            cam.depth_scale
-        )));
-    }
+    check_depth_scale(&depth, 1.0, cam.depth_scale).map_err(bad)?;
     Ok(DepthImage { intrinsics, depth })
 }
 
@@ -391,6 +396,29 @@ pub struct ScoreTarget {
 pub const DEFAULT_ROI_MARGIN: f64 = 0.25;
 
 impl ScoreTarget {
+    /// Says when the poses' median distance along the optical axis and
+    /// the observed depth of the scored region differ more than fourfold:
+    /// one of them is in the wrong unit or scale (a `depth_scale` 10× too
+    /// small, poses of another camera), and every hypothesis would score
+    /// zero. A warning, not a refusal: the region may hold background.
+    pub fn distance_mismatch(&self, poses: &[crate::pose::Pose]) -> Option<String> {
+        let observed = median_depth(&self.depth);
+        let mut z: Vec<f64> = poses.iter().map(|p| p.t.z).collect();
+        if observed <= 0.0 || z.is_empty() {
+            return None;
+        }
+        let mid = z.len() / 2;
+        let posed = *z.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let ratio = posed / observed as f64;
+        (!(0.25..=4.0).contains(&ratio)).then(|| {
+            format!(
+                "the poses lie a median {:.0} mm from the camera, the observed depth of the object's region {:.0} mm: is the depth scale (or the poses' unit) right? Poses this far off the depth all score zero",
+                posed * 1e3,
+                observed * 1e3
+            )
+        })
+    }
+
     /// Builds the scoring region from an observation. `mask` (same size as
     /// the depth) selects the object; without it the whole frame counts.
     pub fn new(obs: &DepthImage, mask: Option<&[bool]>, sampling: RoiSampling, margin: f64) -> Result<Self> {

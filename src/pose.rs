@@ -159,10 +159,16 @@ pub struct SceneGtSelection<'a> {
 fn parse_pose_entries(path: &Path, text: &str, select: Option<SceneGtSelection>) -> Result<Vec<BopPose>> {
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let shape = "expected a list of {\"cam_R_m2c\": [9 numbers], \"cam_t_m2c\": [3 numbers, mm]}, {\"poses\": [...]}, or a BOP scene_gt.json with an image id and object id picked";
+    // An image and object picked from a plain list would be ignored.
+    let not_scene_gt = || bad("an image and object were picked, but this is a list of poses, not a BOP scene_gt.json".into());
     match text.trim_start().as_bytes().first() {
+        Some(b'[') if select.is_some() => Err(not_scene_gt()),
         Some(b'[') => serde_json::from_str::<Vec<BopPose>>(text).map_err(|e| bad(format!("{e}; {shape}"))),
         Some(b'{') => {
             let v: serde_json::Map<String, serde_json::Value> = serde_json::from_str(text).map_err(|e| bad(format!("{e}; {shape}")))?;
+            if v.contains_key("poses") && select.is_some() {
+                return Err(not_scene_gt());
+            }
             if v.contains_key("poses") {
                 let o: PosesObject = serde_json::from_value(serde_json::Value::Object(v)).map_err(|e| bad(format!("{e}; {shape}")))?;
                 return Ok(o.poses);
@@ -255,7 +261,18 @@ pub fn check_camera_distances(poses: &[Pose], read_as: PoseUnits) -> std::result
         )),
         PoseUnits::Metres if median > 50.0 => Err(format!("median camera distance is {median:.1} m: the translations look like millimetres, but were read as metres")),
         PoseUnits::Metres if median < 0.02 => Err(format!("median camera distance is {:.1} mm: the objects would touch the camera; are the translations in metres?", median * 1e3)),
-        _ => Ok(()),
+        _ => {
+            // One pose in the other unit among right ones: 1000 times too
+            // near or too far, no real hypothesis.
+            let odd = poses.iter().map(|p| p.t.length()).position(|d| !(0.01..=100.0).contains(&d));
+            match odd {
+                Some(i) => Err(format!(
+                    "pose {i} is {:.4} m from the camera while the median is {median:.3} m: is it in another unit than the others?",
+                    poses[i].t.length()
+                )),
+                None => Ok(()),
+            }
+        }
     }
 }
 

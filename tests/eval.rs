@@ -338,6 +338,12 @@ fn bad_dataset_files_are_clear_errors() {
         std::fs::write(p, t).unwrap();
     });
     assert!(e.contains("scene_camera.json") && e.contains("depth_scale"), "{e}");
+    // A depth_scale 100 times too small puts the scene at the lens.
+    let e = corrupt("test/000002/scene_camera.json", &|p| {
+        let t = std::fs::read_to_string(p).unwrap().replace("\"depth_scale\": 0.1", "\"depth_scale\": 0.001");
+        std::fs::write(p, t).unwrap();
+    });
+    assert!(e.contains("median depth") && e.contains("depth_scale 0.001"), "{e}");
     let e = corrupt("models/models_info.json", &|p| std::fs::write(p, "{\"1\": {\"diameter\": -3}}").unwrap());
     assert!(e.contains("models_info.json") && e.contains("diameter"), "{e}");
     let e = corrupt("test_targets_bop19.json", &|p| {

@@ -65,6 +65,11 @@ fn gpu_stable_pose_hypotheses_recover_a_duck_on_a_table() {
         assert!(angle < 11.0 && dist < 0.01, "scene {scene}: {angle}°, {dist} m");
         // Every hypothesis rests on the fitted plane.
         assert!(evals.iter().all(|e| e.min_distance.abs() < 1e-3), "hypotheses are put on the plane");
+        // Each setting within its range, but their product too large: refused
+        // before any work, not hundreds of millions of poses in memory.
+        let huge = OnPlaneParams { yaw_steps: 3600, grid_radius: 20, min_probability: 0.0, ..Default::default() };
+        let e = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &huge).unwrap_err().to_string();
+        assert!(e.contains("at most 1000000"), "{e}");
     }
 }
 

@@ -357,6 +357,17 @@ fn poses_in_metres_where_millimetres_are_expected() {
     let mm = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [10, 20, 700]}}]"#));
     let e = read_poses(&mm, PoseUnits::Metres, false).unwrap_err().to_string();
     assert!(e.contains("look like millimetres"), "{e}");
+    // One pose in metres among poses in millimetres.
+    let mixed = poses_file(
+        d.path(),
+        &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0.01, 0.02, 0.7]}}, {{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [10, 20, 700]}}, {{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [10, 25, 710]}}]"#),
+    );
+    let e = read_poses(&mixed, PoseUnits::Millimetres, false).unwrap_err().to_string();
+    assert!(e.contains("pose 0") && e.contains("another unit"), "{e}");
+    // A BOP results file in metres.
+    let r = write(d.path(), "r.csv", "scene_id,im_id,obj_id,score,R,t,time\n2,3,1,0.9,1 0 0 0 1 0 0 0 1,0.01 0.02 0.7,-1\n");
+    let e = err_text(plausible::bop::read_results(&r));
+    assert!(e.contains("r.csv") && e.contains("looks like metres"), "{e}");
 }
 
 #[test]

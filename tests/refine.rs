@@ -76,6 +76,8 @@ fn a_killed_run_resumes_and_shards_merge_into_the_single_run() {
     let partial = d.path().join("partial.csv");
     let second = lines[2 + n_first];
     std::fs::write(&partial, format!("{}\n{}\n{}", lines[..1 + n_first].join("\n"), lines[1 + n_first], &second[..second.len() / 2])).unwrap();
+    // A killed run has its settings record (written before any result).
+    std::fs::copy(d.path().join("single.csv.settings.json"), d.path().join("partial.csv.settings.json")).unwrap();
     let text = refine(&init, &partial, &["--method", "sir"]);
     assert!(text.contains("refined 11 images"), "{text}");
     assert_eq!(rows(&partial), rows(&single));
@@ -88,6 +90,13 @@ fn a_killed_run_resumes_and_shards_merge_into_the_single_run() {
     assert!(o.status.code() == Some(1) && err.contains("other settings (lod;"), "{err}");
     refine(&init, &single, &["--method", "sir"]);
     assert_eq!(rows(&partial), rows(&single));
+    // Results this command did not start (a copy of the input) are not
+    // resumed as if refined.
+    let copy = d.path().join("copy.csv");
+    std::fs::copy(&init, &copy).unwrap();
+    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&copy).args(["--quiet", "--device", "cpu"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("no settings record"), "{err}");
     // Shards 1/3..3/3 concatenated = the single run.
     let merged = d.path().join("merged.csv");
     let mut all = String::from("scene_id,im_id,obj_id,score,R,t,time\n");

@@ -72,8 +72,8 @@ impl Scorer {
         if !(tau.is_finite() && tau > 0.0 && tau <= 1.0) {
             return Err(value_error(format!("tau {tau}: the depth tolerance is in metres and must lie in (0, 1] (usually 0.02)")));
         }
-        if !(alpha.is_finite() && alpha > 0.0) {
-            return Err(value_error(format!("alpha {alpha}: the normal tolerance must be positive (usually 0.7)")));
+        if !(alpha > 0.0 && alpha <= 2.0) {
+            return Err(value_error(format!("alpha {alpha}: the normal tolerance (on 1 - cos of the angle) must lie in (0, 2] (usually 0.7)")));
         }
         let obs = convert::depth_image(k, depth)?;
         let mask = convert::mask(mask, &obs)?;
@@ -112,6 +112,9 @@ impl Scorer {
         orthonormalize: bool,
     ) -> PyResult<Bound<'py, PyDict>> {
         let poses = convert::poses(r, t, orthonormalize)?;
+        if let Some(w) = self.target.distance_mismatch(&poses) {
+            PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &std::ffi::CString::new(w).unwrap_or_default(), 1)?;
+        }
         let Some((point, normal)) = plane else {
             let scorer = &self.scorer;
             let records = in_chunks(py, &poses, |chunk| Ok(scorer.score(chunk, &mut |_| {})?.0))?;

@@ -323,8 +323,10 @@ impl Scene {
         let s = cam.depth_scale.ok_or_else(|| Error::BadJson {
             path: self.dir.join("scene_camera.json"),
             reason: format!("image {im_id} has no depth_scale (PNG value × depth_scale = mm), needed to read its depth"),
-        })? as f32;
-        Ok(DepthMm { width: w, height: h, mm: img.as_raw().iter().map(|&v| v as f32 * s).collect() })
+        })?;
+        let mm: Vec<f32> = img.as_raw().iter().map(|&v| v as f32 * s as f32).collect();
+        crate::observation::check_depth_scale(&mm, 1e-3, s).map_err(bad)?;
+        Ok(DepthMm { width: w, height: h, mm })
     }
 }
 
@@ -550,7 +552,7 @@ pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
     let raw: Vec<RawTarget> = read_json(path)?;
     if !raw.is_empty() && raw.iter().all(|t| t.obj_id.is_none()) {
         tracing::warn!(
-            "{} names images only (BOP'24 targets): every annotated instance of them is a target with its instance count, scored by the BOP'19 recall metrics (BOP'24's detection AP is not computed)",
+            "{} names images only (BOP'24 targets): every annotated instance of those images is a target, with its instance count (BOP'24's detection AP is not computed; plausible evaluates the BOP'19 recalls)",
             path.display()
         );
         return image_targets(path, ds, &raw);

@@ -77,13 +77,15 @@ struct DemoScene {
 
 #[tracing::instrument(name = "plausible demo", level = "trace", skip_all)]
 pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
-    // The output folder first: a wrong --out fails before any work.
+    // The shipped duck and the output folder first: a missing repository
+    // or a wrong --out fails before any work (and leaves no empty folder).
+    let mesh_path = super::asset("assets/pybullet/duck.obj")?;
     if a.out.is_file() {
         anyhow::bail!("--out {}: is a file; the demo writes a folder of outputs", a.out.display());
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("--out {}: cannot create the folder", a.out.display()))?;
     plausible::io::check_writable(&a.out.join(".plausible-write-test")).with_context(|| format!("--out {}", a.out.display()))?;
-    let scene = build_scene(a.seed)?;
+    let scene = build_scene(&mesh_path, a.seed)?;
     let target = ScoreTarget::new(&scene.obs, Some(&scene.mask), RoiSampling::Square(128), DEFAULT_ROI_MARGIN)?;
     let poses = around_and_random(&scene.truth, a.n, a.seed);
     let device = a.device.open(verbose)?;
@@ -96,9 +98,8 @@ pub fn run(a: DemoArgs, verbose: u8) -> Result<()> {
 
 /// Loads the duck, puts it on a table in its most probable resting pose,
 /// observes it and fits the support plane, printing each step.
-fn build_scene(seed: u64) -> Result<DemoScene> {
-    let mesh_path = super::asset("assets/pybullet/duck.obj")?;
-    let (mesh, _) = Mesh::load(&mesh_path, MeshUnits::Metres)?;
+fn build_scene(mesh_path: &std::path::Path, seed: u64) -> Result<DemoScene> {
+    let (mesh, _) = Mesh::load(mesh_path, MeshUnits::Metres)?;
     let mesh = mesh.normalized(0.15);
     let rmesh = RenderMesh::new(&mesh)?;
     println!("mesh: {} ({} triangles, scaled to a 0.15 m diagonal)", mesh_path.display(), mesh.triangles.len());

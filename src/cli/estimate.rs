@@ -98,7 +98,13 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     a.run.prepare_outputs()?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
-    let (targets, _) = ds.targets(a.targets.as_deref()).context("--targets")?;
+    let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
+    // Which instances an image's estimates are for: the targets file by
+    // content (a resumed run with other targets would mix two sets).
+    let targets_setting = match &source {
+        plausible::bop::dataset::TargetSource::File(p) => Some(file_digest(p)?),
+        plausible::bop::dataset::TargetSource::AllInstances => None,
+    };
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
     for t in targets {
         by_image.entry((t.scene_id, t.im_id)).or_default().push(t);
@@ -112,6 +118,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         "dataset": path_setting(&a.dataset),
         "split": a.split,
         "stable": a.stable.as_deref().map(file_digest).transpose()?,
+        "targets": targets_setting,
         "yaw_steps": a.yaw_steps,
         "top": a.top,
         "method": a.method,

@@ -307,8 +307,8 @@ pub fn path_setting(path: &std::path::Path) -> String {
 /// Refuses to resume into `out` when it was written with other settings
 /// (another --stable, --lod, method, ...): its images would be kept and the
 /// rest made differently, a silently mixed result. The settings are kept in
-/// `OUT.settings.json`, written when the output starts. An output without
-/// one (from an older version) is resumed with a warning.
+/// `OUT.settings.json`, written when the output starts. A non-empty output
+/// without one was not started by this command and is refused.
 pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Result<()> {
     let meta = std::fs::metadata(out).ok();
     let resumable = meta.as_ref().is_some_and(|m| m.is_file());
@@ -335,7 +335,14 @@ pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Re
                 }
                 return Ok(());
             }
-            Err(_) => eprintln!("warning: {} has no settings record ({}): resuming without checking that its images were made with the same settings", out.display(), stamp.display()),
+            // A results file that no run of this command started (another
+            // method's results, a copy of the input): resuming would keep
+            // its images as if refined or estimated.
+            Err(_) => bail!(
+                "{} already holds results but has no settings record ({}), so it was not written by this command: give another --out, or delete it to start again",
+                out.display(),
+                stamp.display()
+            ),
         }
     } else if meta.is_some() && !resumable {
         return Ok(()); // a pipe or device: nothing to resume

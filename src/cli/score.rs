@@ -100,6 +100,9 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let setup = tracing::trace_span!("setup").entered();
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
+    if let Some(w) = target.distance_mismatch(&poses) {
+        eprintln!("warning: {w} (--camera's depth_scale, --pose-units)");
+    }
     let scoring = scoring_mesh(&mesh, a.lod, &target)?;
     if verbose > 0 || scoring.mesh.triangles.len() != scoring.full_triangles {
         eprintln!("{}", scoring.describe());
@@ -199,11 +202,12 @@ fn release(device: Device) {
 /// and poses. `--out` is checked here, before any work.
 #[allow(clippy::type_complexity)]
 fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<bool>>, Vec<Pose>)> {
-    if !(a.tau > 0.0 && a.tau.is_finite() && a.alpha > 0.0 && a.alpha.is_finite()) {
-        bail!("--tau and --alpha must be positive");
+    if !(a.tau > 0.0 && a.tau <= 1.0) {
+        bail!("--tau {}: the depth tolerance is in metres and must lie in (0, 1] (the usual value is 0.02)", a.tau);
     }
-    if a.tau > 1.0 {
-        bail!("--tau {} m is larger than a metre: tau is in metres (the usual value is 0.02)", a.tau);
+    // 1 - cos of two normals is at most 2: a larger α never reaches it.
+    if !(a.alpha > 0.0 && a.alpha <= 2.0) {
+        bail!("--alpha {}: the normal tolerance (on 1 - cos of the angle) must lie in (0, 2] (the usual value is 0.7)", a.alpha);
     }
     let sm = &a.sampling;
     if !a.physics && (sm.samples != DEFAULT_SAMPLES || sm.seed != DEFAULT_SEED || sm.epsilon.is_some()) {
@@ -224,8 +228,14 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
         .map_err(|e| {
             // The library's hints in this command's flags.
             let msg = e.to_string().replace("read them as metres if they really are", "pass --pose-units m if the file really holds metres");
-            let scene_gt = msg.contains("scene_gt.json");
-            anyhow::anyhow!(msg).context(if scene_gt { "--poses (a BOP scene_gt.json needs --frame and --obj-id)" } else { "--poses" })
+            let context = if msg.contains("looks like a BOP scene_gt.json") {
+                "--poses (a BOP scene_gt.json needs --frame and --obj-id)"
+            } else if msg.contains("an image and object were picked") {
+                "--poses (--obj-id picks from a scene_gt.json)"
+            } else {
+                "--poses"
+            };
+            anyhow::anyhow!(msg).context(context)
         })?;
     if let Some(&bad) = a.explain_ids.iter().find(|&&i| i >= poses.len()) {
         bail!("--explain-ids {bad}: there are only {} hypotheses (indices start at 0)", poses.len());

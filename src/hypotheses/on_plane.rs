@@ -231,6 +231,11 @@ pub const MAX_GRID_RADIUS: usize = 20;
 /// Most yaw steps per resting pose (0.1° apart).
 pub const MAX_YAW_STEPS: usize = 3600;
 
+/// Most hypotheses generated in one call: a million poses are about 500 MB
+/// of pose JSON and minutes of scoring; each flag alone stays within its
+/// range, their product must too.
+pub const MAX_HYPOTHESES: usize = 1_000_000;
+
 /// Roll angles a rolling family is sampled at (30° apart).
 pub const ROLL_STEPS: usize = 12;
 
@@ -377,6 +382,15 @@ pub fn on_plane_hypotheses(
         .filter(|(_, r)| r.group_probability >= p.min_probability)
         .flat_map(|(i, _)| (0..p.yaw_steps).map(move |y| (i, y)))
         .collect();
+    let total = jobs.len() * (2 * p.grid_radius + 1).pow(2);
+    if total > MAX_HYPOTHESES {
+        return Err(Error::InvalidInput(format!(
+            "{} resting poses x {} yaws x {} offsets make {total} hypotheses; at most {MAX_HYPOTHESES} are generated at once (fewer yaws, a smaller grid or a higher minimum probability)",
+            jobs.len() / p.yaw_steps,
+            p.yaw_steps,
+            (2 * p.grid_radius + 1).pow(2)
+        )));
+    }
     let n = k.pixels();
     let aligned: Vec<(usize, f64, Pose)> = jobs
         .par_iter()
