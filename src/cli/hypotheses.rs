@@ -49,7 +49,7 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
         bail!("--grid-step-mm must be a positive number of millimetres");
     }
     let mesh = a.mesh.load()?;
-    let (obs, mask) = a.obs.load()?;
+    let (obs, mask) = a.obs.load(false)?;
     let Some(mask) = mask else {
         bail!("--mask is required: the object's observed points place the hypotheses on the plane");
     };

@@ -71,8 +71,18 @@ pub struct ObservationArgs {
 }
 
 impl ObservationArgs {
-    /// Reads the depth and, when given, the mask.
-    pub fn load(&self) -> Result<(DepthImage, Option<Vec<bool>>)> {
+    /// Reads the depth and, when given, the mask. `frame_picks_poses`: the
+    /// command also picks poses by `--frame` (score with --obj-id); without
+    /// that, a `--frame` that a single camera file cannot use is refused
+    /// rather than silently ignored.
+    pub fn load(&self, frame_picks_poses: bool) -> Result<(DepthImage, Option<Vec<bool>>)> {
+        if let (Some(f), false) = (&self.frame, frame_picks_poses) {
+            let text = std::fs::read_to_string(&self.camera).with_context(|| format!("--camera {}", self.camera.display()))?;
+            let single = serde_json::from_str::<serde_json::Value>(&text).is_ok_and(|v| v.get("cam_K").is_some() || v.get("fx").is_some());
+            if single {
+                bail!("--frame {f}: --camera {} holds one camera, not a scene_camera.json of frames, so there is nothing to pick", self.camera.display());
+            }
+        }
         let cam = read_camera(&self.camera, self.frame.as_deref()).map_err(|e| {
             let frames = matches!(&e, plausible::Error::BadJson { reason, .. } if reason.contains("frame"));
             anyhow::Error::new(e).context(if frames { "--camera (a frame of a scene_camera.json is picked with --frame)" } else { "--camera" })

@@ -37,7 +37,7 @@ pub fn run(a: PlaneArgs) -> Result<()> {
     if !(a.inlier_mm.is_finite() && a.inlier_mm > 0.0 && a.inlier_mm < 500.0) {
         bail!("--inlier-mm {}: the inlier distance must lie in (0, 500) mm (default 5)", a.inlier_mm);
     }
-    let (obs, mask) = a.obs.load()?;
+    let (obs, mask) = a.obs.load(false)?;
     let params = PlaneFitParams {
         inlier_m: a.inlier_mm * 1e-3,
         iterations: a.iterations,

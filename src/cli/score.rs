@@ -220,7 +220,7 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
         prepare_explain_dir(dir).context("--explain")?;
     }
     let mesh = a.mesh.load()?;
-    let (obs, mask) = tracing::trace_span!("observation").in_scope(|| a.obs.load())?;
+    let (obs, mask) = tracing::trace_span!("observation").in_scope(|| a.obs.load(a.obj_id.is_some()))?;
     let units = if a.pose_units == "m" { PoseUnits::Metres } else { PoseUnits::Millimetres };
     let select = a.obj_id.map(|o| SceneGtSelection { frame: a.obs.frame.as_deref().unwrap_or_default(), obj_id: Some(o) });
     let poses = tracing::trace_span!("poses")
