@@ -403,12 +403,10 @@ impl ScoreTarget {
     /// zero. A warning, not a refusal: the region may hold background.
     pub fn distance_mismatch(&self, poses: &[crate::pose::Pose]) -> Option<String> {
         let observed = median_depth(&self.depth);
-        let mut z: Vec<f64> = poses.iter().map(|p| p.t.z).collect();
-        if observed <= 0.0 || z.is_empty() {
+        let posed = crate::pose::median(poses.iter().map(|p| p.t.z).collect())?;
+        if observed <= 0.0 {
             return None;
         }
-        let mid = z.len() / 2;
-        let posed = *z.select_nth_unstable_by(mid, f64::total_cmp).1;
         let ratio = posed / observed as f64;
         (!(0.25..=4.0).contains(&ratio)).then(|| {
             format!(

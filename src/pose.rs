@@ -239,8 +239,19 @@ pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, 
         let t = [p.cam_t_m2c[0] * scale, p.cam_t_m2c[1] * scale, p.cam_t_m2c[2] * scale];
         out.push(Pose::from_row_major(r, t).validated(i, orthonormalize)?);
     }
-    check_camera_distances(&out, units).map_err(|reason| bad(reason))?;
+    check_camera_distances(&out, units).map_err(bad)?;
     Ok(out)
+}
+
+/// The upper median of `values` (the middle one, or the upper of the two
+/// middle ones), `None` when empty: what the unit checks of poses, results
+/// and depth compare with their bounds.
+pub(crate) fn median(mut values: Vec<f64>) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mid = values.len() / 2;
+    Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
 /// Refuses poses whose median camera-to-object distance is no real scene,
@@ -248,12 +259,7 @@ pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, 
 /// other unit (`read_as` says which one they were taken for), and scoring
 /// them would give every pose zero without a word. Returns the reason.
 pub fn check_camera_distances(poses: &[Pose], read_as: PoseUnits) -> std::result::Result<(), String> {
-    let mut d: Vec<f64> = poses.iter().map(|p| p.t.length()).collect();
-    if d.is_empty() {
-        return Ok(());
-    }
-    d.sort_by(f64::total_cmp);
-    let median = d[d.len() / 2];
+    let Some(median) = median(poses.iter().map(|p| p.t.length()).collect()) else { return Ok(()) };
     match read_as {
         PoseUnits::Millimetres if median < 0.02 => Err(format!(
             "median camera distance is {:.1} mm: the translations look like metres, but were read as millimetres (read them as metres if they really are)",

@@ -94,12 +94,7 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
 /// BOP results are in millimetres: a median camera distance under 2 cm is
 /// a file written in metres, which would evaluate every estimate as a miss.
 fn check_millimetres(path: &Path, estimates: &[Estimate]) -> Result<()> {
-    let mut d: Vec<f64> = estimates.iter().map(|e| e.pose.t.length()).collect();
-    if d.is_empty() {
-        return Ok(());
-    }
-    let mid = d.len() / 2;
-    let median = *d.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let Some(median) = crate::pose::median(estimates.iter().map(|e| e.pose.t.length()).collect()) else { return Ok(()) };
     if median < 20.0 {
         return Err(Error::InvalidInput(format!(
             "{}: the estimates' median camera distance is {median:.2} mm: t looks like metres, but BOP results are in millimetres",
