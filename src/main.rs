@@ -62,8 +62,32 @@ fn parse_args() -> Cli {
     fn negatives(cmd: clap::Command) -> clap::Command {
         cmd.allow_negative_numbers(true).mut_subcommands(negatives)
     }
-    let matches = negatives(Cli::command()).get_matches();
+    let matches = negatives(Cli::command()).get_matches_from(join_non_finite(std::env::args_os()));
     Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+}
+
+/// `--flag -inf` and `--flag -nan` as `--flag=-inf`: clap's negative-number
+/// rule knows digits only, so these would read as short flags (-i, -n) and
+/// fail with "unexpected argument" instead of the flag's own range error.
+fn join_non_finite(args: impl IntoIterator<Item = std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    let mut out: Vec<std::ffi::OsString> = Vec::new();
+    for arg in args {
+        let non_finite = arg.to_str().is_some_and(|a| {
+            let a = a.to_ascii_lowercase();
+            matches!(a.as_str(), "-inf" | "-infinity" | "-nan")
+        });
+        let after_long_flag = out.last().and_then(|p| p.to_str()).is_some_and(|p| p.starts_with("--") && p.len() > 2 && !p.contains('='));
+        if non_finite && after_long_flag {
+            let flag = out.pop().unwrap_or_default();
+            let mut joined = flag;
+            joined.push("=");
+            joined.push(&arg);
+            out.push(joined);
+        } else {
+            out.push(arg);
+        }
+    }
+    out
 }
 
 fn main() {

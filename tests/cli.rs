@@ -232,7 +232,12 @@ fn score_reports_bad_input_without_panicking() {
     let d = tempfile::tempdir().unwrap();
     let cam = d.path().join("camera.json");
     std::fs::write(&cam, r#"{"cam_K": [572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 1], "depth_scale": 0.1}"#).unwrap();
-    for (extra, want) in [(["--inlier-mm", "-5"], "--inlier-mm -5"), (["--frame", "3"], "--frame 3")] {
+    for (extra, want) in [
+        (["--inlier-mm", "-5"], "--inlier-mm -5"),
+        (["--inlier-mm", "-inf"], "--inlier-mm -inf"),
+        (["--inlier-mm", "-NaN"], "--inlier-mm NaN"),
+        (["--frame", "3"], "--frame 3"),
+    ] {
         let o = plausible().args(["plane", "--depth", "d.png"]).arg("--camera").arg(&cam).args(extra).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.code() == Some(1) && err.contains(want), "{err}");

@@ -30,9 +30,10 @@ pub struct BenchEstimateArgs {
     /// 3 of the models).
     #[arg(long, default_value_t = 1)]
     pub min_objects: usize,
-    /// At most this many images (the first in scene/image order).
+    /// At most this many images (the first in scene/image order; a count,
+    /// where `estimate --images` takes image ids).
     #[arg(long, default_value_t = 4)]
-    pub images: usize,
+    pub max_images: usize,
     /// Refine without the simulation (SIR/RIR without PIR).
     #[arg(long)]
     pub no_physics: bool,
@@ -71,8 +72,8 @@ pub struct EstimateBenchRow {
 }
 
 pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
-    if a.images == 0 || a.images > 100_000 {
-        bail!("--images must be between 1 and 100000");
+    if a.max_images == 0 || a.max_images > 100_000 {
+        bail!("--max-images must be between 1 and 100000");
     }
     let root = match &a.dataset {
         Some(d) => d.clone(),
@@ -89,7 +90,7 @@ pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
     let mut scenes = HashMap::new();
     let mut chosen: Vec<((u32, u32), Vec<Target>)> = Vec::new();
     for (scene_id, im_id) in images {
-        if chosen.len() == a.images {
+        if chosen.len() == a.max_images {
             break;
         }
         if let std::collections::hash_map::Entry::Vacant(v) = scenes.entry(scene_id) {
