@@ -7,7 +7,7 @@ use std::path::PathBuf;
 /// Errors returned by the `plausible` library.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    #[error("{path}: file not found")]
+    #[error("{path}: no such file or folder")]
     NotFound { path: PathBuf },
 
     /// The message already holds the I/O error's text, so it is not also
@@ -78,10 +78,12 @@ impl Error {
     /// Wraps an I/O error, turning "not found" into [`Error::NotFound`].
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         let path = path.into();
-        if source.kind() == std::io::ErrorKind::NotFound {
-            Error::NotFound { path }
-        } else {
-            Error::Io { path, error: source }
+        match source.kind() {
+            std::io::ErrorKind::NotFound => Error::NotFound { path },
+            // read_to_string on a binary file (a PNG given as the camera
+            // JSON): the content is wrong, not the disk.
+            std::io::ErrorKind::InvalidData => Error::InvalidInput(format!("{}: not a text file of the expected kind ({source})", path.display())),
+            _ => Error::Io { path, error: source },
         }
     }
 

@@ -219,6 +219,7 @@ pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, 
     if raw.is_empty() {
         return Err(bad("contains no poses".into()));
     }
+    check_pose_count(raw.len()).map_err(|e| bad(e.to_string()))?;
     let scale = match units {
         PoseUnits::Millimetres => 1e-3,
         PoseUnits::Metres => 1.0,
@@ -254,6 +255,21 @@ pub(crate) fn median(mut values: Vec<f64>) -> Option<f64> {
     Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
+/// The most poses one call scores (2^24, about 1.6 GB of poses and as
+/// much again of records): beyond it a caller that meant it scores in
+/// chunks, and one that did not gets an error instead of an allocation
+/// failure that aborts the process.
+pub const MAX_POSES: usize = 1 << 24;
+
+/// Refuses more than [`MAX_POSES`] poses, before anything is allocated
+/// for them.
+pub fn check_pose_count(n: usize) -> Result<()> {
+    if n > MAX_POSES {
+        return Err(Error::InvalidInput(format!("{n} poses: at most {MAX_POSES} are scored at once; give them in chunks")));
+    }
+    Ok(())
+}
+
 /// Refuses poses whose median camera-to-object distance is no real scene,
 /// under 2 cm or over 50 m: their translations almost certainly hold the
 /// other unit (`read_as` says which one they were taken for), and scoring
@@ -265,6 +281,7 @@ pub fn check_camera_distances(poses: &[Pose], read_as: PoseUnits) -> std::result
             "median camera distance is {:.1} mm: the translations look like metres, but were read as millimetres (read them as metres if they really are)",
             median * 1e3
         )),
+        PoseUnits::Metres if median > 1e5 => Err(format!("median camera distance is {median:.3e} m: no scene a camera sees")),
         PoseUnits::Metres if median > 50.0 => Err(format!("median camera distance is {median:.1} m: the translations look like millimetres, but were read as metres")),
         PoseUnits::Metres if median < 0.02 => Err(format!("median camera distance is {:.1} mm: the objects would touch the camera; are the translations in metres?", median * 1e3)),
         _ => {

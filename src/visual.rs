@@ -147,6 +147,7 @@ impl Scorer {
     /// Scores `poses` (records in input order), calling `done(n)` as
     /// hypotheses finish.
     pub fn score(&self, poses: &[Pose], done: &mut dyn FnMut(usize)) -> Result<(Vec<ScoreRecord>, StageTimes)> {
+        crate::pose::check_pose_count(poses.len())?;
         match &self.inner {
             ScorerImpl::Gpu(g) => g.score_with_progress(poses, done),
             ScorerImpl::Cpu { mesh, target, params } => {

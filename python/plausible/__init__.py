@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+from numbers import Real
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
@@ -222,6 +223,13 @@ def _mask(mask: Any) -> Optional[np.ndarray]:
     return np.ascontiguousarray(m != 0)
 
 
+def _required_mask(mask: Any) -> np.ndarray:
+    """The object's mask where a function cannot work without one."""
+    if mask is None:
+        raise ValueError("mask: hypotheses need the object's mask (H, W) to find its observed points")
+    return _mask(mask)
+
+
 def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
     """Rotations (N, 3, 3) and translations (N, 3) in metres, from R and t,
     or from 4x4 matrices (N, 4, 4) given as R alone."""
@@ -245,6 +253,9 @@ def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
         r = r[None]
     if tt.ndim == 1:
         tt = tt[None]
+    if r.ndim == 3 and r.shape[0] > _native.MAX_POSES:
+        # Before the copies below (a broadcast view costs nothing until then).
+        raise ValueError(f"{r.shape[0]} poses: at most {_native.MAX_POSES} are scored at once; give them in chunks")
     r = _array(r, np.float64, "R", (None, 3, 3))
     tt = _array(tt, np.float64, "t", (r.shape[0], 3))
     return r, np.ascontiguousarray(tt * scale)
@@ -335,7 +346,7 @@ class Scorer:
         self._scale = _scale(units)
         self.units = units
         self.mesh = _mesh(mesh, units, mesh_units)
-        if not isinstance(res, (int, np.integer)) or res < 0 or res > 4096:
+        if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or res < 0 or res > 4096:
             raise ValueError(f"res {res!r}: the region's side in pixels must lie in 0..=4096 (0 = native pixels)")
         # One call at a time: the native scorer keeps per-call scratch and
         # releases the GIL while it works, so threads sharing a Scorer queue
@@ -366,6 +377,13 @@ class Scorer:
         """Where the kernels run, e.g. "CPU twin (2 threads)"."""
         with self._lock:
             return self._native.device
+
+    @property
+    def region(self) -> Tuple[Tuple[int, int], Tuple[float, float, float, float]]:
+        """Size of the scored region in pixels (width, height), and its
+        crop in the image (x0, y0, width, height) in image pixels."""
+        with self._lock:
+            return self._native.region
 
     def score(
         self,
@@ -448,7 +466,7 @@ def check(scene: Union[Mapping[str, Any], str, os.PathLike], *, simulate: bool =
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: file not found") from None
+            raise FileNotFoundError(f"{path}: no such file or folder") from None
         return _native.check(text, str(path.parent), str(path), simulate=simulate, **options)
     if not isinstance(scene, Mapping):
         raise ValueError("scene: give a dict in the plausible check format or a path to its JSON")
@@ -462,9 +480,10 @@ def stable_poses(mesh: MeshLike, *, drops: int = 1000, seed: int = 0, collider: 
     probability, ci95 (Wilson 95 % interval), count, and for poses the
     rotation R_model_to_plane (3, 3) (gravity along -z of the plane frame),
     height of the model origin above the plane (metres) and representative
-    drops. Same seed, same result."""
+    drops. ``threads`` None or 0: every logical CPU. Same seed, same
+    result."""
     m = _mesh(mesh, units, mesh_units)
-    out = _native.stable_poses(m, drops=_uint("drops", drops), seed=_uint("seed", seed), collider=collider, threads=None if threads is None else max(1, _uint("threads", threads)))
+    out = _native.stable_poses(m, drops=_uint("drops", drops), seed=_uint("seed", seed), collider=collider, threads=None if threads is None else _uint("threads", threads))
     poses = [dict(c, kind="pose", R_model_to_plane=np.asarray(c["R_model_to_plane"]).reshape(3, 3)) for c in out["clusters"]]
     families = [dict(f) for f in out["families"]]
     result = sorted(poses + families, key=lambda c: -c["probability"])
@@ -484,11 +503,25 @@ def _export_text(stable: Any, mesh: Mesh) -> Optional[str]:
     if isinstance(stable, Mapping):
         return json.dumps(stable)
     clusters, families = [], []
-    for c in stable:
+    for i, c in enumerate(stable):
+        if not isinstance(c, Mapping) or "probability" not in c:
+            raise ValueError(f"stable[{i}]: expected a dict of stable_poses() with a probability, got {type(c).__name__}")
+        p = c["probability"]
+        if not isinstance(p, Real) or not 0.0 <= float(p) <= 1.0:
+            raise ValueError(f"stable[{i}]: probability {p!r} is not a number in [0, 1]")
         if c.get("kind", "pose") == "pose":
-            clusters.append({"probability": float(c["probability"]), "R_model_to_plane": np.asarray(c["R_model_to_plane"], dtype=float).reshape(9).tolist()})
+            if "R_model_to_plane" not in c:
+                raise ValueError(f"stable[{i}]: a resting pose needs its R_model_to_plane (3, 3)")
+            _real(c["R_model_to_plane"], f"stable[{i}] R_model_to_plane")
+            try:
+                r = np.asarray(c["R_model_to_plane"], dtype=np.float64).reshape(9)
+            except (TypeError, ValueError):
+                raise ValueError(f"stable[{i}] R_model_to_plane: expected a 3x3 rotation") from None
+            if not np.all(np.isfinite(r)):
+                raise ValueError(f"stable[{i}] R_model_to_plane: holds NaN or infinite values")
+            clusters.append({"probability": float(p), "R_model_to_plane": r.tolist()})
         else:
-            families.append({"kind": c["kind"], "axis": c.get("axis"), "probability": float(c["probability"])})
+            families.append({"kind": c["kind"], "axis": c.get("axis"), "probability": float(p)})
     return json.dumps({"format": "plausible-stable-poses/1", "meshes": [{"mesh": "", "sha256": mesh.sha256, "clusters": clusters, "families": families}]})
 
 
@@ -518,7 +551,7 @@ def hypotheses(
     m = _mesh(mesh, units, mesh_units)
     p, n = _plane(plane, s)
     out = _native.hypotheses(
-        m, _camera(K), _depth(depth, s), _mask(mask), p, n,
+        m, _camera(K), _depth(depth, s), _required_mask(mask), p, n,
         stable_export=_export_text(stable, m), yaw_steps=_uint("yaw_steps", yaw_steps), grid_radius=_uint("grid_radius", grid_radius),
         grid_step=float(grid_step), min_probability=float(min_probability),
     )

@@ -8,6 +8,7 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+MAX_POSES: int
 
 _Path = Union[str, PathLike]
 

@@ -54,6 +54,7 @@ pub fn poses(r: PyReadonlyArray3<f64>, t: PyReadonlyArray2<f64>, orthonormalize:
             t.shape()
         )));
     }
+    plausible::pose::check_pose_count(n).map_err(to_py)?;
     let r = slice(&r, "R")?;
     let t = slice(&t, "t")?;
     let poses = (0..n)
@@ -112,9 +113,7 @@ pub fn resting_poses(py: Python<'_>, mesh: &plausible::mesh::Mesh, export: Optio
     let name = mesh.source.as_ref().and_then(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let (rests, how) = py.detach(|| resting_poses(mesh, export, &name)).map_err(to_py)?;
     if how == Some(ExportMatch::OnlyEntry) {
-        let msg = std::ffi::CString::new(format!("the stable-pose export's only mesh matches neither the geometry of {name} nor its name; using it anyway"))
-            .expect("no NUL in the message");
-        PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &msg, 1)?;
+        crate::user_warning(py, &format!("the stable-pose export's only mesh matches neither the geometry of {name} nor its name; using it anyway"))?;
     }
     Ok(rests)
 }

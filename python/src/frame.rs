@@ -124,7 +124,10 @@ pub fn refine<'py>(
     let p = params(method, steps, budget, physics, res, seed)?;
     let obs = convert::depth_image(k, depth)?;
     let masks = masks(masks_in, &obs)?;
-    let hyps: Vec<_> = rs.into_iter().zip(ts).map(|(r, t)| convert::poses(r, t, false)).collect::<PyResult<_>>()?;
+    // Start from the nearest rotations, as `plausible refine` does: other
+    // methods' rotations are often rounded (LM-O's own ground truth is off
+    // by up to 2e-3), and refining moves the pose anyway.
+    let hyps: Vec<_> = rs.into_iter().zip(ts).map(|(r, t)| convert::poses(r, t, true)).collect::<PyResult<_>>()?;
     let plane = plane_for(plane, p.method.simulates(p.physics), &obs, &masks)?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();
     let choice: DeviceChoice = device.parse().map_err(to_py)?;

@@ -97,10 +97,11 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
         "decomposition" => ColliderKind::Decomposition,
         c => return Err(value_error(format!("collider '{c}': expected \"hull\" or \"decomposition\""))),
     };
-    if let Some(t) = threads.filter(|t| !(1..=1024).contains(t)) {
-        return Err(value_error(format!("threads {t}: between 1 and 1024 (None: every logical CPU)")));
+    if let Some(t) = threads.filter(|&t| t > 1024) {
+        return Err(value_error(format!("threads {t}: between 1 and 1024 (None or 0: every logical CPU)")));
     }
-    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    // 0 is every logical CPU, as the CLI's --threads 0.
+    let threads = threads.filter(|&t| t > 0).unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let params = RunParams { drops, seed, collider, ..Default::default() };
     let m = mesh.inner.clone();
     let (prepared, results) = crate::interruptible(py, |look| {
@@ -198,17 +199,25 @@ pub fn evaluate<'py>(
     }
     opts.validate().map_err(to_py)?;
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let (report, recs) = crate::interruptible(py, |look| {
+    let (report, recs, source) = crate::interruptible(py, |look| {
         let ds = plausible::bop::Dataset::open(&dataset, split)?;
-        let (targets, _) = ds.targets(targets.as_deref())?;
+        let (targets, source) = ds.targets(targets.as_deref())?;
         if targets.is_empty() {
             return Err(plausible::Error::InvalidInput("no targets to evaluate".into()));
         }
         let results = plausible::bop::read_results(&results)?;
         let device = Device::open(choice, adapter, false)?.device;
-        evaluate(&ds, &results, &targets, &device, &opts, &mut |_| look())
+        let (report, recs) = evaluate(&ds, &results, &targets, &device, &opts, &mut |_| look())?;
+        Ok((report, recs, source))
     })?;
     let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;
+    // What was evaluated, as `plausible eval --out` writes it.
+    v["dataset"] = serde_json::json!(dataset.display().to_string());
+    v["results"] = serde_json::json!(results.display().to_string());
+    v["targets"] = serde_json::json!(match source {
+        plausible::bop::TargetSource::File(f) => f.display().to_string(),
+        plausible::bop::TargetSource::AllInstances => "all annotated instances".into(),
+    });
     if records {
         v["records"] = serde_json::to_value(&recs).map_err(|e| value_error(e.to_string()))?;
     }

@@ -28,6 +28,13 @@ pub(crate) fn to_py(e: plausible::Error) -> PyErr {
     }
 }
 
+/// Emits `msg` as a Python `UserWarning` (what the CLI prints as
+/// "warning: ..."); an error only when a warnings filter turns it into one.
+pub(crate) fn user_warning(py: Python<'_>, msg: &str) -> PyResult<()> {
+    let text = std::ffi::CString::new(msg.replace('\0', " ")).unwrap_or_default();
+    PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &text, 1)
+}
+
 /// Runs `work` without the GIL, looking for Ctrl-C (a pending Python
 /// signal) about every 50 ms through `look`, which `work` calls at its
 /// cancellation points (between drops, chunks, images). On an interrupt
@@ -67,6 +74,7 @@ pub(crate) fn value_error(msg: impl Into<String>) -> PyErr {
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("MAX_POSES", plausible::pose::MAX_POSES)?;
     m.add_class::<mesh::Mesh>()?;
     m.add_class::<scorer::Scorer>()?;
     m.add_function(wrap_pyfunction!(functions::fit_plane, m)?)?;

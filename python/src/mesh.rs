@@ -47,6 +47,19 @@ pub fn unit_scale(units: &str) -> PyResult<f64> {
     }
 }
 
+impl Mesh {
+    /// The mesh, with what loading noticed both kept (`warnings`) and
+    /// emitted as `UserWarning`s, as the CLI prints them: a mesh in the
+    /// wrong unit would otherwise score zero without a word.
+    fn warned(py: Python<'_>, inner: plausible::mesh::Mesh, warnings: Vec<String>) -> PyResult<Mesh> {
+        let name = inner.source.as_ref().map_or_else(|| "mesh".to_string(), |p| p.display().to_string());
+        for w in &warnings {
+            crate::user_warning(py, &format!("{name}: {w}"))?;
+        }
+        Ok(Mesh { inner, warnings })
+    }
+}
+
 #[pymethods]
 impl Mesh {
     /// A mesh from vertices (V, 3) in `units` and faces (F, 3) of vertex
@@ -54,7 +67,7 @@ impl Mesh {
     /// degenerate faces dropped).
     #[new]
     #[pyo3(signature = (vertices, faces, units = "m", name = "<arrays>"))]
-    fn new(vertices: &Bound<'_, PyAny>, faces: &Bound<'_, PyAny>, units: &str, name: &str) -> PyResult<Mesh> {
+    fn new(py: Python<'_>, vertices: &Bound<'_, PyAny>, faces: &Bound<'_, PyAny>, units: &str, name: &str) -> PyResult<Mesh> {
         let scale = unit_scale(units)?;
         let vertices = numbers::<f64>(vertices, "fiu", "float64", "vertices")?;
         let faces = numbers::<i64>(faces, "iu", "int64", "faces")?;
@@ -73,7 +86,7 @@ impl Mesh {
             tris.push([idx(0)?, idx(1)?, idx(2)?]);
         }
         let (inner, report) = plausible::mesh::Mesh::from_raw(name, verts, tris).map_err(to_py)?;
-        Ok(Mesh { inner, warnings: report.warnings })
+        Mesh::warned(py, inner, report.warnings)
     }
 
     /// Loads .obj, .ply, .stl, .gltf or .glb; `units` "m", "mm" or "auto"
@@ -83,7 +96,7 @@ impl Mesh {
     fn load(py: Python<'_>, path: std::path::PathBuf, units: &str) -> PyResult<Mesh> {
         let units: plausible::mesh::MeshUnits = units.parse().map_err(value_error)?;
         let (inner, report) = py.detach(|| plausible::mesh::Mesh::load(&path, units)).map_err(to_py)?;
-        Ok(Mesh { inner, warnings: report.warnings })
+        Mesh::warned(py, inner, report.warnings)
     }
 
     /// Vertices (V, 3), metres.

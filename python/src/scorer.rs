@@ -113,7 +113,7 @@ impl Scorer {
     ) -> PyResult<Bound<'py, PyDict>> {
         let poses = convert::poses(r, t, orthonormalize)?;
         if let Some(w) = self.target.distance_mismatch(&poses) {
-            PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &std::ffi::CString::new(w).unwrap_or_default(), 1)?;
+            crate::user_warning(py, &w)?;
         }
         let Some((point, normal)) = plane else {
             let scorer = &self.scorer;

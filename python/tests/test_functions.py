@@ -189,6 +189,9 @@ def test_refine_and_estimate_refuse_bad_input(demo):
         "budget with ref": lambda: pl.refine(K, depth, [ok], method="ref", budget=4),
         "top": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask}], top=0),
         "yaw steps": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask}], yaw_steps=100000),
+        "stable not dicts": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask, "stable": [3]}]),
+        "stable NaN": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask, "stable": [{"probability": 1.0, "R_model_to_plane": np.full((3, 3), np.nan)}]}]),
+        "stable probability": lambda: pl.estimate(K, depth, [{"mesh": mesh, "mask": mask, "stable": [{"probability": "high", "R_model_to_plane": np.eye(3)}]}]),
     }
     for what, call in cases.items():
         with pytest.raises(ValueError):

@@ -183,6 +183,10 @@ def test_bad_input_raises_value_error(demo):
         "physics not a bool": lambda: s.score(R[:2], t[:2], plane=demo / "plane.json", physics="no"),
         # Refused from its shape, before a 4.6 GB copy of a broadcast view.
         "huge depth": lambda: pl.Scorer(mesh, [2e4, 2e4, 1e4, 1e4], np.broadcast_to(np.float32(0.7), (20000, 20000)), None, device="cpu"),
+        # Refused before copying (an allocation failure would abort Python).
+        "too many poses": lambda: s.score(np.broadcast_to(R[0], (pl._native.MAX_POSES + 1, 3, 3)), np.broadcast_to(t[0], (pl._native.MAX_POSES + 1, 3))),
+        "res True": lambda: pl.Scorer(mesh, K, depth, mask, res=True, device="cpu"),
+        "t far away": lambda: s.score(R[:2], t[:2] * 1e300),
     }
     for what, call in cases.items():
         with pytest.raises(ValueError) as e:
@@ -190,6 +194,11 @@ def test_bad_input_raises_value_error(demo):
         assert str(e.value), what
     with pytest.raises(FileNotFoundError):
         pl.Scorer(demo / "no-such-mesh.obj", K, depth, mask, device="cpu")
+    # A mesh in millimetres given as metres scores zero: said, as the CLI says it.
+    m = pl.load_mesh(mesh)
+    with pytest.warns(UserWarning, match="units may be wrong"):
+        pl.Scorer((m.vertices * 1000, m.faces), K, depth, mask, device="cpu")
+    assert s.region[0] == (128, 128)
     msg = None
     try:
         s.score(bad_R * 0.5 + R[:2] * 0.5 + 1e-4, t[:2])

@@ -60,9 +60,18 @@ impl PoseMm {
         self.r.transpose().to_cols_array()
     }
 
-    /// The same pose in metres.
+    /// The same pose in metres, with the file's rotation as it is (the BOP
+    /// toolkit evaluates it so).
     pub fn to_pose(&self) -> Pose {
         Pose::new(self.r, self.t * 1e-3)
+    }
+
+    /// The same pose in metres with the nearest rotation: where a pose is
+    /// refined, so that a file's rounded (slightly sheared) rotation neither
+    /// shears the rendered object nor reaches the output, and the library's
+    /// Python `refine` and the CLI start from the same pose.
+    pub fn to_rigid_pose(&self) -> Pose {
+        Pose::new(crate::pose::orthonormalize_rotation(self.r), self.t * 1e-3)
     }
 }
 
@@ -140,8 +149,11 @@ pub struct Dataset {
 impl Dataset {
     /// Opens `root` (the folder holding `models*/` and `<split>/`).
     pub fn open(root: &Path, split: &str) -> Result<Dataset> {
+        if !root.exists() {
+            return Err(Error::NotFound { path: root.to_path_buf() });
+        }
         if !root.is_dir() {
-            return Err(Error::InvalidInput(format!("{}: no such dataset folder", root.display())));
+            return Err(Error::InvalidInput(format!("{}: a dataset is a folder, this is a file", root.display())));
         }
         let models_dir =
             ["models_eval", "models"].iter().map(|d| root.join(d)).find(|d| d.join("models_info.json").is_file()).ok_or_else(|| {

@@ -356,9 +356,9 @@ pub fn on_plane_hypotheses(
     }
     if p.grid_radius > MAX_GRID_RADIUS {
         return Err(Error::InvalidInput(format!(
-            "a grid radius of {} gives {} offsets per hypothesis; at most {MAX_GRID_RADIUS} is taken",
+            "a grid radius of {}: at most {MAX_GRID_RADIUS} is taken ({} offsets per hypothesis)",
             p.grid_radius,
-            (2 * p.grid_radius + 1).pow(2)
+            (2 * MAX_GRID_RADIUS + 1).pow(2)
         )));
     }
     let points = observed_points(obs, mask);

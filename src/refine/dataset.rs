@@ -269,7 +269,7 @@ pub fn refine_image(
         let Some(mask) = mask.as_deref().filter(|m| m.iter().any(|&v| v)) else { continue };
         let mine: Vec<&Estimate> = job.estimates.iter().filter(|e| e.obj_id == obj).collect();
         let lead = (0..mine.len()).max_by(|&a, &b| mine[a].score.total_cmp(&mine[b].score).then(b.cmp(&a))).unwrap_or(0);
-        let hypotheses = mine.iter().map(|e| e.pose.to_pose()).collect();
+        let hypotheses = mine.iter().map(|e| e.pose.to_rigid_pose()).collect();
         ids.push(obj);
         objects.push(super::scene::SceneObject { model: &models[&obj], mask, hypotheses, lead });
     }
