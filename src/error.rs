@@ -7,7 +7,7 @@ use std::path::PathBuf;
 /// Errors returned by the `plausible` library.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    #[error("{path}: no such file or folder")]
+    #[error("{path}: not found")]
     NotFound { path: PathBuf },
 
     /// The message already holds the I/O error's text, so it is not also

@@ -217,7 +217,7 @@ fn score_reports_bad_input_without_panicking() {
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("error: /nonexistent/m.obj: no such file or folder"), "{err}");
+    assert!(err.contains("error: /nonexistent/m.obj: not found"), "{err}");
     assert!(!err.contains("panicked"));
     // Physics options without --physics are a mistake worth saying.
     let o = plausible()

@@ -147,8 +147,31 @@ fn refine_refuses_bad_flags_before_any_work() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.code() == Some(1) && err.contains(want), "{extra:?}: {err}");
     }
-    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&init).output().unwrap();
-    assert!(String::from_utf8_lossy(&o.stderr).contains("is the --init file"));
+    // No output overwrites an input or another output, side files included.
+    let out = d.path().join("o.csv");
+    let journal = d.path().join("o.csv.done");
+    for (outs, want) in [
+        (vec![&init], "--out and --init name the same file"),
+        (vec![&out, &out], "--summary and --out name the same file"),
+        (vec![&out, &journal], "--summary and --out's journal name the same file"),
+    ] {
+        let mut cmd = plausible();
+        cmd.arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(outs[0]);
+        if let Some(s) = outs.get(1) {
+            cmd.arg("--summary").arg(s);
+        }
+        let o = cmd.output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && err.contains(want), "{err}");
+    }
+    // A second run writing the same output meanwhile is refused: both
+    // would rewrite and append to it, doubling or losing rows.
+    let lock = std::fs::File::create(d.path().join("o.csv.lock")).unwrap();
+    lock.try_lock().unwrap();
+    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&out).args(["--device", "cpu"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("another run is writing it"), "{err}");
+    drop(lock);
     // A device as the output: never read for resuming (reading /dev/full
     // grew memory until the process was killed); the write error is named.
     if std::path::Path::new("/dev/full").exists() {

@@ -466,7 +466,7 @@ def check(scene: Union[Mapping[str, Any], str, os.PathLike], *, simulate: bool =
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: no such file or folder") from None
+            raise FileNotFoundError(f"{path}: not found") from None
         return _native.check(text, str(path.parent), str(path), simulate=simulate, **options)
     if not isinstance(scene, Mapping):
         raise ValueError("scene: give a dict in the plausible check format or a path to its JSON")

@@ -94,8 +94,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         bail!("--yaw-steps {}: between 1 and 360", a.yaw_steps);
     }
     let (shard, masks) = a.run.shard_and_masks()?;
-    plausible::io::check_writable(&a.out)?;
-    a.run.prepare_outputs()?;
+    let _lock = a.run.prepare_outputs(&a.out, &[("--stable", a.stable.as_deref()), ("--targets", a.targets.as_deref())])?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
@@ -117,7 +116,9 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         "command": "estimate",
         "dataset": path_setting(&a.dataset),
         "split": a.split,
-        "stable": a.stable.as_deref().map(file_digest).transpose()?,
+        // The resting poses read, not the file's bytes: a stable-poses
+        // rerun that adds nothing still rewrites its database.
+        "stable": stable.as_deref().map(|text| plausible::stable::db::sha256_hex_reader(text.as_bytes())).transpose()?,
         "targets": targets_setting,
         "yaw_steps": a.yaw_steps,
         "top": a.top,

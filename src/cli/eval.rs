@@ -80,10 +80,8 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
             .map_or("the dataset's evaluation settings", |(_, f)| f);
         anyhow::anyhow!(e).context(flag)
     })?;
-    super::distinct_files(
-        &[("--out", a.out.as_deref()), ("--errors-out", a.errors_out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())],
-        &[("--results", a.results.as_deref()), ("--targets", a.targets.as_deref())],
-    )?;
+    let outputs = [("--out", a.out.as_deref()), ("--errors-out", a.errors_out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())];
+    super::distinct_files(&outputs, &[("--results", a.results.as_deref()), ("--targets", a.targets.as_deref())])?;
     for p in [&a.out, &a.errors_out, &a.gt_as_results].into_iter().flatten() {
         plausible::io::check_writable(p)?;
     }
@@ -93,6 +91,10 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
+    if let TargetSource::File(f) = &source {
+        // The dataset's own targets file, found without --targets.
+        super::distinct_files(&outputs, &[("the dataset's targets file", Some(f))])?;
+    }
     if targets.is_empty() {
         bail!("no targets to evaluate");
     }

@@ -159,9 +159,21 @@ impl ImageRunArgs {
         Ok(())
     }
 
-    /// Checks that `--summary` can be written and makes the `--explain`
-    /// folder, before any work, so a bad path fails fast.
-    pub fn prepare_outputs(&self) -> Result<()> {
+    /// Before any work, so a bad path fails fast: checks that `out` and
+    /// `--summary` can be written and that no output names an input (or
+    /// another output: the side files of `out` included), makes the
+    /// `--explain` folder, and takes `out`'s lock, held until the returned
+    /// file is dropped.
+    pub fn prepare_outputs(&self, out: &std::path::Path, inputs: &[(&str, Option<&std::path::Path>)]) -> Result<Option<std::fs::File>> {
+        plausible::io::check_writable(out)?;
+        let (settings, journal) = (settings_path(out), plausible::refine::dataset::journal_path(out));
+        let outputs = [
+            ("--out", Some(out)),
+            ("--out's settings record", Some(settings.as_path())),
+            ("--out's journal", Some(journal.as_path())),
+            ("--summary", self.summary.as_deref()),
+        ];
+        super::distinct_files(&outputs, inputs)?;
         if let Some(p) = &self.summary {
             plausible::io::check_writable(p).context("--summary")?;
         }
@@ -169,7 +181,7 @@ impl ImageRunArgs {
             std::fs::create_dir_all(d).with_context(|| format!("--explain {}: cannot create the folder", d.display()))?;
             plausible::io::check_writable(&d.join(".plausible-write-test")).with_context(|| format!("--explain {}", d.display()))?;
         }
-        Ok(())
+        lock_output(out)
     }
 
     /// A progress bar over `n` images (hidden with `--quiet`).
@@ -286,6 +298,32 @@ pub fn shard_of<T>(jobs: Vec<T>, shard: Option<(usize, usize)>) -> Vec<T> {
 
 /// The file beside `out` that records the settings its results were made
 /// with.
+/// Takes `OUT.lock` for this run: two runs writing one output at once
+/// would each rewrite it on resuming while the other appends to the file
+/// it replaced, losing or doubling rows. The lock (flock) goes with the
+/// process, however it ends; the small file stays, like the journal.
+/// An output that is no regular file (/dev/null, a pipe) is never resumed
+/// and gets no lock.
+fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
+    if std::fs::metadata(out).is_ok_and(|m| !m.is_file()) {
+        return Ok(None);
+    }
+    let mut name = out.as_os_str().to_owned();
+    name.push(".lock");
+    let path = PathBuf::from(name);
+    let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&path).map_err(|e| plausible::Error::write(&path, e))?;
+    match file.try_lock() {
+        Ok(()) => Ok(Some(file)),
+        Err(std::fs::TryLockError::WouldBlock) => {
+            bail!("--out {}: another run is writing it (it holds {}); wait for it to end, or give another --out", out.display(), path.display())
+        }
+        Err(std::fs::TryLockError::Error(e)) => {
+            eprintln!("warning: {}: cannot lock ({e}); make sure no other run writes --out {} meanwhile", path.display(), out.display());
+            Ok(Some(file))
+        }
+    }
+}
+
 pub fn settings_path(out: &std::path::Path) -> PathBuf {
     let mut name = out.as_os_str().to_owned();
     name.push(".settings.json");
@@ -382,11 +420,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         bail!("--budget is for --method rir (the other methods take --steps per hypothesis)");
     }
     let (shard, masks) = a.run.shard_and_masks()?;
-    plausible::io::check_writable(&a.out)?;
-    a.run.prepare_outputs()?;
-    if a.out.canonicalize().ok().is_some_and(|o| a.init.canonicalize().ok() == Some(o)) {
-        bail!("--out is the --init file: write the refined results elsewhere");
-    }
+    let _lock = a.run.prepare_outputs(&a.out, &[("--init", Some(&a.init))])?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let init = read_results(&a.init).context("--init")?;
     let mut jobs = shard_of(a.run.select_images(image_jobs(&init), |j| (j.scene_id, j.im_id), "estimates")?, shard);

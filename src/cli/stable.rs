@@ -185,6 +185,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(json) = &args.json {
         plausible::io::check_writable(json).context("--json")?;
     }
+    let meshes: Vec<(&str, Option<&std::path::Path>)> = args.meshes.iter().map(|m| ("a mesh", Some(m.as_path()))).collect();
+    super::distinct_files(&[("--db", Some(&db_path)), ("--json", args.json.as_deref())], &meshes)?;
     if !(0.0..90.0).contains(&args.cluster_deg) || args.cluster_deg == 0.0 {
         bail!("--cluster-deg must be between 0 and 90 degrees");
     }
@@ -488,6 +490,7 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
 }
 
 fn export(args: ExportArgs) -> anyhow::Result<()> {
+    super::distinct_files(&[("--json", Some(&args.json))], &[("--db", Some(&args.db))])?;
     let db = Db::open_existing(&args.db)?;
     let ex = stable::export::export(&db, args.mesh.as_deref())?;
     if let (Some(filter), true) = (&args.mesh, ex.meshes.is_empty()) {
