@@ -395,8 +395,8 @@ struct Built {
 /// meshlets can be culled as back faces; bounds come from meshoptimizer
 /// too. Meshes that are not closed get a cutoff of 2, which never culls.
 fn build_meshlets(mesh: &Mesh, vertices: &[Vec3], closed: bool) -> Built {
-    let positions: Vec<[f32; 3]> = vertices.iter().map(|v| v.to_array()).collect();
-    let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    let (indices, origin) = split_busy_vertices(&mesh.triangles, vertices.len());
+    let positions: Vec<[f32; 3]> = origin.iter().map(|&v| vertices[v as usize].to_array()).collect();
     let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&positions), 12, 0).expect("12-byte f32 positions");
     let ml = meshopt::build_meshlets(&indices, &adapter, MESHLET_VERTICES, MESHLET_TRIANGLES, 0.5);
     let mut out = Built { order: Vec::with_capacity(mesh.triangles.len()), meshlets: Vec::with_capacity(ml.len()), vertices: Vec::new(), corners: Vec::new() };
@@ -412,12 +412,49 @@ fn build_meshlets(mesh: &Mesh, vertices: &[Vec3], closed: bool) -> Built {
             vertex_count: m.vertices.len() as u32,
         });
         for c in m.triangles.chunks_exact(3) {
-            out.order.push([c[0], c[1], c[2]].map(|i| m.vertices[i as usize]));
+            out.order.push([c[0], c[1], c[2]].map(|i| origin[m.vertices[i as usize] as usize]));
             out.corners.push([c[0], c[1], c[2]]);
         }
-        out.vertices.extend_from_slice(m.vertices);
+        out.vertices.extend(m.vertices.iter().map(|&v| origin[v as usize]));
     }
     out
+}
+
+/// Triangles one vertex may share when meshlets are built; the rest get
+/// copies of it.
+const MAX_VERTEX_TRIANGLES: usize = 64;
+
+/// The index list for meshoptimizer, where a vertex shared by more than
+/// [`MAX_VERTEX_TRIANGLES`] triangles is split into copies that share at
+/// most that many each, and `origin`, each (copied) vertex's index in
+/// `triangles`. Its meshlet builder rescans a vertex's triangles whenever
+/// one of them is taken, so a fan's hub (a cone's apex, a disc's centre)
+/// made it quadratic: a cone of 80k triangles took 20 s to load. Meshes
+/// without such vertices are handed over unchanged, so their meshlets are
+/// what they were.
+fn split_busy_vertices(triangles: &[[u32; 3]], n_vertices: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut uses = vec![0usize; n_vertices];
+    for &v in triangles.iter().flatten() {
+        uses[v as usize] += 1;
+    }
+    let mut origin: Vec<u32> = (0..n_vertices as u32).collect();
+    if uses.iter().all(|&u| u <= MAX_VERTEX_TRIANGLES) {
+        return (triangles.iter().flatten().copied().collect(), origin);
+    }
+    // The copy a busy vertex's next triangle goes to, and how many it has.
+    let mut current: Vec<(u32, usize)> = (0..n_vertices as u32).map(|v| (v, 0)).collect();
+    let mut indices = Vec::with_capacity(3 * triangles.len());
+    for &v in triangles.iter().flatten() {
+        let (copy, n) = &mut current[v as usize];
+        if *n == MAX_VERTEX_TRIANGLES {
+            *copy = origin.len() as u32;
+            *n = 0;
+            origin.push(v);
+        }
+        *n += 1;
+        indices.push(*copy);
+    }
+    (indices, origin)
 }
 
 /// Triangles per pixel of a hypothesis' rectangle above which `Auto`
@@ -478,6 +515,26 @@ pub(crate) mod wgsl_layout {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A fan's hub is split into copies of at most MAX_VERTEX_TRIANGLES
+    /// triangles each, mapped back to itself; a mesh without busy vertices
+    /// is handed over as it is.
+    #[test]
+    fn busy_vertices_are_split_for_meshlets() {
+        let fan: Vec<[u32; 3]> = (0..200u32).map(|k| [0, 1 + k, 2 + k]).collect();
+        let (indices, origin) = split_busy_vertices(&fan, 202);
+        let mut uses = vec![0usize; origin.len()];
+        for (&i, &v) in indices.iter().zip(fan.iter().flatten()) {
+            assert_eq!(origin[i as usize], v);
+            uses[i as usize] += 1;
+        }
+        assert!(uses.iter().all(|&u| u <= MAX_VERTEX_TRIANGLES));
+        assert_eq!(origin.len(), 202 + 200usize.div_ceil(MAX_VERTEX_TRIANGLES) - 1);
+        let strip: Vec<[u32; 3]> = (0..200u32).map(|k| [k, k + 1, k + 2]).collect();
+        let (indices, origin) = split_busy_vertices(&strip, 202);
+        assert_eq!(indices, strip.iter().flatten().copied().collect::<Vec<_>>());
+        assert_eq!(origin.len(), 202);
+    }
 
     /// naga parses and validates every composed shader (what wgpu does at
     /// pipeline creation), so a broken kernel fails here without a GPU.
