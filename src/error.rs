@@ -60,7 +60,7 @@ pub enum Error {
     #[error(
         "no GPU adapter found{detail}. Install a Vulkan driver (on Debian/Ubuntu: \
          `apt-get install mesa-vulkan-drivers` gives the lavapipe software adapter) \
-         or run the CPU implementation with `--device cpu`"
+         or run the CPU twin (device `cpu`)"
     )]
     NoAdapter { detail: String },
 

@@ -285,9 +285,9 @@ pub fn check_camera_distances(poses: &[Pose], read_as: PoseUnits) -> std::result
         PoseUnits::Metres if median > 50.0 => Err(format!("median camera distance is {median:.1} m: the translations look like millimetres, but were read as metres")),
         PoseUnits::Metres if median < 0.02 => Err(format!("median camera distance is {:.1} mm: the objects would touch the camera; are the translations in metres?", median * 1e3)),
         _ => {
-            // One pose in the other unit among right ones: 1000 times too
-            // near or too far, no real hypothesis.
-            let odd = poses.iter().map(|p| p.t.length()).position(|d| !(0.01..=100.0).contains(&d));
+            // One pose in the other unit among right ones: 1000 times
+            // nearer or farther than the others, no real hypothesis.
+            let odd = poses.iter().map(|p| p.t.length()).position(|d| !(median / 100.0..=median * 100.0).contains(&d));
             match odd {
                 Some(i) => Err(format!(
                     "pose {i} is {:.4} m from the camera while the median is {median:.3} m: is it in another unit than the others?",

@@ -219,6 +219,10 @@ def _mask(mask: Any) -> Optional[np.ndarray]:
         m = m[:, :, 0]
     if m.ndim != 2:
         raise ValueError(f"mask: expected an (H, W) image, got shape {m.shape}")
+    if m.dtype.kind not in "biuf":
+        raise ValueError(f"mask: expected booleans or numbers, got dtype {m.dtype}")
+    if m.dtype.kind == "f" and np.isnan(m).any():
+        raise ValueError("mask: holds NaN (neither object nor background)")
     _check_side("mask", m.shape)
     return np.ascontiguousarray(m != 0)
 
@@ -247,8 +251,11 @@ def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
         R, t = T[:, :3, :3], T[:, :3, 3]
     _real(R, "R")
     _real(t, "t")
-    r = np.asarray(R, dtype=np.float64)
-    tt = np.asarray(t, dtype=np.float64)
+    try:
+        r = np.asarray(R, dtype=np.float64)
+        tt = np.asarray(t, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"poses: R and t must be numbers ({e})") from None
     if r.ndim == 2:
         r = r[None]
     if tt.ndim == 1:

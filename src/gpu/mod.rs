@@ -248,7 +248,7 @@ impl Context {
         required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
         if alimits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
             return Err(Error::Gpu(format!(
-                "{} binds at most {} storage buffers per shader stage; the score kernel with physics needs {STORAGE_BUFFERS}: use the CPU twin (--device cpu)",
+                "{} binds at most {} storage buffers per shader stage; the score kernel with physics needs {STORAGE_BUFFERS}: use the CPU twin (device `cpu`)",
                 info.name, alimits.max_storage_buffers_per_shader_stage
             )));
         }

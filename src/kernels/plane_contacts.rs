@@ -74,7 +74,7 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
     let have = ctx.device.limits().max_storage_buffers_per_shader_stage;
     if have < needed {
         return Err(Error::Gpu(format!(
-            "score --physics needs {needed} storage buffers per shader stage, this adapter offers {have}; use --device cpu"
+            "the physical terms on this adapter need {needed} storage buffers per shader stage, it offers {have}; use the CPU twin (device `cpu`)"
         )));
     }
     let words = params.words as usize;
