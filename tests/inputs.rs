@@ -387,5 +387,5 @@ fn no_adapter_error_names_both_remedies() {
         .map(|_| ())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("no GPU adapter") && e.contains("mesa-vulkan-drivers") && e.contains("--device cpu"), "{e}");
+    assert!(e.contains("no GPU adapter") && e.contains("mesa-vulkan-drivers") && e.contains("device `cpu`"), "{e}");
 }

@@ -1,11 +1,21 @@
 //! File-format dispatch: OBJ (tobj), glTF/GLB (gltf), PLY and STL (our own
 //! small parsers, since BOP models are PLY and YCB scans are STL).
+//!
+//! OBJ polygons are triangulated by [`polygon`](super::polygon) (ear
+//! clipping for concave ones), polylines (`l`) and points (`p`) are
+//! dropped. glTF triangle lists, strips and fans are read from every node
+//! instance of the scene; points and lines primitives have no surface and
+//! are skipped. A glTF node graph is bounded (depth, instances, total
+//! size) since a cycle or a tree of shared nodes would otherwise grow
+//! without limit.
 
 use std::path::Path;
 
 use glam::{DMat4, DVec3};
 
 use crate::error::{Error, Result};
+
+use super::polygon;
 
 /// Reads the positions and triangles of a mesh file in its own units.
 /// All bodies / primitives in the file are merged into one mesh.
@@ -31,9 +41,16 @@ fn malformed(path: &Path, reason: impl ToString) -> Error {
     Error::MalformedMesh { path: path.to_path_buf(), reason: reason.to_string() }
 }
 
+/// OBJ through tobj, untriangulated: tobj fans polygons, which is wrong for
+/// concave ones, so each face is triangulated here from its arity.
 fn load_obj(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
-    let opts = tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
-    let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| malformed(path, e))?;
+    let opts = tobj::LoadOptions { triangulate: false, single_index: false, ignore_points: true, ignore_lines: true };
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let loaded = match without_lines_and_points(&bytes) {
+        Some(filtered) => tobj::load_obj_buf(&mut &filtered[..], &opts, |_| Ok(Default::default())),
+        None => tobj::load_obj(path, &opts),
+    };
+    let (models, _materials) = loaded.map_err(|e| malformed(path, e))?;
     let mut vertices = Vec::new();
     let mut triangles = Vec::new();
     for m in models {
@@ -42,12 +59,46 @@ fn load_obj(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
         if p.len() % 3 != 0 {
             return Err(malformed(path, "position count is not a multiple of 3"));
         }
-        vertices.extend(p.chunks_exact(3).map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64)));
-        for t in m.mesh.indices.chunks_exact(3) {
-            triangles.push([t[0] as u64 + base, t[1] as u64 + base, t[2] as u64 + base]);
-        }
+        // f64 already: tobj's `use_f64` feature keeps the file's digits.
+        vertices.extend(p.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])));
+        obj_faces(path, &m.mesh, base, &vertices, &mut triangles)?;
     }
     narrow(path, vertices, triangles)
+}
+
+/// Triangulates the faces of one tobj model, whose indices start at
+/// `base` in `vertices`. Empty arities mean every face is a triangle.
+fn obj_faces(path: &Path, mesh: &tobj::Mesh, base: u64, vertices: &[DVec3], out: &mut Vec<[u64; 3]>) -> Result<()> {
+    let idx = &mesh.indices;
+    let triangles_only = std::iter::repeat_n(3, if mesh.face_arities.is_empty() { idx.len() / 3 } else { 0 });
+    let mut face = Vec::new();
+    let mut start = 0;
+    for n in mesh.face_arities.iter().copied().chain(triangles_only) {
+        let corners = idx.get(start..start + n as usize).ok_or_else(|| malformed(path, "face arities exceed the indices"))?;
+        face.clear();
+        face.extend(corners.iter().map(|&i| i as u64 + base));
+        polygon::triangulate(vertices, &face, out);
+        start += n as usize;
+    }
+    Ok(())
+}
+
+/// A copy of an OBJ file without its `l` (polyline) and `p` (point) lines,
+/// or `None` when it has none. tobj reads `l a b c` as a polygon, which
+/// would add a triangle that is not in the model.
+fn without_lines_and_points(bytes: &[u8]) -> Option<Vec<u8>> {
+    let is_drop = |line: &[u8]| {
+        let mut words = line.split(|b| b.is_ascii_whitespace()).filter(|w| !w.is_empty());
+        matches!(words.next(), Some(b"l") | Some(b"p"))
+    };
+    if !bytes.split(|&b| b == b'\n').any(is_drop) {
+        return None;
+    }
+    let mut out = Vec::with_capacity(bytes.len());
+    for line in bytes.split_inclusive(|&b| b == b'\n').filter(|l| !is_drop(l)) {
+        out.extend_from_slice(line);
+    }
+    Some(out)
 }
 
 /// Converts 64-bit indices to `u32`, rejecting any beyond the vertex count.
@@ -67,47 +118,255 @@ pub(super) fn narrow(
     Ok((vertices, out))
 }
 
+/// Deepest glTF node nesting accepted: real scenes are a few levels deep,
+/// a cycle (a node among its own descendants) is infinitely deep.
+const MAX_NODE_DEPTH: usize = 64;
+/// Most node instances a glTF scene may expand to: a chain of nodes that
+/// each list the next one twice as children doubles at every level.
+const MAX_NODE_VISITS: usize = 1_000_000;
+/// Most vertices, and most triangles, all instances together may have;
+/// checked before each primitive is read so memory stays bounded.
+const MAX_GLTF_VERTICES: usize = 100_000_000;
+const MAX_GLTF_TRIANGLES: usize = 100_000_000;
+
+/// The merged geometry of a glTF scene.
+#[derive(Default)]
+struct GltfMesh {
+    vertices: Vec<DVec3>,
+    triangles: Vec<[u64; 3]>,
+}
+
 fn load_gltf(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
     let (doc, buffers, _images) = gltf::import(path).map_err(|e| malformed(path, e))?;
-    let mut vertices = Vec::new();
-    let mut triangles = Vec::new();
+    let mut out = GltfMesh::default();
     let scene = doc.default_scene().or_else(|| doc.scenes().next());
-    let mut stack: Vec<(gltf::Node, DMat4)> = match &scene {
-        Some(s) => s.nodes().map(|n| (n, DMat4::IDENTITY)).collect(),
-        None => doc.nodes().map(|n| (n, DMat4::IDENTITY)).collect(),
+    let mut stack: Vec<(gltf::Node, DMat4, usize)> = match &scene {
+        Some(s) => s.nodes().map(|n| (n, DMat4::IDENTITY, 1)).collect(),
+        None => doc.nodes().map(|n| (n, DMat4::IDENTITY, 1)).collect(),
     };
-    while let Some((node, parent)) = stack.pop() {
+    let mut visits = 0;
+    while let Some((node, parent, depth)) = stack.pop() {
+        visits += 1;
+        if depth > MAX_NODE_DEPTH {
+            return Err(malformed(path, format!(
+                "node hierarchy deeper than {MAX_NODE_DEPTH} levels at node {} (a cycle?)", node.index()
+            )));
+        }
+        if visits > MAX_NODE_VISITS {
+            return Err(malformed(path, format!(
+                "the scene expands to more than {MAX_NODE_VISITS} node instances (nodes shared by many parents?)"
+            )));
+        }
         let local = DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64)));
         let world = parent * local;
-        for child in node.children() {
-            stack.push((child, world));
-        }
-        let Some(mesh) = node.mesh() else { continue };
-        for prim in mesh.primitives() {
-            if prim.mode() != gltf::mesh::Mode::Triangles {
-                continue;
-            }
-            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let Some(pos) = reader.read_positions() else { continue };
-            let base = vertices.len() as u64;
-            vertices.extend(pos.map(|p| world.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))));
-            let count = vertices.len() as u64 - base;
-            let idx: Vec<u64> = match reader.read_indices() {
-                Some(i) => i.into_u32().map(|i| i as u64).collect(),
-                None => (0..count).collect(),
-            };
-            if idx.len() % 3 != 0 {
-                return Err(malformed(path, "index count is not a multiple of 3"));
-            }
-            let flip = world.determinant() < 0.0;
-            for t in idx.chunks_exact(3) {
-                if flip {
-                    triangles.push([t[0] + base, t[2] + base, t[1] + base]);
-                } else {
-                    triangles.push([t[0] + base, t[1] + base, t[2] + base]);
-                }
+        stack.extend(node.children().map(|child| (child, world, depth + 1)));
+        if let Some(mesh) = node.mesh() {
+            for prim in mesh.primitives() {
+                add_primitive(path, &mesh, &prim, &buffers, world, &mut out)?;
             }
         }
     }
-    narrow(path, vertices, triangles)
+    narrow(path, out.vertices, out.triangles)
+}
+
+/// Appends one primitive, placed by `world`, to `out`. Triangle lists,
+/// strips and fans are read; other modes (points, lines) are skipped. A
+/// triangle primitive whose positions or indices cannot be read is an
+/// error rather than a silently missing part.
+fn add_primitive(
+    path: &Path,
+    mesh: &gltf::Mesh,
+    prim: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    world: DMat4,
+    out: &mut GltfMesh,
+) -> Result<()> {
+    use gltf::mesh::Mode;
+    let mode = prim.mode();
+    if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+        return Ok(());
+    }
+    let what = || format!("mesh {} primitive {}", mesh.index(), prim.index());
+    let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+    let pos = reader.read_positions().ok_or_else(|| malformed(path, format!("{}: positions cannot be read", what())))?;
+    let count = pos.len();
+    let index_count = prim.indices().map_or(count, |a| a.count());
+    check_size(path, out, mode, count, index_count)?;
+    let base = out.vertices.len() as u64;
+    out.vertices.extend(pos.map(|p| world.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))));
+    let idx: Vec<u64> = match (prim.indices(), reader.read_indices()) {
+        (None, _) => (0..count as u64).collect(),
+        (Some(_), Some(i)) => i.into_u32().map(u64::from).collect(),
+        (Some(_), None) => return Err(malformed(path, format!("{}: indices cannot be read", what()))),
+    };
+    let tris = triangles_of(mode, &idx).map_err(|e| malformed(path, format!("{}: {e}", what())))?;
+    let flip = world.determinant() < 0.0;
+    out.triangles.extend(tris.map(|t| {
+        let t = t.map(|i| i + base);
+        if flip { [t[0], t[2], t[1]] } else { t }
+    }));
+    Ok(())
+}
+
+/// Refuses a primitive of `vertices` positions and `indices` indices that
+/// would take the scene past [`MAX_GLTF_VERTICES`] or
+/// [`MAX_GLTF_TRIANGLES`], before it is read.
+fn check_size(path: &Path, out: &GltfMesh, mode: gltf::mesh::Mode, vertices: usize, indices: usize) -> Result<()> {
+    let triangles = match mode {
+        gltf::mesh::Mode::Triangles => indices / 3,
+        _ => indices.saturating_sub(2),
+    };
+    if out.vertices.len().saturating_add(vertices) > MAX_GLTF_VERTICES
+        || out.triangles.len().saturating_add(triangles) > MAX_GLTF_TRIANGLES
+    {
+        return Err(malformed(path, format!(
+            "the scene has more than {MAX_GLTF_VERTICES} vertices or {MAX_GLTF_TRIANGLES} triangles \
+             over all its node instances"
+        )));
+    }
+    Ok(())
+}
+
+/// The triangles of a triangle list, strip or fan, as glTF defines them:
+/// strip triangle k is `k, k+1, k+2` with every other one turned round to
+/// keep the winding, fan triangle k is `0, k+1, k+2`. Strip triangles that
+/// repeat a vertex (joins between strips) are left out.
+fn triangles_of(mode: gltf::mesh::Mode, idx: &[u64]) -> std::result::Result<Box<dyn Iterator<Item = [u64; 3]> + '_>, String> {
+    use gltf::mesh::Mode;
+    let n = idx.len().saturating_sub(2);
+    Ok(match mode {
+        Mode::Triangles if !idx.len().is_multiple_of(3) => return Err("index count is not a multiple of 3".into()),
+        Mode::Triangles => Box::new(idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]])),
+        Mode::TriangleStrip => Box::new(
+            (0..n)
+                .map(move |k| if k % 2 == 0 { [idx[k], idx[k + 1], idx[k + 2]] } else { [idx[k], idx[k + 2], idx[k + 1]] })
+                .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2]),
+        ),
+        Mode::TriangleFan => Box::new((0..n).map(move |k| [idx[0], idx[k + 1], idx[k + 2]])),
+        _ => Box::new(std::iter::empty()),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    fn err(r: Result<(Vec<DVec3>, Vec<[u32; 3]>)>) -> String {
+        r.map(|_| ()).unwrap_err().to_string()
+    }
+
+    const SQUARE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+    #[test]
+    fn obj_polylines_and_points_are_not_faces() {
+        let d = tempfile::tempdir().unwrap();
+        let p = write(d.path(), "l.obj", &format!("{SQUARE_OBJ}f 1 2 3\nl 1 2 3 4\n  p 1 2 3\nl 2 4\n"));
+        assert_eq!(load_obj(&p).unwrap().1, vec![[0, 1, 2]]);
+        let p = write(d.path(), "lonly.obj", &format!("{SQUARE_OBJ}l 1 2 3\n"));
+        assert!(load_obj(&p).unwrap().1.is_empty());
+    }
+
+    #[test]
+    fn obj_concave_faces_are_ear_clipped_convex_ones_fanned_and_positions_are_f64() {
+        let d = tempfile::tempdir().unwrap();
+        // An L from the corner next to its reflex one, then a quad.
+        let p = write(d.path(), "l.obj", "v 1 2 0\nv 0 2 0\nv 0 0 0\nv 2 0 0\nv 2 1 0\nv 1 1 0.1\nf 1 2 3 4 5 6\nf 1 2 3 6\n");
+        let (v, t) = load_obj(&p).unwrap();
+        assert_eq!(t.len(), 4 + 2);
+        assert_eq!(t[4..], [[0, 1, 2], [0, 2, 5]]);
+        let fanned: Vec<[u32; 3]> = (1..5).map(|k| [0, k, k + 1]).collect();
+        assert_ne!(t[..4], fanned[..]);
+        assert_eq!(v[5].z, 0.1, "positions are read as f64");
+    }
+
+    /// Standard base64 of `data`, for embedding a buffer in a data URI.
+    fn base64(data: &[u8]) -> String {
+        const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::new();
+        for c in data.chunks(3) {
+            let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+            (0..4).for_each(|k| out.push(if k <= c.len() { A[(n >> (18 - 6 * k) & 63) as usize] as char } else { '=' }));
+        }
+        out
+    }
+
+    /// A glTF of the unit square's four corners (accessor 0) and the index
+    /// list 0 1 3 2 (accessor 1), accessor 2 too long for its data, with the
+    /// given nodes and primitives.
+    fn gltf(dir: &Path, nodes: &str, primitives: &str) -> std::path::PathBuf {
+        let mut bin = Vec::new();
+        [[0f32, 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]].iter().flatten().for_each(|c| bin.extend(c.to_le_bytes()));
+        [0u16, 1, 3, 2].iter().for_each(|i| bin.extend(i.to_le_bytes()));
+        let text = format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":{nodes},
+            "meshes":[{{"primitives":{primitives}}}],
+            "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{}"}}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":8}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5123,"count":4,"type":"SCALAR"}},
+                         {{"bufferView":0,"componentType":5126,"count":1000,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}]}}"#,
+            bin.len(),
+            base64(&bin)
+        );
+        write(dir, "t.gltf", &text)
+    }
+
+    #[test]
+    fn gltf_cycles_and_exponential_node_sharing_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let prim = r#"[{"attributes":{"POSITION":0},"mode":6}]"#;
+        let e = err(load_gltf(&gltf(d.path(), r#"[{"mesh":0,"children":[0]}]"#, prim)));
+        assert!(e.contains("deeper than 64") && e.contains("cycle"), "{e}");
+        let chain: Vec<String> = (0..40).map(|i| format!(r#"{{"children":[{0},{0}]}}"#, i + 1)).collect();
+        let nodes = format!(r#"[{},{{"mesh":0}}]"#, chain.join(","));
+        let e = err(load_gltf(&gltf(d.path(), &nodes, prim)));
+        assert!(e.contains("node instances"), "{e}");
+        // A shared node within the bounds is instanced at each use.
+        let (_, t) = load_gltf(&gltf(d.path(), r#"[{"children":[1,1]},{"mesh":0}]"#, prim)).unwrap();
+        assert_eq!(t.len(), 4);
+    }
+
+    #[test]
+    fn gltf_size_is_capped_before_reading() {
+        let out = GltfMesh { vertices: vec![DVec3::ZERO; 10], triangles: vec![[0; 3]; 10] };
+        let p = Path::new("t.gltf");
+        assert!(check_size(p, &out, gltf::mesh::Mode::Triangles, 10, 30).is_ok());
+        let e = check_size(p, &out, gltf::mesh::Mode::Triangles, MAX_GLTF_VERTICES, 3).unwrap_err().to_string();
+        assert!(e.contains("more than") && e.contains("t.gltf"), "{e}");
+        assert!(check_size(p, &out, gltf::mesh::Mode::TriangleStrip, 4, MAX_GLTF_TRIANGLES).is_err());
+    }
+
+    #[test]
+    fn gltf_strips_and_fans_are_triangles() {
+        let d = tempfile::tempdir().unwrap();
+        let node = r#"[{"mesh":0}]"#;
+        // Strip 0 1 3 2 and the fan over 0 1 2 3 both make the square, wound +z.
+        let strip = r#"[{"attributes":{"POSITION":0},"indices":1,"mode":5}]"#;
+        assert_eq!(load_gltf(&gltf(d.path(), node, strip)).unwrap().1, vec![[0, 1, 3], [1, 2, 3]]);
+        let fan = r#"[{"attributes":{"POSITION":0},"mode":6}]"#;
+        assert_eq!(load_gltf(&gltf(d.path(), node, fan)).unwrap().1, vec![[0, 1, 2], [0, 2, 3]]);
+        // Mixed with a list and with points (skipped): the strip is kept.
+        let mixed = r#"[{"attributes":{"POSITION":0},"mode":0},{"attributes":{"POSITION":0},"indices":1,"mode":5},
+                        {"attributes":{"POSITION":0},"indices":1,"mode":4}]"#;
+        let e = err(load_gltf(&gltf(d.path(), node, mixed)));
+        assert!(e.contains("mesh 0 primitive 2") && e.contains("multiple of 3"), "{e}");
+        let mixed = r#"[{"attributes":{"POSITION":0},"mode":0},{"attributes":{"POSITION":0},"indices":1,"mode":5},
+                        {"attributes":{"POSITION":0},"mode":6}]"#;
+        assert_eq!(load_gltf(&gltf(d.path(), node, mixed)).unwrap().1, vec![[0, 1, 3], [1, 2, 3], [4, 5, 6], [4, 6, 7]]);
+    }
+
+    #[test]
+    fn gltf_unreadable_positions_name_the_primitive() {
+        let d = tempfile::tempdir().unwrap();
+        // Accessor 2 reads past the end of its buffer view.
+        let prims = r#"[{"attributes":{"POSITION":0},"mode":6},{"attributes":{"POSITION":2}}]"#;
+        let e = err(load_gltf(&gltf(d.path(), r#"[{"mesh":0}]"#, prims)));
+        assert!(e.contains("mesh 0 primitive 1") && e.contains("positions cannot be read") && e.contains("t.gltf"), "{e}");
+    }
 }

@@ -11,6 +11,7 @@ pub mod lod;
 pub mod mass;
 mod quickhull;
 mod ply;
+mod polygon;
 mod stl;
 
 use std::collections::HashMap;
