@@ -1041,3 +1041,42 @@ fn gpu_max_samples_against_many_grids_match_the_cpu_twin() {
     }
     assert!(cpu.iter().any(|e| e.contact > 1000), "the poses touch the cylinder's top");
 }
+
+/// Faces wound the wrong way do not change an object's mass or centre of
+/// mass (the reproducers of the review): a 10×6×3 cm box resting on the
+/// plane with one triangle flipped weighs what the box weighs (0.180 kg, not
+/// 0.150) with its centre at (0, 0, 15) mm (not (−7.5, 1.5, 14.25) mm), and
+/// two such boxes, one inside out, weigh twice as much (not "zero volume").
+#[test]
+fn faces_wound_backwards_keep_mass_and_centre_of_mass() {
+    let d = tempfile::tempdir().unwrap();
+    let half = DVec3::new(0.05, 0.03, 0.015);
+    let good = plausible::shapes::cuboid(half);
+    let mut flipped = good.clone();
+    flipped.triangles[3].swap(1, 2);
+    let mut two = good.clone();
+    let off = DVec3::new(0.2, 0.0, 0.0);
+    two.vertices.extend(good.vertices.iter().map(|v| *v + off));
+    two.triangles.extend(good.triangles.iter().map(|t| [t[0] + 8, t[2] + 8, t[1] + 8]));
+    for (name, mesh) in [("good", &good), ("flipped", &flipped), ("two", &two)] {
+        write_obj(&d.path().join(format!("{name}.obj")), mesh);
+    }
+    let at = DVec3::new(0.0, 0.0, 0.015);
+    let r = check(
+        d.path(),
+        &[
+            object("good", "good.obj", DMat3::IDENTITY, at, false),
+            object("flipped", "flipped.obj", DMat3::IDENTITY, at + DVec3::new(0.0, 0.5, 0.0), false),
+            object("two", "two.obj", DMat3::IDENTITY, at + DVec3::new(0.0, -0.5, 0.0), false),
+        ],
+    );
+    let mass = r[0].mass_kg;
+    assert!((mass - 0.1 * 0.06 * 0.03 * 1000.0).abs() < 1e-9, "{mass}");
+    assert!((r[0].com_world - at).length() < 1e-9, "{}", r[0].com_world);
+    assert!((r[1].mass_kg - mass).abs() < 1e-9, "flipped: {} kg", r[1].mass_kg);
+    assert!((r[1].com_world - (at + DVec3::new(0.0, 0.5, 0.0))).length() < 1e-9, "flipped: {}", r[1].com_world);
+    assert_eq!(r[1].evaluation.verdict, Verdict::Plausible, "{:?}", r[1].evaluation);
+    assert!((r[2].mass_kg - 2.0 * mass).abs() < 1e-9, "two: {} kg", r[2].mass_kg);
+    let centre = at + DVec3::new(0.0, -0.5, 0.0) + off / 2.0;
+    assert!((r[2].com_world - centre).length() < 1e-9, "two: {}", r[2].com_world);
+}

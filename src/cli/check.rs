@@ -96,6 +96,13 @@ pub fn run(a: CheckArgs) -> Result<()> {
         vec![None; checks.len()]
     };
     let _report = tracing::trace_span!("report").entered();
+    // Once per mesh (objects sharing one repeat its notes).
+    let mut said = std::collections::HashSet::new();
+    for note in checks.iter().flat_map(|c| &c.notes) {
+        if said.insert(note) {
+            eprintln!("warning: {note}");
+        }
+    }
     if a.json {
         let report = Report {
             version: env!("CARGO_PKG_VERSION"),

@@ -3,7 +3,10 @@
 //!
 //! For a closed mesh they are exact integrals over the enclosed volume, from
 //! the signed tetrahedra that each triangle spans with a reference point
-//! (divergence theorem). An open mesh does not enclose a volume, so its
+//! (divergence theorem), once every face is wound to bound the solid
+//! (each shell outward, a cavity's wall inward: [`orient_shells`]; faces
+//! wound backwards otherwise move the centre of mass and lose volume
+//! silently). An open mesh does not enclose a volume, so its
 //! integrals depend on the arbitrary reference point; for such meshes the
 //! properties are taken from the convex hull of the vertices instead (a
 //! documented fallback: exact for convex objects, an over-estimate of the
@@ -92,6 +95,7 @@ impl MassProperties {
         welded.weld();
         let (boundary, nonmanifold) = welded.edge_counts();
         if boundary == 0 && nonmanifold == 0 {
+            orient_shells(&mut welded, &name, &mut warnings);
             let mut props = integrate(&welded.vertices, &welded.triangles);
             if props.volume < 0.0 {
                 warnings.push(format!(
@@ -141,6 +145,183 @@ impl MassProperties {
         check_volume(&name, &props, mesh.diagonal())?;
         Ok((props, warnings))
     }
+}
+
+/// Most shells whose nesting [`orient_shells`] works out (a pair of shells
+/// costs up to a solid-angle sum over one of them per test point); beyond
+/// it every shell is taken as a solid of its own, wound outward.
+pub const MAX_NESTING_SHELLS: usize = 64;
+
+/// Test points per shell in the nesting test of [`orient_shells`].
+const NESTING_SAMPLES: usize = 7;
+
+/// Winds the faces of a closed manifold mesh the way the divergence theorem
+/// needs them, before integrating: every face agrees with its neighbours
+/// ([`Mesh::winding_flips`], per connected shell), every shell bounds its
+/// solid outward (positive signed volume), except a shell nested inside an
+/// odd number of other shells, the wall of a cavity, which is wound inward
+/// (negative), so that its volume is taken away. A scan with patches wound
+/// backwards (LM-O's eggbox has 26 faces) or a file whose shells were saved
+/// inside out would otherwise integrate to a wrong volume and centre of mass
+/// without notice (a 10×6×3 cm box with one flipped triangle: 150 cm³ and a
+/// centre 7.5 mm off). Nesting is decided by the winding number (the sum of
+/// solid angles) of one shell's vertices about the other, for up to
+/// [`MAX_NESTING_SHELLS`] shells; past that every shell is wound outward and
+/// a warning says that cavities were not looked for. Warns when faces were
+/// re-wound. A mesh that is not orientable is left as it is.
+fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
+    let Some((flip, shells)) = mesh.winding_flips() else { return };
+    let (lo, hi) = mesh.bounds();
+    let centre = if lo.is_finite() && hi.is_finite() { 0.5 * (lo + hi) } else { DVec3::ZERO };
+    // Six times each shell's signed volume once its faces agree (about the
+    // bounding-box centre: the sum does not depend on the point for a
+    // closed shell, but is better conditioned there).
+    let six_vol = |tris: &[[u32; 3]], shell: &[usize]| -> f64 {
+        shell
+            .iter()
+            .map(|&f| {
+                let t = tris[f];
+                let t = if flip[f] { [t[0], t[2], t[1]] } else { t };
+                let [a, b, c] = t.map(|i| mesh.vertices[i as usize] - centre);
+                a.dot(b.cross(c))
+            })
+            .sum()
+    };
+    // Whole-shell turn that makes each shell outward.
+    let mut turn: Vec<bool> = shells.iter().map(|s| six_vol(&mesh.triangles, s) < 0.0).collect();
+    let nested = if shells.len() > 1 && shells.len() <= MAX_NESTING_SHELLS {
+        let outward = |f: usize, shell: usize| {
+            let t = mesh.triangles[f];
+            if flip[f] ^ turn[shell] { [t[0], t[2], t[1]] } else { t }
+        };
+        let shell_tris: Vec<Vec<[u32; 3]>> =
+            shells.iter().enumerate().map(|(s, faces)| faces.iter().map(|&f| outward(f, s)).collect()).collect();
+        shell_nesting(&mesh.vertices, &shell_tris)
+    } else {
+        vec![0; shells.len()]
+    };
+    let mut cavities = 0;
+    for (s, depth) in nested.iter().enumerate() {
+        if depth % 2 == 1 {
+            turn[s] = !turn[s];
+            cavities += 1;
+        }
+    }
+    let mut rewound = 0usize;
+    for (s, shell) in shells.iter().enumerate() {
+        for &f in shell {
+            if flip[f] ^ turn[s] {
+                mesh.triangles[f].swap(1, 2);
+                rewound += 1;
+            }
+        }
+    }
+    if rewound > 0 {
+        let cavities = match cavities {
+            0 => String::new(),
+            1 => " (one shell lies inside another: a cavity, wound inward)".to_string(),
+            n => format!(" ({n} shells lie inside others: cavities, wound inward)"),
+        };
+        warnings.push(format!(
+            "{name}: {rewound} of {} faces are wound against the rest of their shell or their shell is inside out; \
+             mass properties use them re-wound, every shell bounding its solid outward{cavities}",
+            mesh.triangles.len()
+        ));
+    }
+    if shells.len() > MAX_NESTING_SHELLS && turn.iter().any(|&t| t) {
+        warnings.push(format!(
+            "{name}: {} closed shells, more than {MAX_NESTING_SHELLS}: shells wound inward were turned outward without \
+             looking for cavities (a cavity among them is counted as solid)",
+            shells.len()
+        ));
+    }
+}
+
+/// For each shell (closed, wound outward), how many of the others enclose
+/// it: shell `j` encloses shell `i` when `i`'s bounding box lies in `j`'s,
+/// `i` is the smaller, and the winding number of `j` about `i`'s test points
+/// (its extreme vertices along ±x, ±y, ±z and its first vertex, leaving out
+/// vertices `j` shares) is one at each. A test point whose winding number is
+/// near ½ (on `j`'s surface) does not count; shells that cross each other
+/// (some points in, some out) do not enclose one another.
+fn shell_nesting(vertices: &[DVec3], shells: &[Vec<[u32; 3]>]) -> Vec<usize> {
+    let n = shells.len();
+    let bounds: Vec<(DVec3, DVec3)> = shells
+        .iter()
+        .map(|tris| {
+            tris.iter().flatten().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), &v| {
+                let p = vertices[v as usize];
+                (l.min(p), h.max(p))
+            })
+        })
+        .collect();
+    let volume = |tris: &[[u32; 3]], at: DVec3| -> f64 {
+        tris.iter().map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize] - at);
+            a.dot(b.cross(c))
+        }).sum()
+    };
+    let volumes: Vec<f64> = (0..n).map(|s| volume(&shells[s], 0.5 * (bounds[s].0 + bounds[s].1))).collect();
+    let mut used: Vec<Vec<u32>> = shells.iter().map(|t| t.iter().flatten().copied().collect()).collect();
+    for u in &mut used {
+        u.sort_unstable();
+        u.dedup();
+    }
+    // Test points: the first vertex, then the extremes along the axes.
+    let samples: Vec<Vec<u32>> = used
+        .iter()
+        .map(|u| {
+            let mut s = vec![u[0]];
+            for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+                for sign in [1.0, -1.0] {
+                    let key = |&&i: &&u32| sign * vertices[i as usize].dot(axis);
+                    if let Some(&best) = u.iter().max_by(|a, b| key(a).total_cmp(&key(b))) {
+                        s.push(best);
+                    }
+                }
+            }
+            s.dedup();
+            s.truncate(NESTING_SAMPLES);
+            s
+        })
+        .collect();
+    let size = bounds.iter().fold(0.0f64, |m, (l, h)| m.max((*h - *l).length()));
+    let tol = 1e-9 * size;
+    let encloses = |j: usize, i: usize| -> bool {
+        let ((li, hi), (lj, hj)) = (bounds[i], bounds[j]);
+        if li.cmplt(lj - tol).any() || hi.cmpgt(hj + tol).any() || volumes[i] >= volumes[j] {
+            return false;
+        }
+        let mut inside = 0;
+        for &v in samples[i].iter().filter(|v| used[j].binary_search(v).is_err()) {
+            let w = winding_number(vertices, &shells[j], vertices[v as usize]);
+            if w < 0.25 {
+                return false;
+            }
+            if w > 0.75 {
+                inside += 1;
+            }
+        }
+        inside > 0
+    };
+    (0..n).map(|i| (0..n).filter(|&j| j != i && encloses(j, i)).count()).collect()
+}
+
+/// Winding number of a closed surface (outward triangles) about `p`: one
+/// inside, zero outside, ½ on the surface. The sum of the triangles' signed
+/// solid angles (Van Oosterom and Strackee 1983) over 4π.
+fn winding_number(vertices: &[DVec3], tris: &[[u32; 3]], p: DVec3) -> f64 {
+    let total: f64 = tris
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize] - p);
+            let (la, lb, lc) = (a.length(), b.length(), c.length());
+            let num = a.dot(b.cross(c));
+            let den = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+            2.0 * num.atan2(den)
+        })
+        .sum();
+    total / (4.0 * std::f64::consts::PI)
 }
 
 /// A hull face is a sliver, left out of containment tests, when its normal
@@ -210,7 +391,7 @@ fn check_volume(name: &str, props: &MassProperties, diagonal: f64) -> Result<()>
     if !props.volume.is_finite() || props.volume <= 1e-9 * scale || !props.com.is_finite() {
         return Err(Error::InvalidInput(format!(
             "{name}: the mesh encloses (almost) zero volume ({:.3e} m³ for a {:.3} m bounding-box diagonal); \
-             stable poses need a solid object",
+             mass, centre of mass and stable poses need a solid object",
             props.volume, diagonal
         )));
     }
@@ -417,6 +598,113 @@ mod tests {
         assert_eq!(p.source, MassSource::ConvexHullFallback);
         assert!((p.volume - 1.0).abs() < 1e-5, "{}", p.volume);
         assert!(w[0].contains("not closed"));
+    }
+
+    /// Boxes of half extents `half` centred at `at`, each wound outward
+    /// unless its flag says inward, in one mesh.
+    fn boxes(parts: &[(DVec3, DVec3, bool)]) -> Mesh {
+        let mut m = Mesh { vertices: Vec::new(), triangles: Vec::new(), source: None };
+        for &(half, at, inward) in parts {
+            let b = shapes::cuboid(half);
+            let off = m.vertices.len() as u32;
+            m.vertices.extend(b.vertices.iter().map(|v| *v + at));
+            m.triangles.extend(b.triangles.iter().map(|t| {
+                let t = t.map(|i| i + off);
+                if inward { [t[0], t[2], t[1]] } else { t }
+            }));
+        }
+        m
+    }
+
+    /// The exact properties of the 10×6×3 cm box of the reproducer, centred
+    /// at `at`, whatever the winding of its faces.
+    fn assert_box(p: &MassProperties, at: DVec3) {
+        let (a, b, c) = (0.1, 0.06, 0.03);
+        let v = a * b * c;
+        assert!((p.volume - v).abs() < 1e-15, "volume {} vs {v}", p.volume);
+        assert!((p.com - at).length() < 1e-12, "centre {} vs {at}", p.com);
+        let i = DVec3::new(v * (b * b + c * c), v * (a * a + c * c), v * (a * a + b * b)) / 12.0;
+        let got = DVec3::new(p.inertia_unit_density.x_axis.x, p.inertia_unit_density.y_axis.y, p.inertia_unit_density.z_axis.z);
+        assert!((got - i).length() < 1e-12 * i.length(), "{got} vs {i}");
+        assert_eq!(p.source, MassSource::ClosedMesh);
+    }
+
+    /// A closed box with one triangle (or a whole face) wound backwards has
+    /// the box's exact volume, centre and inertia, and a warning; so does one
+    /// whose every face but one is backwards.
+    #[test]
+    fn faces_wound_backwards_are_rewound() {
+        let half = DVec3::new(0.05, 0.03, 0.015);
+        let at = DVec3::new(0.0, 0.0, 0.015);
+        for flipped in [vec![3], vec![0, 1], (1..12).collect::<Vec<_>>()] {
+            let mut m = boxes(&[(half, at, false)]);
+            for &f in &flipped {
+                m.triangles[f].swap(1, 2);
+            }
+            let (p, w) = MassProperties::of_mesh(&m).unwrap();
+            assert_box(&p, at);
+            assert_eq!(w.len(), 1, "{w:?}");
+            let n = flipped.len().min(12 - flipped.len());
+            assert!(w[0].contains(&format!("{n} of 12 faces")), "{w:?}");
+        }
+        // Consistently wound: nothing to say.
+        let (p, w) = MassProperties::of_mesh(&boxes(&[(half, at, false)])).unwrap();
+        assert_box(&p, at);
+        assert!(w.is_empty(), "{w:?}");
+    }
+
+    /// A box with a box-shaped cavity: the cavity's wall wound inward is
+    /// kept inward and its volume taken away, however the file winds it
+    /// (outward, inward, or one face wrong), and a solid inside the cavity
+    /// (nested twice) counts again. Two disjoint boxes, one inside out, are
+    /// the sum of both; two boxes that cross each other are not a cavity.
+    #[test]
+    fn cavities_stay_inward_and_separate_shells_turn_outward() {
+        let (outer, inner) = (DVec3::new(0.05, 0.04, 0.03), DVec3::new(0.02, 0.01, 0.015));
+        let (o, c) = (DVec3::new(1.0, -2.0, 0.5), DVec3::new(1.01, -2.005, 0.5));
+        let (vo, vi) = (8.0 * outer.x * outer.y * outer.z, 8.0 * inner.x * inner.y * inner.z);
+        let expect = (vo * o - vi * c) / (vo - vi);
+        for (outer_in, inner_in, flip_one) in [(false, true, false), (false, false, false), (true, true, true), (true, false, true)] {
+            let mut m = boxes(&[(outer, o, outer_in), (inner, c, inner_in)]);
+            if flip_one {
+                m.triangles[17].swap(1, 2);
+            }
+            let (p, w) = MassProperties::of_mesh(&m).unwrap();
+            let case = format!("outer inward {outer_in}, inner inward {inner_in}, one flipped {flip_one}: {w:?}");
+            assert!((p.volume - (vo - vi)).abs() < 1e-15, "{case}: volume {} vs {}", p.volume, vo - vi);
+            assert!((p.com - expect).length() < 1e-12, "{case}: centre {} vs {expect}", p.com);
+            assert_eq!(w.is_empty(), !outer_in && inner_in && !flip_one, "{case}");
+        }
+        // A solid box in the cavity.
+        let core = DVec3::splat(0.005);
+        let m = boxes(&[(outer, o, false), (inner, c, false), (core, c, true)]);
+        let (p, w) = MassProperties::of_mesh(&m).unwrap();
+        let vc = 8.0 * core.x * core.y * core.z;
+        assert!((p.volume - (vo - vi + vc)).abs() < 1e-15, "{} {w:?}", p.volume);
+        assert!((p.com - (vo * o - vi * c + vc * c) / (vo - vi + vc)).length() < 1e-12);
+        // Two disjoint boxes, the second inside out (the reproducer).
+        let half = DVec3::new(0.05, 0.03, 0.015);
+        let (a, b) = (DVec3::ZERO, DVec3::new(0.2, 0.0, 0.0));
+        let (p, w) = MassProperties::of_mesh(&boxes(&[(half, a, false), (half, b, true)])).unwrap();
+        assert!((p.volume - 2.0 * 0.1 * 0.06 * 0.03).abs() < 1e-15, "{}", p.volume);
+        assert!((p.com - 0.5 * (a + b)).length() < 1e-12, "{}", p.com);
+        assert!(w.len() == 1 && w[0].contains("12 of 24 faces"), "{w:?}");
+        // Two boxes crossing each other (as in convex decompositions): both
+        // solid, not one the other's cavity, and no re-winding (their sum
+        // exceeds their hull, so the hull is used, as before).
+        let (p, w) = MassProperties::of_mesh(&boxes(&[(outer, o, false), (outer * 0.9, o + DVec3::X * 0.04, false)])).unwrap();
+        assert!(p.volume > vo && w.len() == 1 && w[0].contains("does not bound one solid"), "{} {w:?}", p.volume);
+    }
+
+    /// A shell inside another is found however large or small: the winding
+    /// number is one inside, zero outside, whatever the distance.
+    #[test]
+    fn winding_number_of_a_box() {
+        let b = shapes::cuboid(DVec3::new(1.0, 2.0, 3.0));
+        for (p, w) in [(DVec3::ZERO, 1.0), (DVec3::new(0.99, 1.99, -2.99), 1.0), (DVec3::new(1.01, 0.0, 0.0), 0.0), (DVec3::splat(1e6), 0.0)] {
+            let got = winding_number(&b.vertices, &b.triangles, p);
+            assert!((got - w).abs() < 1e-9, "{p}: {got}");
+        }
     }
 
     #[test]

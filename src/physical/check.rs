@@ -61,6 +61,9 @@ pub struct ObjectCheck {
     /// `None` when not feasible, static, or undecided by the solver.
     pub friction_equilibrium: Option<bool>,
     pub detail: Detail,
+    /// What computing the mesh's mass properties noticed (faces re-wound,
+    /// an open mesh taken as its hull): the mass and centre rest on it.
+    pub notes: Vec<String>,
 }
 
 impl ObjectCheck {
@@ -109,6 +112,8 @@ pub struct CheckRecord<'a> {
     pub grid_error_bound: f64,
     pub mass_kg: f64,
     pub centre_of_mass: [f64; 3],
+    /// What computing the mesh's mass properties noticed.
+    pub notes: &'a [String],
 }
 
 impl ObjectCheck {
@@ -136,6 +141,7 @@ impl ObjectCheck {
             grid_error_bound: self.grid_error_bound,
             mass_kg: self.mass_kg,
             centre_of_mass: self.com_world.to_array(),
+            notes: &self.notes,
         }
     }
 }
@@ -146,35 +152,39 @@ pub struct Prepared {
     pub bodies: Vec<Body>,
     pub grids: Vec<Arc<SdfGrid>>,
     pub mass: Vec<MassProperties>,
+    /// Per object: what its mass properties' computation noticed.
+    pub notes: Vec<Vec<String>>,
 }
 
 /// Samples, mass properties and grids for every object.
 pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
     let _span = tracing::trace_span!("prepare", objects = scene.objects.len()).entered();
-    let mut done: Vec<(Arc<Mesh>, Body, Arc<SdfGrid>, MassProperties)> = Vec::new();
-    let (mut bodies, mut grids, mut mass) = (Vec::new(), Vec::new(), Vec::new());
+    let mut done: Vec<(Arc<Mesh>, Body, Arc<SdfGrid>, MassProperties, Vec<String>)> = Vec::new();
+    let (mut bodies, mut grids, mut mass, mut notes) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for o in &scene.objects {
         let found = done.iter().find(|(m, ..)| Arc::ptr_eq(m, &o.mesh));
-        let (b, g, mp) = match found {
-            Some((_, b, g, mp)) => (b.clone(), g.clone(), mp.clone()),
+        let (b, g, mp, n) = match found {
+            Some((_, b, g, mp, n)) => (b.clone(), g.clone(), mp.clone(), n.clone()),
             None => {
                 // A mesh's error names the object (a scene may hold dozens).
                 let named = |e: crate::Error| crate::Error::InvalidInput(format!("object '{}' ({}): {e}", o.name, o.mesh_path.display()));
                 let b = Body::new(&o.mesh, opts.samples, opts.seed, opts.epsilon).map_err(named)?;
                 let g = Arc::new(SdfGrid::bake(&o.mesh, opts.sdf_resolution).map_err(named)?);
-                let (mp, _) = MassProperties::of_mesh(&o.mesh).map_err(named)?;
-                done.push((o.mesh.clone(), b.clone(), g.clone(), mp.clone()));
-                (b, g, mp)
+                let (mp, n) = MassProperties::of_mesh(&o.mesh).map_err(named)?;
+                done.push((o.mesh.clone(), b.clone(), g.clone(), mp.clone(), n.clone()));
+                (b, g, mp, n)
             }
         };
         bodies.push(b);
         grids.push(g);
         mass.push(mp);
+        notes.push(n);
     }
     Ok(Prepared {
         bodies,
         grids,
         mass,
+        notes,
     })
 }
 
@@ -277,6 +287,7 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
             evaluation: e,
             friction_equilibrium,
             detail,
+            notes: prep.notes[i].clone(),
         });
     }
     Ok(out)

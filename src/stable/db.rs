@@ -24,7 +24,7 @@ use glam::{DQuat, DVec3};
 use rusqlite::{params, Connection, OptionalExtension};
 
 use super::analytic::AnalyticPose;
-use super::cluster::{cluster, Cluster, ClusterKind, ClusterParams};
+use super::cluster::{cluster_about, Cluster, ClusterKind, ClusterParams};
 use super::drop::DropResult;
 use crate::error::{Error, Result};
 
@@ -470,7 +470,21 @@ impl Db {
         params: ClusterParams,
     ) -> Result<Vec<Cluster>> {
         let drops = self.drops(run_id)?;
-        let clusters = cluster(&drops, params);
+        // The mesh's centre of mass, for the clusters' heights (see
+        // `cluster_about`); a run without its mesh record clusters about
+        // the origin.
+        let com = self
+            .conn
+            .query_row(
+                "SELECT m.com_x, m.com_y, m.com_z FROM runs r JOIN meshes m ON m.sha256 = r.mesh_sha256 WHERE r.id = ?1",
+                [run_id],
+                |r| Ok(DVec3::new(r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
+            .optional()
+            .map_err(|e| err(&self.path, e))?
+            .filter(|c| c.is_finite())
+            .unwrap_or(DVec3::ZERO);
+        let clusters = cluster_about(&drops, params, com);
         let path = self.path.clone();
         let tx = self.conn.transaction().map_err(|e| err(&path, e))?;
         tx.execute("DELETE FROM clusters WHERE run_id = ?1", [run_id])

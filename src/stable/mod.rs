@@ -110,8 +110,11 @@ impl Default for RunParams {
 /// ([`drop::SimParams::for_size`]); 6: the body's principal axes of inertia
 /// are computed in f64 ([`crate::mesh::mass::principal_axes`]), not by
 /// parry's eigensolver, which gave light bodies (under about 1e-5 kg·m²)
-/// wrong axes, and objects larger than 0.15 m are time-scaled too.
-pub const DROP_REVISION: u32 = 6;
+/// wrong axes, and objects larger than 0.15 m are time-scaled too; 7: the
+/// collider and the body are built about the centre of mass, offset taken
+/// off in f64 ([`drop::DropBody`]), so meshes far from their model origin
+/// drop as they do at it.
+pub const DROP_REVISION: u32 = 7;
 
 /// The run parameters as stored and hashed into the run key.
 #[derive(serde::Serialize)]
@@ -225,10 +228,16 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     warnings.extend(note);
     let analytic = analytic::stable_poses(&full, mass.com, AnalyticParams::default())
         .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
+    // The collider and the body are built about the centre of mass (see
+    // `DropBody`): the offset is taken off in f64, before rapier's f32.
+    let origin = mass.com;
     let parts: Vec<Hull> = match params.collider {
-        ColliderKind::Hull => vec![full.simplified(params.hull_max_points, tol)?],
+        ColliderKind::Hull => {
+            let h = full.simplified(params.hull_max_points, tol)?;
+            vec![Hull { vertices: h.vertices.iter().map(|v| *v - origin).collect(), triangles: h.triangles }]
+        }
         ColliderKind::Decomposition => {
-            decomposition(&mesh, name, params.hull_max_points, tol, &mut warnings)?
+            decomposition(&mesh, name, origin, params.hull_max_points, tol, &mut warnings)?
         }
     };
     let mut support = Vec::new();
@@ -237,6 +246,7 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     }
     let (shapes, is_piece): (Vec<SharedShape>, Vec<bool>) = collider_shapes(name, &parts)?.into_iter().unzip();
     let collider_points = support.len();
+    let body_mass = MassProperties { com: DVec3::ZERO, ..mass.clone() };
     Ok(PreparedMesh {
         name: name.to_string(),
         sha256,
@@ -245,8 +255,9 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
             shapes,
             is_piece,
             support,
-            mass: mass.clone(),
+            mass: body_mass,
             diagonal,
+            origin,
         },
         mass,
         collider_parts: parts.len(),
@@ -256,7 +267,9 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     })
 }
 
-/// Builds the rapier collider of convex parts.
+/// Builds the rapier collider of convex parts (body frame: the parts'
+/// vertices are already about the centre of mass, so their f32 rounding is
+/// relative to the object's size, wherever the model origin is).
 ///
 /// parry's polyhedron-vs-plane contact uses at most four vertices of the
 /// touching face (its `local_support_feature` takes the face's first four
@@ -347,16 +360,21 @@ fn base_kept(piece: &SharedShape, normal: Vec3) -> bool {
     })
 }
 
-/// Convex parts: connected components when there are several, else VHACD.
+/// Convex parts: connected components when there are several, else VHACD;
+/// in the body frame (model frame less `origin`, the centre of mass).
 fn decomposition(
     mesh: &Mesh,
     name: &str,
+    origin: DVec3,
     max_points: usize,
     tol: f64,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<Hull>> {
     let mut welded = mesh.clone();
     welded.weld();
+    for v in &mut welded.vertices {
+        *v -= origin;
+    }
     let comps = components(&welded);
     let mut parts = Vec::new();
     if comps.len() > 1 {
