@@ -112,7 +112,7 @@ def _bool(name: str, value: Any) -> bool:
 
 
 def load_mesh(path: Union[str, os.PathLike], units: str = "auto") -> Mesh:
-    """Loads .obj, .ply, .stl, .gltf or .glb; ``units`` "m", "mm" or "auto"."""
+    """Loads .obj, .ply, .stl, .gltf or .glb; ``units`` "m", "cm", "mm" or "auto"."""
     return Mesh.load(os.fspath(path), units)
 
 
@@ -326,7 +326,7 @@ class Scorer:
         device: "auto" (a hardware GPU, else the faster CPU twin), "gpu"
             (any adapter, lavapipe included) or "cpu".
         adapter: pick the first adapter whose name contains this.
-        mesh_units: units of a mesh file: "m", "mm" or "auto".
+        mesh_units: units of a mesh file: "m", "cm", "mm" or "auto".
         lod: level of detail of the mesh the visual score renders: "auto"
             (the coarsest simplification within a quarter of a pixel at the
             observed object), "off" (the full mesh) or a triangle count;

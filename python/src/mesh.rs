@@ -89,7 +89,7 @@ impl Mesh {
         Mesh::warned(py, inner, report.warnings)
     }
 
-    /// Loads .obj, .ply, .stl, .gltf or .glb; `units` "m", "mm" or "auto"
+    /// Loads .obj, .ply, .stl, .gltf or .glb; `units` "m", "cm", "mm" or "auto"
     /// (a diagonal above 5 m is taken as millimetres).
     #[staticmethod]
     #[pyo3(signature = (path, units = "auto"))]

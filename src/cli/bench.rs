@@ -56,7 +56,7 @@ pub struct BenchScoreArgs {
     /// which are scaled to a 0.15 m diagonal.
     #[arg(long)]
     pub mesh: Vec<std::path::PathBuf>,
-    /// Units of the `--mesh` files: m, mm or auto (above 5 m: mm).
+    /// Units of the `--mesh` files: m, cm, mm or auto (above 5 m: mm).
     #[arg(long, default_value = "auto")]
     pub units: MeshUnits,
     /// Skip the CPU twin (not recommended: figures are meant side by side).

@@ -32,7 +32,7 @@ pub struct MeshArgs {
     /// Object mesh (.obj, .ply, .stl, .gltf, .glb).
     #[arg(long)]
     pub mesh: PathBuf,
-    /// Units of the mesh file: m, mm or auto (a bounding-box diagonal above
+    /// Units of the mesh file: m, cm, mm or auto (a bounding-box diagonal above
     /// 5 m is taken as millimetres, and that is reported).
     #[arg(long, default_value = "auto")]
     pub mesh_units: MeshUnits,

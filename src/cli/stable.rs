@@ -81,7 +81,7 @@ pub struct RunArgs {
     /// but shifted frequencies.
     #[arg(long, default_value_t = 240.0)]
     pub step_hz: f64,
-    /// Units of the mesh files: m, mm or auto.
+    /// Units of the mesh files: m, cm, mm or auto.
     #[arg(long, default_value = "auto")]
     pub mesh_units: MeshUnits,
     /// Also write the JSON export of the processed meshes here.
@@ -250,6 +250,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         let units = match (args.mesh_units, report.scale_to_metres == 1.0) {
             (MeshUnits::Metres, _) | (MeshUnits::Auto, true) => "m",
+            (MeshUnits::Centimetres, _) => "cm",
             _ => "mm",
         };
         let bar = if show_progress {

@@ -30,6 +30,9 @@ pub enum MeshUnits {
     Metres,
     /// The file is in millimetres (BOP models).
     Millimetres,
+    /// The file is in centimetres (common in exports from Blender and
+    /// game tools; `Auto` would take a 15 cm object as 15 mm).
+    Centimetres,
     /// Guess from the bounding-box diagonal: above 5 m the file is taken as
     /// millimetres (and the report says so); below 5 mm a warning is issued.
     #[default]
@@ -42,8 +45,9 @@ impl std::str::FromStr for MeshUnits {
         match s {
             "m" | "metres" | "meters" => Ok(MeshUnits::Metres),
             "mm" | "millimetres" | "millimeters" => Ok(MeshUnits::Millimetres),
+            "cm" | "centimetres" | "centimeters" => Ok(MeshUnits::Centimetres),
             "auto" => Ok(MeshUnits::Auto),
-            _ => Err(format!("unknown mesh units '{s}' (expected m, mm or auto)")),
+            _ => Err(format!("unknown mesh units '{s}' (expected m, cm, mm or auto)")),
         }
     }
 }
@@ -393,12 +397,13 @@ fn validate_and_clean(
     match units {
         MeshUnits::Metres => {}
         MeshUnits::Millimetres => report.scale_to_metres = 1e-3,
+        MeshUnits::Centimetres => report.scale_to_metres = 1e-2,
         MeshUnits::Auto => {
             if diag > MAX_DIAGONAL_M {
                 report.scale_to_metres = 1e-3;
                 report.warnings.push(format!(
                     "bounding-box diagonal is {diag:.1} units; above {MAX_DIAGONAL_M} m, so the mesh is \
-                     taken to be in millimetres (pass --mesh-units m to override)"
+                     taken to be in millimetres (state the units if it is in metres or centimetres)"
                 ));
             } else if diag < MIN_DIAGONAL_M {
                 report.warnings.push(format!(
@@ -497,6 +502,17 @@ mod tests {
     }
 
     use super::*;
+
+    /// Centimetres scale by 1/100 and are not second-guessed.
+    #[test]
+    fn centimetres_are_a_unit() {
+        let v = vec![DVec3::ZERO, DVec3::new(15.0, 0.0, 0.0), DVec3::new(0.0, 10.0, 0.0), DVec3::new(0.0, 0.0, 5.0)];
+        let t = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        let (m, report) = validate_and_clean(std::path::PathBuf::from("cm.obj"), v, t, "cm".parse().unwrap()).unwrap();
+        assert_eq!(report.scale_to_metres, 1e-2);
+        assert!((m.diagonal() - (15f64.powi(2) + 100.0 + 25.0).sqrt() * 1e-2).abs() < 1e-12);
+        assert!(report.warnings.is_empty(), "{:?}", report.warnings);
+    }
 
     pub(crate) fn unit_cube() -> Mesh {
         crate::shapes::cuboid(DVec3::splat(0.5))
