@@ -71,7 +71,14 @@ fn parse_args() -> Cli {
 /// fail with "unexpected argument" instead of the flag's own range error.
 fn join_non_finite(args: impl IntoIterator<Item = std::ffi::OsString>) -> Vec<std::ffi::OsString> {
     let mut out: Vec<std::ffi::OsString> = Vec::new();
-    for arg in args {
+    let mut args = args.into_iter();
+    while let Some(arg) = args.next() {
+        // After `--` every argument is a value as it stands.
+        if arg == "--" {
+            out.push(arg);
+            out.extend(args.by_ref());
+            break;
+        }
         let non_finite = arg.to_str().is_some_and(|a| {
             let a = a.to_ascii_lowercase();
             matches!(a.as_str(), "-inf" | "-infinity" | "-nan")
@@ -145,5 +152,23 @@ fn main() {
     if let Err(e) = result.and(cli::trace::finish()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::join_non_finite;
+
+    fn joined(args: &[&str]) -> Vec<String> {
+        join_non_finite(args.iter().map(std::ffi::OsString::from)).into_iter().map(|a| a.into_string().unwrap()).collect()
+    }
+
+    /// `--flag -inf` reaches the flag; after `--` nothing is rewritten.
+    #[test]
+    fn non_finite_values_join_their_flag() {
+        assert_eq!(joined(&["p", "plane", "--inlier-mm", "-inf"]), ["p", "plane", "--inlier-mm=-inf"]);
+        assert_eq!(joined(&["p", "--a", "-NaN", "-x", "-inf"]), ["p", "--a=-NaN", "-x", "-inf"]);
+        assert_eq!(joined(&["p", "s", "--", "--a.obj", "-inf"]), ["p", "s", "--", "--a.obj", "-inf"]);
+        assert_eq!(joined(&["p", "--a=1", "-inf"]), ["p", "--a=1", "-inf"]);
     }
 }

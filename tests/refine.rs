@@ -168,10 +168,21 @@ fn refine_refuses_bad_flags_before_any_work() {
     // would rewrite and append to it, doubling or losing rows.
     let lock = std::fs::File::create(d.path().join("o.csv.lock")).unwrap();
     lock.try_lock().unwrap();
-    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&out).args(["--device", "cpu"]).output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.code() == Some(1) && err.contains("another run is writing it"), "{err}");
+    let link = d.path().join("link.csv");
+    std::os::unix::fs::symlink(&out, &link).unwrap();
+    // Every spelling of the output shares its lock (a symlink too).
+    for spelled in [&out, &link] {
+        let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(spelled).args(["--device", "cpu"]).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && err.contains("another run is writing it"), "{err}");
+    }
     drop(lock);
+    // A hard link to the input is the input.
+    let hard = d.path().join("hard.csv");
+    std::fs::hard_link(&init, &hard).unwrap();
+    let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(&hard).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("--out and --init name the same file"), "{err}");
     // A device as the output: never read for resuming (reading /dev/full
     // grew memory until the process was killed); the write error is named.
     if std::path::Path::new("/dev/full").exists() {

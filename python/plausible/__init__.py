@@ -237,6 +237,10 @@ def _required_mask(mask: Any) -> np.ndarray:
 def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
     """Rotations (N, 3, 3) and translations (N, 3) in metres, from R and t,
     or from 4x4 matrices (N, 4, 4) given as R alone."""
+    n = np.shape(R)[0] if np.ndim(R) == 3 else 1
+    if n > _native.MAX_POSES:
+        # Before any copy (a broadcast view costs nothing until then).
+        raise ValueError(f"{n} poses: at most {_native.MAX_POSES} are scored at once; give them in chunks")
     if t is None:
         _real(R, "poses")
         T = np.asarray(R, dtype=np.float64)
@@ -260,9 +264,6 @@ def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
         r = r[None]
     if tt.ndim == 1:
         tt = tt[None]
-    if r.ndim == 3 and r.shape[0] > _native.MAX_POSES:
-        # Before the copies below (a broadcast view costs nothing until then).
-        raise ValueError(f"{r.shape[0]} poses: at most {_native.MAX_POSES} are scored at once; give them in chunks")
     r = _array(r, np.float64, "R", (None, 3, 3))
     tt = _array(tt, np.float64, "t", (r.shape[0], 3))
     return r, np.ascontiguousarray(tt * scale)
@@ -528,7 +529,17 @@ def _export_text(stable: Any, mesh: Mesh) -> Optional[str]:
                 raise ValueError(f"stable[{i}] R_model_to_plane: holds NaN or infinite values")
             clusters.append({"probability": float(p), "R_model_to_plane": r.tolist()})
         else:
-            families.append({"kind": c["kind"], "axis": c.get("axis"), "probability": float(p)})
+            axis = c.get("axis")
+            if axis is not None:
+                _real(axis, f"stable[{i}] axis")
+                try:
+                    axis = np.asarray(axis, dtype=np.float64).reshape(3)
+                except (TypeError, ValueError):
+                    raise ValueError(f"stable[{i}] axis: expected 3 numbers") from None
+                if not np.all(np.isfinite(axis)):
+                    raise ValueError(f"stable[{i}] axis: holds NaN or infinite values")
+                axis = axis.tolist()
+            families.append({"kind": c["kind"], "axis": axis, "probability": float(p)})
     return json.dumps({"format": "plausible-stable-poses/1", "meshes": [{"mesh": "", "sha256": mesh.sha256, "clusters": clusters, "families": families}]})
 
 

@@ -212,6 +212,15 @@ fn resolved(p: &std::path::Path) -> Option<PathBuf> {
     if let Ok(r) = p.canonicalize() {
         return Some(r);
     }
+    // A symlink to a file not made yet: the file it will make.
+    let mut p = p.to_path_buf();
+    for _ in 0..8 {
+        let Ok(target) = std::fs::read_link(&p) else { break };
+        p = match p.parent() {
+            Some(d) if target.is_relative() => d.join(target),
+            _ => target,
+        };
+    }
     let dir = match p.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.canonicalize().ok()?,
         _ => std::env::current_dir().ok()?,
@@ -225,10 +234,26 @@ pub fn distinct_files(outputs: &[(&str, Option<&std::path::Path>)], inputs: &[(&
     let outs: Vec<(&str, PathBuf)> = outputs.iter().filter_map(|(f, p)| Some((*f, resolved((*p)?)?))).collect();
     for (i, (flag, path)) in outs.iter().enumerate() {
         for (other, q) in outs[..i].iter().map(|(f, p)| (*f, Some(p.clone()))).chain(inputs.iter().map(|(f, p)| (*f, p.and_then(resolved)))) {
-            if q.as_ref() == Some(path) {
+            if q.as_deref().is_some_and(|q| same_file(q, path)) {
                 anyhow::bail!("{flag} and {other} name the same file ({}): give {flag} another path", path.display());
             }
         }
     }
     Ok(())
+}
+
+/// Two resolved paths name one file: the same path, or (on Unix) two hard
+/// links to one inode.
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    if a == b {
+        return true;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
+            return x.is_file() && x.dev() == y.dev() && x.ino() == y.ino();
+        }
+    }
+    false
 }

@@ -308,6 +308,9 @@ fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
     if std::fs::metadata(out).is_ok_and(|m| !m.is_file()) {
         return Ok(None);
     }
+    // Named after the file itself, so every spelling of it (a symlink, a
+    // relative path) takes the same lock.
+    let out = super::resolved(out).unwrap_or_else(|| out.to_path_buf());
     let mut name = out.as_os_str().to_owned();
     name.push(".lock");
     let path = PathBuf::from(name);

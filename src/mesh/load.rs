@@ -53,6 +53,7 @@ fn load_obj(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
     let (models, _materials) = loaded.map_err(|e| malformed(path, e))?;
     let mut vertices = Vec::new();
     let mut triangles = Vec::new();
+    let mut budget = polygon::EarClipBudget::default();
     for m in models {
         let base = vertices.len() as u64;
         let p = &m.mesh.positions;
@@ -61,14 +62,14 @@ fn load_obj(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
         }
         // f64 already: tobj's `use_f64` feature keeps the file's digits.
         vertices.extend(p.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])));
-        obj_faces(path, &m.mesh, base, &vertices, &mut triangles)?;
+        obj_faces(path, &m.mesh, base, &vertices, &mut triangles, &mut budget)?;
     }
     narrow(path, vertices, triangles)
 }
 
 /// Triangulates the faces of one tobj model, whose indices start at
 /// `base` in `vertices`. Empty arities mean every face is a triangle.
-fn obj_faces(path: &Path, mesh: &tobj::Mesh, base: u64, vertices: &[DVec3], out: &mut Vec<[u64; 3]>) -> Result<()> {
+fn obj_faces(path: &Path, mesh: &tobj::Mesh, base: u64, vertices: &[DVec3], out: &mut Vec<[u64; 3]>, budget: &mut polygon::EarClipBudget) -> Result<()> {
     let idx = &mesh.indices;
     let triangles_only = std::iter::repeat_n(3, if mesh.face_arities.is_empty() { idx.len() / 3 } else { 0 });
     let mut face = Vec::new();
@@ -77,7 +78,7 @@ fn obj_faces(path: &Path, mesh: &tobj::Mesh, base: u64, vertices: &[DVec3], out:
         let corners = idx.get(start..start + n as usize).ok_or_else(|| malformed(path, "face arities exceed the indices"))?;
         face.clear();
         face.extend(corners.iter().map(|&i| i as u64 + base));
-        polygon::triangulate(vertices, &face, out);
+        polygon::triangulate(vertices, &face, out, budget);
         start += n as usize;
     }
     Ok(())
@@ -121,13 +122,17 @@ pub(super) fn narrow(
 /// Deepest glTF node nesting accepted: real scenes are a few levels deep,
 /// a cycle (a node among its own descendants) is infinitely deep.
 const MAX_NODE_DEPTH: usize = 64;
-/// Most node instances a glTF scene may expand to: a chain of nodes that
-/// each list the next one twice as children doubles at every level.
+/// Most node and primitive instances a glTF scene may expand to: a chain
+/// of nodes that each list the next one twice as children doubles at every
+/// level, and every instance of a node repeats its primitives (points and
+/// lines included, though they add nothing).
 const MAX_NODE_VISITS: usize = 1_000_000;
 /// Most vertices, and most triangles, all instances together may have;
-/// checked before each primitive is read so memory stays bounded.
-const MAX_GLTF_VERTICES: usize = 100_000_000;
-const MAX_GLTF_TRIANGLES: usize = 100_000_000;
+/// checked before each primitive is read so memory stays bounded (about
+/// 1 GB here; a few kilobytes of shared nodes could otherwise ask for
+/// tens of gigabytes).
+const MAX_GLTF_VERTICES: usize = 20_000_000;
+const MAX_GLTF_TRIANGLES: usize = 20_000_000;
 
 /// The merged geometry of a glTF scene.
 #[derive(Default)]
@@ -154,13 +159,19 @@ fn load_gltf(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
         }
         if visits > MAX_NODE_VISITS {
             return Err(malformed(path, format!(
-                "the scene expands to more than {MAX_NODE_VISITS} node instances (nodes shared by many parents?)"
+                "the scene expands to more than {MAX_NODE_VISITS} node and primitive instances (nodes shared by many parents?)"
             )));
         }
         let local = DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64)));
         let world = parent * local;
         stack.extend(node.children().map(|child| (child, world, depth + 1)));
         if let Some(mesh) = node.mesh() {
+            visits += mesh.primitives().len();
+            if visits > MAX_NODE_VISITS {
+                return Err(malformed(path, format!(
+                    "the scene expands to more than {MAX_NODE_VISITS} node and primitive instances (nodes shared by many parents?)"
+                )));
+            }
             for prim in mesh.primitives() {
                 add_primitive(path, &mesh, &prim, &buffers, world, &mut out)?;
             }
@@ -326,7 +337,7 @@ mod tests {
         let chain: Vec<String> = (0..40).map(|i| format!(r#"{{"children":[{0},{0}]}}"#, i + 1)).collect();
         let nodes = format!(r#"[{},{{"mesh":0}}]"#, chain.join(","));
         let e = err(load_gltf(&gltf(d.path(), &nodes, prim)));
-        assert!(e.contains("node instances"), "{e}");
+        assert!(e.contains("primitive instances"), "{e}");
         // A shared node within the bounds is instanced at each use.
         let (_, t) = load_gltf(&gltf(d.path(), r#"[{"children":[1,1]},{"mesh":0}]"#, prim)).unwrap();
         assert_eq!(t.len(), 4);

@@ -149,7 +149,7 @@ impl MassProperties {
 
 /// Most shells whose nesting [`orient_shells`] works out (a pair of shells
 /// costs up to a solid-angle sum over one of them per test point); beyond
-/// it every shell is taken as a solid of its own, wound outward.
+/// it each shell keeps the winding most of its faces have.
 pub const MAX_NESTING_SHELLS: usize = 64;
 
 /// Test points per shell in the nesting test of [`orient_shells`].
@@ -166,9 +166,10 @@ const NESTING_SAMPLES: usize = 7;
 /// without notice (a 10×6×3 cm box with one flipped triangle: 150 cm³ and a
 /// centre 7.5 mm off). Nesting is decided by the winding number (the sum of
 /// solid angles) of one shell's vertices about the other, for up to
-/// [`MAX_NESTING_SHELLS`] shells; past that every shell is wound outward and
-/// a warning says that cavities were not looked for. Warns when faces were
-/// re-wound. A mesh that is not orientable is left as it is.
+/// [`MAX_NESTING_SHELLS`] shells; past that each shell keeps the winding
+/// most of its faces have (a part with many cavities is usually wound
+/// right) and a warning says so when faces were re-wound. Warns when faces
+/// were re-wound. A mesh that is not orientable is left as it is.
 fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
     let Some((flip, shells)) = mesh.winding_flips() else { return };
     let (lo, hi) = mesh.bounds();
@@ -187,8 +188,16 @@ fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
             })
             .sum()
     };
-    // Whole-shell turn that makes each shell outward.
-    let mut turn: Vec<bool> = shells.iter().map(|s| six_vol(&mesh.triangles, s) < 0.0).collect();
+    // Whole-shell turn that makes each shell outward; past
+    // MAX_NESTING_SHELLS, where cavities are not looked for, the one that
+    // keeps the winding most of the shell's faces have (a correctly wound
+    // part with 64 cavities stays as it is).
+    let many = shells.len() > MAX_NESTING_SHELLS;
+    let mut turn: Vec<bool> = if many {
+        shells.iter().map(|s| 2 * s.iter().filter(|&&f| flip[f]).count() > s.len()).collect()
+    } else {
+        shells.iter().map(|s| six_vol(&mesh.triangles, s) < 0.0).collect()
+    };
     let nested = if shells.len() > 1 && shells.len() <= MAX_NESTING_SHELLS {
         let outward = |f: usize, shell: usize| {
             let t = mesh.triangles[f];
@@ -228,10 +237,10 @@ fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
             mesh.triangles.len()
         ));
     }
-    if shells.len() > MAX_NESTING_SHELLS && turn.iter().any(|&t| t) {
+    if many && rewound > 0 {
         warnings.push(format!(
-            "{name}: {} closed shells, more than {MAX_NESTING_SHELLS}: shells wound inward were turned outward without \
-             looking for cavities (a cavity among them is counted as solid)",
+            "{name}: {} closed shells, more than {MAX_NESTING_SHELLS}: each keeps the winding most of its faces have, \
+             without looking for cavities or inside-out shells",
             shells.len()
         ));
     }

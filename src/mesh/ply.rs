@@ -343,10 +343,11 @@ impl Faces {
         }
         let mut out = Vec::with_capacity(self.triangles.len() + self.corners.len());
         let mut done = 0;
+        let mut budget = polygon::EarClipBudget::default();
         for (before, corners) in self.polygons {
             out.extend_from_slice(&self.triangles[done..before]);
             done = before;
-            polygon::triangulate(&self.vertices, &self.corners[corners], &mut out);
+            polygon::triangulate(&self.vertices, &self.corners[corners], &mut out, &mut budget);
         }
         out.extend_from_slice(&self.triangles[done..]);
         (self.vertices, out)
