@@ -156,10 +156,14 @@ pub struct Prepared {
     pub notes: Vec<Vec<String>>,
 }
 
+/// One mesh's body, grid, mass properties and their notes, shared by the
+/// objects that use it.
+type MeshPrepared = (Arc<Mesh>, Body, Arc<SdfGrid>, MassProperties, Vec<String>);
+
 /// Samples, mass properties and grids for every object.
 pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
     let _span = tracing::trace_span!("prepare", objects = scene.objects.len()).entered();
-    let mut done: Vec<(Arc<Mesh>, Body, Arc<SdfGrid>, MassProperties, Vec<String>)> = Vec::new();
+    let mut done: Vec<MeshPrepared> = Vec::new();
     let (mut bodies, mut grids, mut mass, mut notes) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for o in &scene.objects {
         let found = done.iter().find(|(m, ..)| Arc::ptr_eq(m, &o.mesh));
