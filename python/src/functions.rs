@@ -116,7 +116,8 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
         results.sort_by_key(|r| r.index);
         Ok((prepared, results))
     })?;
-    let clusters = stable::cluster::cluster(&results, Default::default());
+    // About the centre of mass, as `plausible stable-poses` stores them.
+    let clusters = stable::cluster::cluster_about(&results, Default::default(), prepared.mass.com);
     let (poses, families) = stable::export::split(&clusters);
     let settled = results.iter().filter(|r| r.settled).count();
     let v = serde_json::json!({
