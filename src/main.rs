@@ -84,14 +84,12 @@ fn join_non_finite(args: impl IntoIterator<Item = std::ffi::OsString>) -> Vec<st
             matches!(a.as_str(), "-inf" | "-infinity" | "-nan")
         });
         let after_long_flag = out.last().and_then(|p| p.to_str()).is_some_and(|p| p.starts_with("--") && p.len() > 2 && !p.contains('='));
-        if non_finite && after_long_flag {
-            let flag = out.pop().unwrap_or_default();
-            let mut joined = flag;
-            joined.push("=");
-            joined.push(&arg);
-            out.push(joined);
-        } else {
-            out.push(arg);
+        match out.last_mut() {
+            Some(flag) if non_finite && after_long_flag => {
+                flag.push("=");
+                flag.push(&arg);
+            }
+            _ => out.push(arg),
         }
     }
     out

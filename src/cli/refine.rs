@@ -296,8 +296,6 @@ pub fn shard_of<T>(jobs: Vec<T>, shard: Option<(usize, usize)>) -> Vec<T> {
     }
 }
 
-/// The file beside `out` that records the settings its results were made
-/// with.
 /// Takes `OUT.lock` for this run: two runs writing one output at once
 /// would each rewrite it on resuming while the other appends to the file
 /// it replaced, losing or doubling rows. The lock (flock) goes with the
@@ -311,9 +309,7 @@ fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
     // Named after the file itself, so every spelling of it (a symlink, a
     // relative path) takes the same lock.
     let out = super::resolved(out).unwrap_or_else(|| out.to_path_buf());
-    let mut name = out.as_os_str().to_owned();
-    name.push(".lock");
-    let path = PathBuf::from(name);
+    let path = beside(&out, ".lock");
     let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&path).map_err(|e| plausible::Error::write(&path, e))?;
     match file.try_lock() {
         Ok(()) => Ok(Some(file)),
@@ -327,9 +323,16 @@ fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
     }
 }
 
+/// The file beside `out` that records the settings its results were made
+/// with.
 pub fn settings_path(out: &std::path::Path) -> PathBuf {
+    beside(out, ".settings.json")
+}
+
+/// `out` with `suffix` added to its file name (a side file of the output).
+fn beside(out: &std::path::Path, suffix: &str) -> PathBuf {
     let mut name = out.as_os_str().to_owned();
-    name.push(".settings.json");
+    name.push(suffix);
     PathBuf::from(name)
 }
 

@@ -151,12 +151,13 @@ fn load_gltf(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
     };
     let mut visits = 0;
     while let Some((node, parent, depth)) = stack.pop() {
-        visits += 1;
         if depth > MAX_NODE_DEPTH {
             return Err(malformed(path, format!(
                 "node hierarchy deeper than {MAX_NODE_DEPTH} levels at node {} (a cycle?)", node.index()
             )));
         }
+        // The node and each of its primitives count as one instance.
+        visits += 1 + node.mesh().map_or(0, |m| m.primitives().len());
         if visits > MAX_NODE_VISITS {
             return Err(malformed(path, format!(
                 "the scene expands to more than {MAX_NODE_VISITS} node and primitive instances (nodes shared by many parents?)"
@@ -166,12 +167,6 @@ fn load_gltf(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
         let world = parent * local;
         stack.extend(node.children().map(|child| (child, world, depth + 1)));
         if let Some(mesh) = node.mesh() {
-            visits += mesh.primitives().len();
-            if visits > MAX_NODE_VISITS {
-                return Err(malformed(path, format!(
-                    "the scene expands to more than {MAX_NODE_VISITS} node and primitive instances (nodes shared by many parents?)"
-                )));
-            }
             for prim in mesh.primitives() {
                 add_primitive(path, &mesh, &prim, &buffers, world, &mut out)?;
             }

@@ -168,26 +168,16 @@ const NESTING_SAMPLES: usize = 7;
 /// solid angles) of one shell's vertices about the other, for up to
 /// [`MAX_NESTING_SHELLS`] shells; past that each shell keeps the winding
 /// most of its faces have (a part with many cavities is usually wound
-/// right) and a warning says so when faces were re-wound. Warns when faces
-/// were re-wound. A mesh that is not orientable is left as it is.
+/// right). Warns when faces were re-wound. A mesh that is not orientable
+/// is left as it is.
 fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
     let Some((flip, shells)) = mesh.winding_flips() else { return };
     let (lo, hi) = mesh.bounds();
     let centre = if lo.is_finite() && hi.is_finite() { 0.5 * (lo + hi) } else { DVec3::ZERO };
-    // Six times each shell's signed volume once its faces agree (about the
-    // bounding-box centre: the sum does not depend on the point for a
-    // closed shell, but is better conditioned there).
-    let six_vol = |tris: &[[u32; 3]], shell: &[usize]| -> f64 {
-        shell
-            .iter()
-            .map(|&f| {
-                let t = tris[f];
-                let t = if flip[f] { [t[0], t[2], t[1]] } else { t };
-                let [a, b, c] = t.map(|i| mesh.vertices[i as usize] - centre);
-                a.dot(b.cross(c))
-            })
-            .sum()
-    };
+    // A shell's faces wound alike (as its seed face is).
+    fn agreeing<'a>(tris: &'a [[u32; 3]], flip: &'a [bool], shell: &'a [usize]) -> impl Iterator<Item = [u32; 3]> + 'a {
+        shell.iter().map(move |&f| reversed(tris[f], flip[f]))
+    }
     // Whole-shell turn that makes each shell outward; past
     // MAX_NESTING_SHELLS, where cavities are not looked for, the one that
     // keeps the winding most of the shell's faces have (a correctly wound
@@ -196,15 +186,11 @@ fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
     let mut turn: Vec<bool> = if many {
         shells.iter().map(|s| 2 * s.iter().filter(|&&f| flip[f]).count() > s.len()).collect()
     } else {
-        shells.iter().map(|s| six_vol(&mesh.triangles, s) < 0.0).collect()
+        shells.iter().map(|s| six_volume(&mesh.vertices, agreeing(&mesh.triangles, &flip, s), centre) < 0.0).collect()
     };
-    let nested = if shells.len() > 1 && shells.len() <= MAX_NESTING_SHELLS {
-        let outward = |f: usize, shell: usize| {
-            let t = mesh.triangles[f];
-            if flip[f] ^ turn[shell] { [t[0], t[2], t[1]] } else { t }
-        };
+    let nested = if shells.len() > 1 && !many {
         let shell_tris: Vec<Vec<[u32; 3]>> =
-            shells.iter().enumerate().map(|(s, faces)| faces.iter().map(|&f| outward(f, s)).collect()).collect();
+            shells.iter().zip(&turn).map(|(s, &turn)| agreeing(&mesh.triangles, &flip, s).map(|t| reversed(t, turn)).collect()).collect();
         shell_nesting(&mesh.vertices, &shell_tris)
     } else {
         vec![0; shells.len()]
@@ -246,6 +232,22 @@ fn orient_shells(mesh: &mut Mesh, name: &str, warnings: &mut Vec<String>) {
     }
 }
 
+/// `t` wound the other way round when `reverse`.
+fn reversed(t: [u32; 3], reverse: bool) -> [u32; 3] {
+    if reverse { [t[0], t[2], t[1]] } else { t }
+}
+
+/// Six times the signed volume a closed surface encloses, from the
+/// tetrahedra its triangles span with `at` (the sum does not depend on the
+/// point for a closed surface, but is better conditioned near it).
+fn six_volume(vertices: &[DVec3], tris: impl Iterator<Item = [u32; 3]>, at: DVec3) -> f64 {
+    tris.map(|t| {
+        let [a, b, c] = t.map(|i| vertices[i as usize] - at);
+        a.dot(b.cross(c))
+    })
+    .sum()
+}
+
 /// For each shell (closed, wound outward), how many of the others enclose
 /// it: shell `j` encloses shell `i` when `i`'s bounding box lies in `j`'s,
 /// `i` is the smaller, and the winding number of `j` about `i`'s test points
@@ -264,13 +266,7 @@ fn shell_nesting(vertices: &[DVec3], shells: &[Vec<[u32; 3]>]) -> Vec<usize> {
             })
         })
         .collect();
-    let volume = |tris: &[[u32; 3]], at: DVec3| -> f64 {
-        tris.iter().map(|t| {
-            let [a, b, c] = t.map(|i| vertices[i as usize] - at);
-            a.dot(b.cross(c))
-        }).sum()
-    };
-    let volumes: Vec<f64> = (0..n).map(|s| volume(&shells[s], 0.5 * (bounds[s].0 + bounds[s].1))).collect();
+    let volumes: Vec<f64> = (0..n).map(|s| six_volume(vertices, shells[s].iter().copied(), 0.5 * (bounds[s].0 + bounds[s].1))).collect();
     let mut used: Vec<Vec<u32>> = shells.iter().map(|t| t.iter().flatten().copied().collect()).collect();
     for u in &mut used {
         u.sort_unstable();
