@@ -501,6 +501,18 @@ def stable_poses(mesh: MeshLike, *, drops: int = 1000, seed: int = 0, collider: 
     return result
 
 
+def _finite(value: Any, what: str, size: int) -> List[float]:
+    """``size`` finite real numbers (any shape holding them), or ValueError."""
+    _real(value, what)
+    try:
+        a = np.asarray(value, dtype=np.float64).reshape(size)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected {size} numbers") from None
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{what}: holds NaN or infinite values")
+    return a.tolist()
+
+
 def _export_text(stable: Any, mesh: Mesh) -> Optional[str]:
     """A stable-pose export's JSON text from :func:`stable_poses`' list, an
     export dict, or a path to an export."""
@@ -520,25 +532,12 @@ def _export_text(stable: Any, mesh: Mesh) -> Optional[str]:
         if c.get("kind", "pose") == "pose":
             if "R_model_to_plane" not in c:
                 raise ValueError(f"stable[{i}]: a resting pose needs its R_model_to_plane (3, 3)")
-            _real(c["R_model_to_plane"], f"stable[{i}] R_model_to_plane")
-            try:
-                r = np.asarray(c["R_model_to_plane"], dtype=np.float64).reshape(9)
-            except (TypeError, ValueError):
-                raise ValueError(f"stable[{i}] R_model_to_plane: expected a 3x3 rotation") from None
-            if not np.all(np.isfinite(r)):
-                raise ValueError(f"stable[{i}] R_model_to_plane: holds NaN or infinite values")
-            clusters.append({"probability": float(p), "R_model_to_plane": r.tolist()})
+            r = _finite(c["R_model_to_plane"], f"stable[{i}] R_model_to_plane", 9)
+            clusters.append({"probability": float(p), "R_model_to_plane": r})
         else:
             axis = c.get("axis")
             if axis is not None:
-                _real(axis, f"stable[{i}] axis")
-                try:
-                    axis = np.asarray(axis, dtype=np.float64).reshape(3)
-                except (TypeError, ValueError):
-                    raise ValueError(f"stable[{i}] axis: expected 3 numbers") from None
-                if not np.all(np.isfinite(axis)):
-                    raise ValueError(f"stable[{i}] axis: holds NaN or infinite values")
-                axis = axis.tolist()
+                axis = _finite(axis, f"stable[{i}] axis", 3)
             families.append({"kind": c["kind"], "axis": axis, "probability": float(p)})
     return json.dumps({"format": "plausible-stable-poses/1", "meshes": [{"mesh": "", "sha256": mesh.sha256, "clusters": clusters, "families": families}]})
 
