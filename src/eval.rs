@@ -334,6 +334,7 @@ fn load_models(ds: &Dataset, obj_ids: &[u32], opts: &EvalOptions, need_render: b
                 )),
                 e => e,
             })?;
+            check_points(&path, &pts)?;
             let render = if need_render {
                 let metres: Vec<DVec3> = pts.iter().map(|p| *p * 1e-3).collect();
                 let (mesh, _) = Mesh::from_raw(&path, metres, tris)?;
@@ -348,14 +349,27 @@ fn load_models(ds: &Dataset, obj_ids: &[u32], opts: &EvalOptions, need_render: b
         .collect()
 }
 
+/// The point errors need vertices, all finite: without any, every
+/// estimate would have error 0 (every one correct), and a NaN would be
+/// skipped by some errors and break the nearest-neighbour search of others.
+fn check_points(path: &std::path::Path, pts: &[DVec3]) -> Result<()> {
+    if pts.is_empty() {
+        return Err(Error::MalformedMesh { path: path.to_path_buf(), reason: "the model has no vertices: its pose errors would all be 0".into() });
+    }
+    if let Some((i, p)) = pts.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+        return Err(Error::NonFiniteVertex { path: path.to_path_buf(), index: i, value: p.to_array() });
+    }
+    Ok(())
+}
+
 /// Estimates per (scene, image, object) in file order.
 type EstimateIndex<'a> = HashMap<(u32, u32, u32), Vec<&'a Estimate>>;
 
 /// The kept estimates of a target: the `inst_count` highest-scored, ties in
-/// file order (the toolkit's stable sort).
+/// file order (the toolkit's stable sort, where −0 and 0 are a tie).
 fn kept<'a>(index: &EstimateIndex<'a>, t: &Target) -> Vec<&'a Estimate> {
     let mut v = index.get(&(t.scene_id, t.im_id, t.obj_id)).cloned().unwrap_or_default();
-    v.sort_by(|a, b| b.score.total_cmp(&a.score));
+    v.sort_by(|a, b| b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal));
     v.truncate(t.inst_count as usize);
     v
 }
@@ -445,7 +459,7 @@ pub fn evaluate(
     let models = tracing::trace_span!("load_models", objects = obj_ids.len()).in_scope(|| load_models(ds, &obj_ids, opts, need_depth))?;
     report.time_s.load_s += t0.elapsed().as_secs_f64();
     report.visibility = if computed_visibility {
-        "computed from depth (bop19 rule, δ = 15 mm) where scene_gt_info.json is missing".into()
+        format!("computed from depth (bop19 rule, δ = {} mm) where scene_gt_info.json is missing", opts.vsd_delta_mm)
     } else {
         "scene_gt_info.json".into()
     };
@@ -799,24 +813,29 @@ fn visible_fraction(
 /// `scene`, computed from the depth as [`evaluate`] does without
 /// `scene_gt_info.json`; instances whose model file is missing get 0.
 pub fn visible_fractions(ds: &Dataset, scene: &Scene, device: &Device, max_images: usize) -> Result<BTreeMap<u32, Vec<f64>>> {
-    let mut meshes: HashMap<u32, Option<RenderMesh>> = HashMap::new();
-    let mut out = BTreeMap::new();
-    for (&im, gt) in scene.gt.iter().take(max_images) {
-        let depth = scene.read_depth(im)?;
-        let k = scene.intrinsics(im, depth.width, depth.height)?;
-        let kk = scene.frame_camera(im)?.k;
-        for g in gt {
-            if let std::collections::hash_map::Entry::Vacant(e) = meshes.entry(g.obj_id) {
-                let path = ds.model_path(g.obj_id);
-                let mesh =
-                    if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
-                e.insert(mesh);
-            }
+    let mut meshes = HashMap::new();
+    scene.gt.keys().take(max_images).map(|&im| Ok((im, image_visibility(ds, scene, im, device, vsd::DELTA_MM, &mut meshes)?))).collect()
+}
+
+/// Render meshes by object id, loaded on first use (`None`: no model file).
+type MeshCache = HashMap<u32, Option<RenderMesh>>;
+
+/// Visible fractions of the instances of image `im` of `scene`, computed
+/// from its depth with the visibility tolerance `delta_mm`.
+fn image_visibility(ds: &Dataset, scene: &Scene, im: u32, device: &Device, delta_mm: f32, meshes: &mut MeshCache) -> Result<Vec<f64>> {
+    let gt = scene.gt.get(&im).map(Vec::as_slice).unwrap_or_default();
+    let depth = scene.read_depth(im)?;
+    let k = scene.intrinsics(im, depth.width, depth.height)?;
+    let kk = scene.frame_camera(im)?.k;
+    for g in gt {
+        if let std::collections::hash_map::Entry::Vacant(e) = meshes.entry(g.obj_id) {
+            let path = ds.model_path(g.obj_id);
+            let mesh = if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
+            e.insert(mesh);
         }
-        let mesh_of = |obj: u32| meshes.get(&obj).and_then(Option::as_ref);
-        out.insert(im, frame_visibility(device, gt, mesh_of, &depth, &k, &kk, vsd::DELTA_MM)?);
     }
-    Ok(out)
+    let mesh_of = |obj: u32| meshes.get(&obj).and_then(Option::as_ref);
+    frame_visibility(device, gt, mesh_of, &depth, &k, &kk, delta_mm)
 }
 
 /// Visible fractions of an image's instances (0 for objects without a
@@ -900,11 +919,14 @@ fn score(targets: &[TargetErrors], opts: &EvalOptions, report: &mut EvalReport) 
 }
 
 /// The ground truth of `targets` as a results file: for each target its
-/// valid instances (the most visible `inst_count`, or every instance when
-/// the scene has no `scene_gt_info.json`), score 1, time −1. Its AR is 1.
-pub fn gt_as_results(ds: &Dataset, targets: &[Target]) -> Result<Vec<Estimate>> {
+/// valid instances (the most visible `inst_count`, by `scene_gt_info.json`
+/// or, where a scene has none, computed from the depth on `device` with
+/// `opts`' tolerance as [`evaluate`] does), score 1, time −1. Its AR is 1.
+pub fn gt_as_results(ds: &Dataset, targets: &[Target], device: &Device, opts: &EvalOptions) -> Result<Vec<Estimate>> {
     let mut out = Vec::new();
     let mut scenes: BTreeMap<u32, Scene> = BTreeMap::new();
+    let mut computed: HashMap<(u32, u32), Vec<f64>> = HashMap::new();
+    let mut meshes = MeshCache::new();
     for t in targets {
         let scene = match scenes.entry(t.scene_id) {
             std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
@@ -915,10 +937,14 @@ pub fn gt_as_results(ds: &Dataset, targets: &[Target]) -> Result<Vec<Estimate>> 
             reason: format!("target image {} is not annotated", t.im_id),
         })?;
         let objs: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
-        let ids: Vec<usize> = match scene.gt_info.as_ref().and_then(|i| i.get(&t.im_id)) {
-            Some(vis) => recall::valid_instances(&objs, vis, t.obj_id, t.inst_count),
-            None => (0..gt.len()).filter(|&i| objs[i] == t.obj_id).collect(),
+        let vis = match scene.gt_info.as_ref().and_then(|i| i.get(&t.im_id)) {
+            Some(vis) => vis,
+            None => match computed.entry((t.scene_id, t.im_id)) {
+                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::hash_map::Entry::Vacant(e) => e.insert(image_visibility(ds, scene, t.im_id, device, opts.vsd_delta_mm, &mut meshes)?),
+            },
         };
+        let ids = recall::valid_instances(&objs, vis, t.obj_id, t.inst_count);
         for i in ids {
             out.push(Estimate {
                 scene_id: t.scene_id,

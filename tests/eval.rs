@@ -42,7 +42,7 @@ fn devices() -> Vec<Device> {
 fn gpu_ground_truth_as_results_scores_one_on_every_device() {
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
-    let gt = gt_as_results(&ds, &targets).unwrap();
+    let gt = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap();
     assert_eq!(gt.len(), targets.len());
     for device in devices() {
         let r = run(&ds, &gt, &device, &all_errors());
@@ -108,7 +108,7 @@ fn flipped(ds: &Dataset, e: &Estimate) -> Estimate {
 fn a_flipped_symmetric_object_is_correct_and_a_flipped_ape_is_not() {
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
-    let flips: Vec<Estimate> = gt_as_results(&ds, &targets).unwrap().iter().map(|e| flipped(&ds, e)).collect();
+    let flips: Vec<Estimate> = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap().iter().map(|e| flipped(&ds, e)).collect();
     let opts = EvalOptions { errors: vec![ErrorType::Mssd, ErrorType::Mspd, ErrorType::Ad, ErrorType::Add], ..Default::default() };
     let r = run(&ds, &flips, &Device::Cpu, &opts);
     for (obj, s) in &r.per_object {
@@ -130,7 +130,7 @@ fn a_flipped_symmetric_object_is_correct_and_a_flipped_ape_is_not() {
 fn top_inst_count_estimates_only_and_ties_keep_file_order() {
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
-    let gt = gt_as_results(&ds, &targets).unwrap();
+    let gt = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap();
     // Each target: a wrong estimate first, then the right one at the same
     // score: the stable sort keeps the wrong one, so nothing matches.
     let mut res = Vec::new();
@@ -159,7 +159,7 @@ fn top_inst_count_estimates_only_and_ties_keep_file_order() {
 fn results_files_round_trip() {
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
-    let gt = gt_as_results(&ds, &targets).unwrap();
+    let gt = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("gt.csv");
     write_results(&p, &gt).unwrap();
@@ -177,17 +177,26 @@ fn missing_gt_info_is_computed_from_depth_the_bop_way() {
     let info = dir.path().join("test/000002/scene_gt_info.json");
     let want: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&info).unwrap()).unwrap();
     std::fs::remove_file(&info).unwrap();
+    // A second instance of image 3's first object, 40 cm nearer: it hides
+    // the first, so the valid instance (the target's one) is the second.
+    let gt_path = dir.path().join("test/000002/scene_gt.json");
+    let mut gt_json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&gt_path).unwrap()).unwrap();
+    let mut near = gt_json["3"][0].clone();
+    near["cam_t_m2c"][2] = serde_json::json!(near["cam_t_m2c"][2].as_f64().unwrap() - 400.0);
+    gt_json["3"].as_array_mut().unwrap().push(near);
+    std::fs::write(&gt_path, gt_json.to_string()).unwrap();
     let ds = Dataset::open(dir.path(), "test").unwrap();
     let (targets, _) = ds.targets(None).unwrap();
-    // GT as results still scores 1 with computed visibility.
-    let gt = gt_as_results(&ds, &targets).unwrap();
+    // GT as results still scores 1 with computed visibility: it holds the
+    // most visible instance.
+    let gt = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap();
     let r = run(&ds, &gt, &Device::Cpu, &EvalOptions { errors: vec![ErrorType::Mssd], ..Default::default() });
     assert!(r.visibility.contains("computed"), "{}", r.visibility);
     assert_eq!(r.ar_mssd, Some(1.0));
     // The computed fractions agree with the toolkit's file.
     let scene = ds.scene(2).unwrap();
     let computed = plausible::eval::visible_fractions(&ds, &scene, &Device::Cpu, 3).unwrap();
-    for (im, fr) in &computed {
+    for (im, fr) in computed.iter().filter(|(&im, _)| im != 3) {
         for (i, f) in fr.iter().enumerate() {
             let obj = scene.gt[im][i].obj_id;
             if !ds.model_path(obj).exists() {
@@ -274,11 +283,17 @@ fn bad_results_files_name_the_file_and_line() {
     std::fs::write(&p, format!("{ok}\n{ok}\n")).unwrap();
     let e = err_of(read_results(&p));
     assert!(e.contains("line 2") && e.contains("duplicates line 1"), "{e}");
+    // Placeholders (t = 0: an object not found) may repeat, and do not make
+    // the file look like metres.
+    let zero = "2,3,1,0,1 0 0 0 1 0 0 0 1,0 0 0,-1";
+    let far = "2,3,1,0.9,1 0 0 0 1 0 0 0 1,10 20 900,-1";
+    std::fs::write(&p, format!("{far}\n{zero}\n{zero}\n{zero}\n")).unwrap();
+    assert_eq!(read_results(&p).unwrap().len(), 4);
     // A row of an object the dataset lacks is ignored, as the toolkit does:
     // its target counts as missed.
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
-    let mut res = gt_as_results(&ds, &targets).unwrap();
+    let mut res = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap();
     res[0].obj_id = 77;
     res[0].line = 5;
     let (report, _) = evaluate(&ds, &res, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())).unwrap();
@@ -297,7 +312,7 @@ fn bad_results_files_name_the_file_and_line() {
 fn progress_can_stop_an_evaluation() {
     let ds = dataset();
     let (targets, _) = ds.targets(None).unwrap();
-    let gt = gt_as_results(&ds, &targets).unwrap();
+    let gt = gt_as_results(&ds, &targets, &Device::Cpu, &EvalOptions::default()).unwrap();
     let opts = EvalOptions { batch_images: 1, ..EvalOptions::default() };
     let mut calls = 0;
     let e = err_of(evaluate(&ds, &gt, &targets, &Device::Cpu, &opts, &mut |_| {
@@ -322,7 +337,7 @@ fn bad_dataset_files_are_clear_errors() {
             Ok(t) => t,
             Err(e) => return e.to_string(),
         };
-        let gt = gt_as_results(&dataset(), &dataset().targets(None).unwrap().0).unwrap();
+        let gt = gt_as_results(&dataset(), &dataset().targets(None).unwrap().0, &Device::Cpu, &EvalOptions::default()).unwrap();
         err_of(evaluate(&ds, &gt, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())))
     };
     let e = corrupt("test/000002/scene_gt.json", &|p| std::fs::write(p, "{\"3\": [{\"cam_R_m2c\": [1, 0]}]}").unwrap());

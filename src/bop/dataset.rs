@@ -168,6 +168,15 @@ impl Dataset {
         Ok(Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size })
     }
 
+    /// Whether `path` (absolute, symlinks resolved) is where this dataset
+    /// reads from: under a models folder or the split folder, or its
+    /// `camera.json`. Writing an output there would change the dataset.
+    pub fn reads_at(&self, path: &Path) -> bool {
+        let canon = |p: PathBuf| p.canonicalize().unwrap_or(p);
+        let folders = [self.models_dir.clone(), self.root.join("models"), self.root.join("models_eval"), self.root.join(&self.split)];
+        folders.into_iter().map(canon).any(|d| path.starts_with(d)) || path == canon(self.root.join("camera.json"))
+    }
+
     /// The model file of an object (`obj_000001.ply`).
     pub fn model_path(&self, obj_id: u32) -> PathBuf {
         self.models_dir.join(format!("obj_{obj_id:06}.ply"))

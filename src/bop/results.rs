@@ -63,8 +63,8 @@ pub fn parse_line(line: &str) -> std::result::Result<Estimate, String> {
 }
 
 /// Reads a results file, streaming it line by line. Malformed lines and
-/// duplicated estimates (the same object, image and pose twice) are errors
-/// naming the line.
+/// duplicated estimates (the same object, image and pose twice, but for
+/// placeholders at t = 0) are errors naming the line.
 pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let reader = std::io::BufReader::new(file);
@@ -78,7 +78,9 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
         }
         let mut e = parse_line(&line).map_err(|reason| Error::BadLine { path: path.to_path_buf(), line: n, reason })?;
         e.line = n;
-        if let Some(first) = seen.insert((e.scene_id, e.im_id, e.obj_id, pose_bits(&e)), n) {
+        // Placeholders (t = 0, an object the method did not find) may repeat.
+        let placeholder = e.pose.t == glam::DVec3::ZERO;
+        if let Some(first) = seen.insert((e.scene_id, e.im_id, e.obj_id, pose_bits(&e)), n).filter(|_| !placeholder) {
             return Err(Error::BadLine {
                 path: path.to_path_buf(),
                 line: n,
@@ -93,8 +95,11 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
 
 /// BOP results are in millimetres: a median camera distance under 2 cm is
 /// a file written in metres, which would evaluate every estimate as a miss.
+/// Rows with t = 0 are left out of the median: they are a method's
+/// placeholders for objects it did not find (misses in any unit).
 fn check_millimetres(path: &Path, estimates: &[Estimate]) -> Result<()> {
-    let Some(median) = crate::pose::median(estimates.iter().map(|e| e.pose.t.length()).collect()) else { return Ok(()) };
+    let distances = estimates.iter().map(|e| e.pose.t.length()).filter(|&d| d > 0.0).collect();
+    let Some(median) = crate::pose::median(distances) else { return Ok(()) };
     if median < 20.0 {
         return Err(Error::InvalidInput(format!(
             "{}: the estimates' median camera distance is {median:.2} mm: t looks like metres, but BOP results are in millimetres",

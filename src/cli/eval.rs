@@ -86,6 +86,11 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         plausible::io::check_writable(p)?;
     }
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    for (flag, p) in outputs {
+        if let Some(r) = p.and_then(super::resolved).filter(|r| ds.reads_at(r)) {
+            bail!("{flag} {}: this is where --dataset reads from (its models or split folders, or its camera.json); give {flag} a path outside them", r.display());
+        }
+    }
     match &name {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
@@ -101,10 +106,11 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     if source == TargetSource::AllInstances {
         eprintln!("note: no targets file: every annotated instance is a target");
     }
+    let device = a.dev.open(verbose)?;
     let results = match (&a.results, &a.gt_as_results) {
         (Some(r), _) => read_results(r).context("--results")?,
         (None, Some(out)) => {
-            let gt = gt_as_results(&ds, &targets)?;
+            let gt = gt_as_results(&ds, &targets, &device, &opts)?;
             write_results(out, &gt)?;
             eprintln!("wrote the ground truth of {} targets as {} estimates to {}", targets.len(), gt.len(), out.display());
             gt
@@ -114,7 +120,6 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     if results.is_empty() {
         eprintln!("warning: the results hold no estimate: every target counts as missed");
     }
-    let device = a.dev.open(verbose)?;
     drop(open);
     let n_images = {
         let mut ims: Vec<(u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id)).collect();
