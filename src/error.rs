@@ -69,6 +69,10 @@ pub enum Error {
 
     #[error("database {path}: {reason}")]
     Database { path: PathBuf, reason: String },
+
+    /// The work stopped early because a [`crate::stop::Stop`] was requested.
+    #[error("stopped on request")]
+    Stopped,
 }
 
 /// Convenience alias used throughout the library.

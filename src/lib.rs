@@ -14,6 +14,7 @@ pub mod error;
 pub mod mesh;
 pub mod shapes;
 pub mod stable;
+pub mod stop;
 
 pub use error::{Error, Result};
 pub mod bop;

@@ -144,6 +144,22 @@ struct DatasetCamera {
 /// `frame` picks the entry (optional when it holds one entry; a frame id
 /// that the file does not hold is an error, never ignored).
 pub fn read_camera(path: &Path, frame: Option<&str>) -> Result<BopCamera> {
+    read_camera_file(path, frame).map(|(cam, _)| cam)
+}
+
+/// What a camera file holds: one camera, or a `scene_camera.json` of frames.
+/// A caller given a frame id for a single camera has nothing to pick, and
+/// says so rather than ignoring the id.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CameraFile {
+    /// One BOP camera entry or a dataset `camera.json`.
+    Single,
+    /// A `scene_camera.json` keyed by frame id.
+    Frames,
+}
+
+/// [`read_camera`], also saying which kind of file it read.
+pub fn read_camera_file(path: &Path, frame: Option<&str>) -> Result<(BopCamera, CameraFile)> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
@@ -187,7 +203,7 @@ pub fn read_camera(path: &Path, frame: Option<&str>) -> Result<BopCamera> {
     }
     // K on its own (its fit to the image size is checked with the depth).
     Intrinsics::from_k(&cam.cam_k, 1, 1).map_err(|e| bad(e.to_string()))?;
-    Ok(cam)
+    Ok((cam, if single { CameraFile::Single } else { CameraFile::Frames }))
 }
 
 /// Plausible `depth_scale` range (PNG value × scale = mm).

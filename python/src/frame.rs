@@ -131,16 +131,15 @@ pub fn refine<'py>(
     let plane = plane_for(plane, p.method.simulates(p.physics), &obs, &masks)?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let out = py
-        .detach(|| -> plausible::Result<_> {
+    let out = crate::stoppable(py, |stop| {
+            let p = RefineParams { stop, ..p };
             let device = Device::open(choice, adapter, false)?.device;
             let models: Vec<Model> = mesh_data.into_iter().map(|m| Model::new(m, &p)).collect::<plausible::Result<_>>()?;
             let objects: Vec<SceneObject> = (0..n)
                 .map(|i| SceneObject { model: &models[i], mask: &masks[i], hypotheses: hyps[i].clone(), lead: leads[i] })
                 .collect();
             refine_scene(&device, &obs, plane.as_ref(), &objects, usize::MAX, &p)
-        })
-        .map_err(to_py)?;
+        })?;
     scene_dict(py, &out, plane.as_ref())
 }
 
@@ -186,8 +185,8 @@ pub fn estimate<'py>(
     let rests: Vec<_> = meshes.iter().zip(&stable).map(|(m, s)| convert::resting_poses(py, &m.inner, s.as_deref())).collect::<PyResult<_>>()?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let (out, instance) = py
-        .detach(|| -> plausible::Result<_> {
+    let (out, instance) = crate::stoppable(py, |stop| {
+            let ep = EstimateParams { refine: RefineParams { stop, ..ep.refine.clone() }, ..ep };
             let device = Device::open(choice, adapter, false)?.device;
             let models: Vec<EstimateModel> = mesh_data
                 .into_iter()
@@ -199,8 +198,7 @@ pub fn estimate<'py>(
             let fe = estimate_frame(&device, &obs, &plane, &instances, &ep, &mut stats)?;
             let best: Vec<_> = (0..n).map(|i| fe.best(i)).collect();
             Ok((fe.scene, best))
-        })
-        .map_err(to_py)?;
+        })?;
     let d = scene_dict(py, &out, Some(&plane))?;
     let best = PyList::empty(py);
     for b in &instance {

@@ -255,10 +255,16 @@ pub fn read_frame<'py>(
     mask: Option<PathBuf>,
     frame: Option<&str>,
 ) -> PyResult<(Bound<'py, numpy::PyArray2<f64>>, Bound<'py, numpy::PyArray2<f32>>, Option<Bound<'py, numpy::PyArray2<bool>>>)> {
-    use plausible::observation::{read_camera, read_depth_png, read_mask_png};
+    use plausible::observation::{read_camera_file, read_depth_png, read_mask_png, CameraFile};
     let (obs, m) = py
         .detach(|| -> plausible::Result<_> {
-            let cam = read_camera(&camera, frame)?;
+            let (cam, kind) = read_camera_file(&camera, frame)?;
+            if let (Some(f), CameraFile::Single) = (frame, kind) {
+                return Err(plausible::Error::InvalidInput(format!(
+                    "frame {f}: {} holds one camera, not a scene_camera.json of frames, so there is nothing to pick",
+                    camera.display()
+                )));
+            }
             let obs = read_depth_png(&depth, &cam)?;
             let m = match &mask {
                 Some(p) => Some(read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?),

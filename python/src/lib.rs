@@ -6,6 +6,7 @@
 
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use plausible::stop::Stop;
 
 mod convert;
 mod frame;
@@ -59,6 +60,44 @@ pub(crate) fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce(&mut dyn 
             }
         };
         work(&mut look)
+    });
+    match raised {
+        Some(e) => Err(e),
+        None => result.map_err(to_py),
+    }
+}
+
+/// Runs `work` on a scoped thread without the GIL while this thread looks
+/// for Ctrl-C (a pending Python signal) about every 50 ms; on one it
+/// requests the [`Stop`] that `work` was given (the library checks it
+/// between refinement steps) and returns the `KeyboardInterrupt` once the
+/// work has ended. For work whose loops are inside the library, where
+/// [`interruptible`]'s callback cannot reach.
+pub(crate) fn stoppable<T: Send>(py: Python<'_>, work: impl FnOnce(Stop) -> plausible::Result<T> + Send) -> PyResult<T> {
+    let stop = Stop::default();
+    let mut raised: Option<PyErr> = None;
+    let result = py.detach(|| {
+        std::thread::scope(|s| {
+            let caller = std::thread::current();
+            let worker = {
+                let stop = stop.clone();
+                s.spawn(move || {
+                    let r = work(stop);
+                    caller.unpark();
+                    r
+                })
+            };
+            while !worker.is_finished() {
+                std::thread::park_timeout(std::time::Duration::from_millis(50));
+                if raised.is_none() && !worker.is_finished() {
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        raised = Some(e);
+                        stop.request();
+                    }
+                }
+            }
+            worker.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        })
     });
     match raised {
         Some(e) => Err(e),

@@ -97,6 +97,16 @@ def test_long_calls_end_on_ctrl_c(demo):
     timer.join()
     assert time.monotonic() - start < 30
     assert len(scorer.score(R[:8], t[:8])) == 8
+    # 2000 hypotheses x 100 ICP steps take many minutes; Ctrl-C ends the
+    # refinement at its next step.
+    R0, t0 = R[0], t[0]
+    start = time.monotonic()
+    timer = _interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        pl.refine(K, depth, [{"mesh": demo / "duck_0.15m.obj", "mask": mask, "R": np.tile(R0, (2000, 1, 1)), "t": np.tile(t0, (2000, 1))}],
+                  method="ref", steps=100, device="cpu")
+    timer.join()
+    assert time.monotonic() - start < 30
 
 
 def test_hypotheses_on_the_plane_contain_a_good_one(demo):
@@ -120,6 +130,8 @@ def test_read_frame_checks_files_against_each_other(demo, tmp_path):
         pl.read_frame(demo / "camera.json", tmp_path / "none.png")
     with pytest.raises(ValueError):
         pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "alignment.png")
+    with pytest.raises(ValueError, match="nothing to pick"):
+        pl.read_frame(demo / "camera.json", demo / "depth.png", frame=3)
 
 
 def test_eval_matches_the_bop_toolkit_on_the_shipped_subset():

@@ -118,7 +118,7 @@ pub fn bench_estimate(a: BenchEstimateArgs, verbose: u8) -> Result<()> {
     objs.dedup();
     let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;
     let refine_p = RefineParams { physics: !a.no_physics, ..Default::default() };
-    let est_p = EstimateParams { refine: refine_p, ..Default::default() };
+    let est_p = EstimateParams { refine: refine_p.clone(), ..Default::default() };
     let models = load_models(&ds, &objs, &refine_p).context("loading the models")?;
     let est_models = load_estimate_models(&ds, &objs, &refine_p, None).context("loading the models and resting poses")?;
     let masks = Masks::Oracle;

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context as _, Result};
 use plausible::gpu::DeviceChoice;
 use plausible::mesh::{Mesh, MeshUnits};
-use plausible::observation::{read_camera, read_depth_png, read_mask_png, DepthImage};
+use plausible::observation::{read_camera_file, read_depth_png, read_mask_png, CameraFile, DepthImage};
 use plausible::visual::Device;
 
 /// The object mesh, shared by the subcommands that take one.
@@ -76,17 +76,13 @@ impl ObservationArgs {
     /// that, a `--frame` that a single camera file cannot use is refused
     /// rather than silently ignored.
     pub fn load(&self, frame_picks_poses: bool) -> Result<(DepthImage, Option<Vec<bool>>)> {
-        if let (Some(f), false) = (&self.frame, frame_picks_poses) {
-            let text = std::fs::read_to_string(&self.camera).with_context(|| format!("--camera {}", self.camera.display()))?;
-            let single = serde_json::from_str::<serde_json::Value>(&text).is_ok_and(|v| v.get("cam_K").is_some() || v.get("fx").is_some());
-            if single {
-                bail!("--frame {f}: --camera {} holds one camera, not a scene_camera.json of frames, so there is nothing to pick", self.camera.display());
-            }
-        }
-        let cam = read_camera(&self.camera, self.frame.as_deref()).map_err(|e| {
+        let (cam, kind) = read_camera_file(&self.camera, self.frame.as_deref()).map_err(|e| {
             let frames = matches!(&e, plausible::Error::BadJson { reason, .. } if reason.contains("frame"));
             anyhow::Error::new(e).context(if frames { "--camera (a frame of a scene_camera.json is picked with --frame)" } else { "--camera" })
         })?;
+        if let (Some(f), false, CameraFile::Single) = (&self.frame, frame_picks_poses, kind) {
+            bail!("--frame {f}: --camera {} holds one camera, not a scene_camera.json of frames, so there is nothing to pick", self.camera.display());
+        }
         let obs = read_depth_png(&self.depth, &cam).context("--depth")?;
         let mask = match &self.mask {
             Some(p) => {

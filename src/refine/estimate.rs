@@ -29,7 +29,7 @@ use crate::visual::Device;
 const CANDIDATES_PER_TOP: usize = 4;
 
 /// Estimation settings.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct EstimateParams {
     pub hypotheses: OnPlaneParams,
     pub plane: PlaneFitParams,

@@ -66,7 +66,7 @@ impl Method {
 }
 
 /// Refinement settings.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct RefineParams {
     pub method: Method,
     /// Refinement steps per hypothesis (RIR: the budget is this times the
@@ -95,6 +95,9 @@ pub struct RefineParams {
     /// with the full meshes). ICP, the simulation and the pictures keep the
     /// full mesh.
     pub lod: crate::mesh::lod::LodChoice,
+    /// Checked before every refinement step: set from another thread, the
+    /// refinement returns [`Error::Stopped`] (see [`crate::stop`]).
+    pub stop: crate::stop::Stop,
 }
 
 impl Method {
@@ -125,6 +128,7 @@ impl Default for RefineParams {
             // VeREFINE's settings: dt 1/60 s, 3 steps, one round per step.
             sim: crate::physical::simulate::SimSettings { rounds: 1, ..Default::default() },
             lod: crate::mesh::lod::LodChoice::Off,
+            stop: Default::default(),
         }
     }
 }
@@ -326,6 +330,7 @@ pub fn refine_hypotheses(model: &ModelSurface, view: &mut ObjectView, initial: &
 /// support down when ICP cannot see the gap, e.g. with the top face
 /// occluded: see the stacked-cube test.)
 fn step(model: &ModelSurface, view: &mut ObjectView, h: &mut Refined, p: &RefineParams) -> Result<()> {
+    p.stop.check()?;
     let mut simulated = None;
     let t = std::time::Instant::now();
     if let Some(sim) = view.sim.as_mut().filter(|_| p.method.simulates(p.physics)) {
