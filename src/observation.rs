@@ -462,11 +462,13 @@ impl ScoreTarget {
                 "the mask covers no pixel with valid depth: nothing to score".into(),
             ));
         }
-        // Normals from the full observation (neighbours outside the mask
-        // still give good tangents), then masked.
+        // Normals from the masked observation: across the silhouette the
+        // neighbours are background, whose depth would tilt them.
         let normals_full = normals_from_depth(&DepthImage { intrinsics: k, depth: masked.clone() });
-        let crop = match (sampling, mask) {
-            (RoiSampling::FullFrame, _) | (_, None) => (0.0, 0.0, w as f64, h as f64),
+        // The crop, and for a square region the side of the square before
+        // it was clipped to the image.
+        let (crop, square_side) = match (sampling, mask) {
+            (RoiSampling::FullFrame, _) | (_, None) => ((0.0, 0.0, w as f64, h as f64), None),
             (_, Some(m)) => {
                 let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
                 for (i, &keep) in m.iter().enumerate() {
@@ -482,8 +484,14 @@ impl ScoreTarget {
                 let (cx, cy) = (0.5 * (x0 + x1) as f64, 0.5 * (y0 + y1) as f64);
                 match sampling {
                     RoiSampling::Square(_) => {
+                        // Clipped to the image: past its border there is no
+                        // sensor, and an object rendered there would count as
+                        // rendered but not observed (a truncated object's true
+                        // pose scored 0.38 instead of 0.87).
                         let side = bw.max(bh) * (1.0 + 2.0 * margin);
-                        (cx - side / 2.0, cy - side / 2.0, side, side)
+                        let (ax, ay) = ((cx - side / 2.0).max(0.0), (cy - side / 2.0).max(0.0));
+                        let (bx, by) = ((cx + side / 2.0).min(w as f64), (cy + side / 2.0).min(h as f64));
+                        ((ax, ay, bx - ax, by - ay), Some(side))
                     }
                     _ => {
                         // Native pixels: integer crop, clipped to the image.
@@ -493,13 +501,19 @@ impl ScoreTarget {
                         let ay = (y0 as f64 - gy).max(0.0);
                         let bx = (x1 as f64 + gx).min(w as f64);
                         let by = (y1 as f64 + gy).min(h as f64);
-                        (ax, ay, bx - ax, by - ay)
+                        ((ax, ay, bx - ax, by - ay), None)
                     }
                 }
             }
         };
-        let (out_w, out_h) = match sampling {
-            RoiSampling::Square(r) => (r, r),
+        let (out_w, out_h) = match (sampling, square_side) {
+            // `r` pixels along the square's side: a square clipped by the
+            // image border keeps that pixel size and has fewer pixels.
+            (RoiSampling::Square(r), Some(side)) => {
+                let px = |len: f64| ((r as f64 * len / side).round() as u32).clamp(1, r);
+                (px(crop.2), px(crop.3))
+            }
+            (RoiSampling::Square(r), None) => (r, r),
             _ => (crop.2 as u32, crop.3 as u32),
         };
         if out_w == 0 || out_h == 0 {
