@@ -244,6 +244,42 @@ fn score_reports_bad_input_without_panicking() {
     }
 }
 
+/// An output never replaces an input: `--out` of score, plane and
+/// hypotheses naming one of their inputs, and `--trace` naming a pose list
+/// (a JSON array like a trace), are refused and the file is left as it was.
+#[test]
+fn outputs_and_traces_never_replace_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = plausible().args(["demo", "--n", "64", "--device", "cpu", "--out"]).arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let poses = out.join("poses.json");
+    let kept: Vec<(std::path::PathBuf, Vec<u8>)> =
+        ["poses.json", "depth.png", "duck_0.15m.obj", "plane.json"].iter().map(|f| (out.join(f), std::fs::read(out.join(f)).unwrap())).collect();
+    let with = |mut c: Command, extra: &[&std::ffi::OsStr]| {
+        c.args(extra);
+        c
+    };
+    let (p, o_) = (poses.as_os_str(), std::ffi::OsStr::new("--out"));
+    let (depth, mesh, plane) = (out.join("depth.png"), out.join("duck_0.15m.obj"), out.join("plane.json"));
+    let mut trace = plausible();
+    trace.arg("--trace").arg(&poses).args(on_demo("score", &out).get_args()).arg("--poses").arg(&poses);
+    let cases = [
+        (with(on_demo("score", &out), &["--poses".as_ref(), p, o_, p]), "--out and --poses name the same file"),
+        (with(on_demo("plane", &out), &[o_, depth.as_os_str()]), "--out and --depth name the same file"),
+        (with(on_demo("hypotheses", &out), &["--plane".as_ref(), plane.as_os_str(), o_, mesh.as_os_str()]), "--out and --mesh name the same file"),
+        (trace, "is not a trace"),
+    ];
+    for (mut c, want) in cases {
+        let o = c.output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.code() == Some(1) && err.contains(want), "{want}: {err}");
+    }
+    for (path, bytes) in &kept {
+        assert!(std::fs::read(path).unwrap() == *bytes, "{} changed", path.display());
+    }
+}
+
 /// `plausible ... | head -1`: the binary ends quietly when its reader goes
 /// away, without a panic.
 #[test]

@@ -42,6 +42,8 @@ pub struct HypothesesArgs {
 #[tracing::instrument(name = "plausible hypotheses", level = "trace", skip_all)]
 pub fn run(a: HypothesesArgs) -> Result<()> {
     plausible::io::check_writable(&a.out).context("--out")?;
+    let inputs = [("--mesh", Some(a.mesh.mesh.as_path())), ("--plane", Some(a.plane.as_path())), ("--stable", a.stable.as_deref())];
+    super::distinct_files(&[("--out", Some(&a.out))], &[&inputs[..], &a.obs.inputs()].concat())?;
     if !(0.0..1.0).contains(&a.min_probability) {
         bail!("--min-probability must lie in [0, 1)");
     }
@@ -100,7 +102,8 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
             })
         })
         .collect();
-    std::fs::write(&a.out, serde_json::to_string_pretty(&json)? + "\n").with_context(|| format!("cannot write {}", a.out.display()))?;
+    let body = serde_json::to_string_pretty(&json)? + "\n";
+    plausible::io::write_atomically(&a.out, |w| std::io::Write::write_all(w, body.as_bytes())).context("--out")?;
     println!(
         "{} hypotheses: {used} resting poses (from {source}) x {} yaws x {} in-plane offsets, each on the plane and centred on the observed object",
         hyps.len(),

@@ -71,6 +71,11 @@ pub struct ObservationArgs {
 }
 
 impl ObservationArgs {
+    /// The input files, by flag, for [`distinct_files`].
+    pub fn inputs(&self) -> [(&'static str, Option<&std::path::Path>); 3] {
+        [("--camera", Some(&self.camera)), ("--depth", Some(&self.depth)), ("--mask", self.mask.as_deref())]
+    }
+
     /// Reads the depth and, when given, the mask. `frame_picks_poses`: the
     /// command also picks poses by `--frame` (score with --obj-id); without
     /// that, a `--frame` that a single camera file cannot use is refused

@@ -31,6 +31,7 @@ pub struct PlaneArgs {
 #[tracing::instrument(name = "plausible plane", level = "trace", skip_all)]
 pub fn run(a: PlaneArgs) -> Result<()> {
     plausible::io::check_writable(&a.out).context("--out")?;
+    super::distinct_files(&[("--out", Some(&a.out))], &a.obs.inputs())?;
     if a.iterations == 0 {
         bail!("--iterations must be at least 1");
     }
@@ -65,8 +66,8 @@ pub fn run(a: PlaneArgs) -> Result<()> {
         );
     }
     let json = CameraPlaneJson::from_plane(&p);
-    std::fs::write(&a.out, serde_json::to_string_pretty(&json)? + "\n")
-        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    let body = serde_json::to_string_pretty(&json)? + "\n";
+    plausible::io::write_atomically(&a.out, |w| std::io::Write::write_all(w, body.as_bytes())).context("--out")?;
     println!("wrote {}", a.out.display());
     Ok(())
 }

@@ -215,6 +215,8 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     }
     if let Some(out) = &a.out {
         check_out(out)?;
+        let inputs = [("--mesh", Some(a.mesh.mesh.as_path())), ("--poses", Some(a.poses.as_path())), ("--plane", a.plane.as_deref())];
+        super::distinct_files(&[("--out", Some(out))], &[&inputs[..], &a.obs.inputs()].concat())?;
     }
     if let Some(dir) = &a.explain {
         prepare_explain_dir(dir).context("--explain")?;

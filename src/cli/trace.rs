@@ -134,16 +134,32 @@ fn partial_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}.partial", std::process::id()))
 }
 
-/// Whether `path` holds something other than a trace (a JSON array): the
-/// trace must not replace a command's input or output.
+/// Whether `path` holds something other than a trace: the trace must not
+/// replace a command's input or output. A trace is a JSON array of Chrome
+/// trace events, each with a `"ph"` (phase) key; pose lists and score
+/// outputs are JSON arrays too, so the first element must be an event. An
+/// empty file or a bare `[` (a trace cut off at its start) holds nothing.
 fn holds_other_data(path: &Path) -> bool {
     use std::io::Read;
-    let mut head = [0u8; 64];
     if !path.is_file() {
         return false;
     }
-    let Ok(n) = std::fs::File::open(path).and_then(|mut f| f.read(&mut head)) else { return false };
-    head[..n].iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b != b'[')
+    let mut head = Vec::with_capacity(4096);
+    let Ok(_) = std::fs::File::open(path).and_then(|f| f.take(4096).read_to_end(&mut head)) else { return false };
+    !is_trace_start(&head)
+}
+
+/// Whether `head` (a file's first bytes) starts like a trace: see
+/// [`holds_other_data`].
+fn is_trace_start(head: &[u8]) -> bool {
+    let text = String::from_utf8_lossy(head);
+    let Some(rest) = text.trim_start().strip_prefix('[') else { return text.trim().is_empty() };
+    let rest = rest.trim_start();
+    if rest.is_empty() {
+        return true;
+    }
+    // The writer puts one event on a line.
+    rest.starts_with('{') && rest.lines().next().is_some_and(|event| event.contains("\"ph\":"))
 }
 
 /// Creates the partial trace file, saying which flag a bad path came from.
@@ -227,4 +243,22 @@ impl Write for Recording {
 fn colour() -> bool {
     use std::io::IsTerminal;
     std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::is_trace_start;
+
+    #[test]
+    fn only_traces_count_as_traces() {
+        assert!(is_trace_start(b"[\n{\"args\":{\"name\":\"main\"},\"name\":\"thread_name\",\"ph\":\"M\",\"pid\":1,\"tid\":0},\n"));
+        assert!(is_trace_start(b""));
+        assert!(is_trace_start(b"  [\n"));
+        // Pose lists and score outputs are JSON arrays too.
+        assert!(!is_trace_start(b"[{\"cam_R_m2c\": [1, 0, 0, 0, 1, 0, 0, 0, 1], \"cam_t_m2c\": [0, 0, 700]}]"));
+        assert!(!is_trace_start(b"[\n  {\n    \"rank\": 1,\n    \"score\": 0.8\n  }\n]"));
+        assert!(!is_trace_start(b"[]"));
+        assert!(!is_trace_start(b"{\"point\": [0, 0, 1]}"));
+        assert!(!is_trace_start(b"\x89PNG\r\n"));
+    }
 }
