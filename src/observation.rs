@@ -276,7 +276,9 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     if img.color().bytes_per_pixel() > img.color().channel_count() {
         return Err(bad(format!("a mask is an 8-bit PNG (0 = background), this one has {} bits a channel: a depth image?", 8 * img.color().bytes_per_pixel() / img.color().channel_count())));
     }
-    let img = img.to_luma8();
+    // Any colour channel non-zero is the object: the luma of a colour mask
+    // rounds dark colours such as (0, 0, 3) to 0. Alpha is not the mask.
+    let img = img.to_rgb8();
     if img.dimensions() != (width, height) {
         return Err(bad(format!(
             "mask is {}x{} but the depth image is {width}x{height}",
@@ -284,7 +286,7 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
             img.height()
         )));
     }
-    Ok(img.as_raw().iter().map(|&v| v != 0).collect())
+    Ok(img.pixels().map(|p| p.0 != [0, 0, 0]).collect())
 }
 
 /// Largest margin of the region around the mask (fraction of its size).

@@ -303,6 +303,16 @@ fn mask_errors() {
     // A 16-bit PNG is a depth image given as the mask.
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([700u16])).save(&p).unwrap();
     assert!(err_text(read_mask_png(&p, 64, 48)).contains("depth image?"));
+    // In a colour mask any non-zero channel is the object, dark blue too
+    // (its luma is 0); alpha is not the mask.
+    let mut rgba = image::RgbaImage::from_pixel(64, 48, image::Rgba([0, 0, 0, 255]));
+    rgba.put_pixel(3, 2, image::Rgba([0, 0, 3, 255]));
+    rgba.put_pixel(4, 2, image::Rgba([255, 255, 255, 255]));
+    rgba.put_pixel(5, 2, image::Rgba([0, 0, 0, 0]));
+    rgba.save(&p).unwrap();
+    let m = read_mask_png(&p, 64, 48).unwrap();
+    assert_eq!(m.iter().filter(|&&v| v).count(), 2);
+    assert!(m[2 * 64 + 3] && m[2 * 64 + 4]);
 }
 
 fn poses_file(dir: &Path, body: &str) -> PathBuf {
