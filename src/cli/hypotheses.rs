@@ -25,9 +25,11 @@ pub struct HypothesesArgs {
     /// Yaw angles per resting pose, evenly spaced over 360°.
     #[arg(long, default_value_t = 24)]
     pub yaw_steps: usize,
-    /// Leave out resting poses less probable than this.
-    #[arg(long, default_value_t = 0.01)]
-    pub min_probability: f64,
+    /// Leave out resting poses less probable than this [default: 0.01;
+    /// where no pose reaches the default, as on a round object, the 64 most
+    /// probable are kept].
+    #[arg(long)]
+    pub min_probability: Option<f64>,
     /// In-plane grid of (2r + 1)² offsets around each aligned position.
     #[arg(long, default_value_t = 0)]
     pub grid_radius: usize,
@@ -44,7 +46,7 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     plausible::io::check_writable(&a.out).context("--out")?;
     let inputs = [("--mesh", Some(a.mesh.mesh.as_path())), ("--plane", Some(a.plane.as_path())), ("--stable", a.stable.as_deref())];
     super::distinct_files(&[("--out", Some(&a.out))], &[&inputs[..], &a.obs.inputs()].concat())?;
-    if !(0.0..1.0).contains(&a.min_probability) {
+    if a.min_probability.is_some_and(|p| !(0.0..1.0).contains(&p)) {
         bail!("--min-probability must lie in [0, 1)");
     }
     if !(a.grid_step_mm.is_finite() && a.grid_step_mm > 0.0) {
@@ -76,7 +78,7 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
             "the quasi-static analysis of the convex hull".to_string(),
         ),
     };
-    let min_probability = probability_cut(&rests, a.min_probability);
+    let min_probability = probability_cut(&rests, a.min_probability)?;
     let params = OnPlaneParams {
         yaw_steps: a.yaw_steps,
         min_probability,
@@ -119,23 +121,56 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
 /// hundreds of hull facets, each a fraction of a percent probable.
 const ROUND_POSES: usize = 64;
 
-/// The probability cut for the resting poses: `asked`, or where no pose
-/// reaches it, the cut that keeps the [`ROUND_POSES`] most probable (said on
-/// stderr).
-fn probability_cut(rests: &[plausible::hypotheses::on_plane::RestingPose], asked: f64) -> f64 {
-    if rests.iter().any(|r| r.group_probability >= asked) || rests.is_empty() {
-        return asked;
+/// The probability cut for the resting poses: `asked`, or without it the
+/// default 0.01, and where no pose reaches the default, the cut that keeps
+/// the [`ROUND_POSES`] most probable (said on stderr). A cut asked for that
+/// no pose reaches is an error: lowering it by itself would keep poses the
+/// user left out.
+fn probability_cut(rests: &[plausible::hypotheses::on_plane::RestingPose], asked: Option<f64>) -> Result<f64> {
+    let cut = asked.unwrap_or(DEFAULT_MIN_PROBABILITY);
+    let top = rests.iter().map(|r| r.group_probability).fold(f64::NEG_INFINITY, f64::max);
+    if top >= cut || rests.is_empty() {
+        return Ok(cut);
+    }
+    if let Some(asked) = asked {
+        bail!("--min-probability {asked}: no resting pose is that probable (the most probable is {top:.3}); give a lower cut");
     }
     let mut p: Vec<f64> = rests.iter().map(|r| r.group_probability).collect();
     p.sort_by(|a, b| b.total_cmp(a));
     let cut = p[p.len().min(ROUND_POSES) - 1];
     let kept: f64 = p.iter().filter(|&&v| v >= cut).sum();
     eprintln!(
-        "note: no resting pose is at least {asked} probable (a round object rests on any of its {} hull facets): \
+        "note: no resting pose is at least {DEFAULT_MIN_PROBABILITY} probable (a round object rests on any of its {} hull facets): \
          using the {} most probable, {:.0} % of the probability (--min-probability sets the cut)",
         p.len(),
         p.iter().filter(|&&v| v >= cut).count(),
         100.0 * kept
     );
-    cut
+    Ok(cut)
+}
+
+/// `--min-probability` when not given.
+const DEFAULT_MIN_PROBABILITY: f64 = 0.01;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use plausible::hypotheses::on_plane::RestingPose;
+
+    fn rests(p: &[f64]) -> Vec<RestingPose> {
+        p.iter().map(|&p| RestingPose { r_model_to_plane: glam::DMat3::IDENTITY, probability: p, group_probability: p }).collect()
+    }
+
+    #[test]
+    fn a_cut_asked_for_is_kept_and_only_the_default_falls_back() {
+        let duck = rests(&[0.37, 0.2, 0.1, 0.0004]);
+        assert_eq!(probability_cut(&duck, Some(0.37)).unwrap(), 0.37);
+        // No pose reaches the cut asked for: refused, never lowered.
+        assert!(probability_cut(&duck, Some(0.38)).unwrap_err().to_string().contains("most probable is 0.370"));
+        // A round object (every facet below the default): the 64 most
+        // probable are kept.
+        let round = rests(&vec![1.0 / 100.0 - 1e-4; 100]);
+        assert!(probability_cut(&round, None).unwrap() < DEFAULT_MIN_PROBABILITY);
+        assert_eq!(probability_cut(&duck, None).unwrap(), DEFAULT_MIN_PROBABILITY);
+    }
 }
