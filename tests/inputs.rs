@@ -256,11 +256,18 @@ fn pose_files_name_what_is_wrong() {
 fn depth_png_errors() {
     let d = tempfile::tempdir().unwrap();
     // A 640x480 camera does not belong to a 64x48 image: its principal
-    // point lies far outside.
+    // point lies outside it.
     let vga = read_camera(&camera(d.path()), None).unwrap();
     let small = d.path().join("small.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([7000u16])).save(&small).unwrap();
     assert!(err_text(read_depth_png(&small, &vga)).contains("principal point"));
+    // Nor does the K of a stream twice the size: its principal point lies
+    // just past the border.
+    let vga_png = d.path().join("vga.png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(640, 480, image::Luma([7000u16])).save(&vga_png).unwrap();
+    let double = BopCamera { cam_k: vec![1145.0, 0.0, 651.0, 0.0, 1147.0, 485.0, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
+    assert!(err_text(read_depth_png(&vga_png, &double)).contains("outside the 640x480 image"));
+    assert!(read_depth_png(&vga_png, &vga).is_ok());
     let cam = BopCamera { cam_k: vec![60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
     let absurd = BopCamera { cam_k: vec![1e6, 0.0, 31.5, 0.0, 1e6, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
     assert!(err_text(read_depth_png(&small, &absurd)).contains("focal length"));
