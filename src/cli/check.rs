@@ -61,6 +61,10 @@ pub fn run(a: CheckArgs) -> Result<()> {
     if !a.sim && (a.sim_dt != sim_defaults.dt || a.sim_steps != sim_defaults.steps || a.sim_rounds != sim_defaults.rounds) {
         anyhow::bail!("--sim-dt, --sim-steps and --sim-rounds set the simulation: add --sim");
     }
+    a.sampling.check()?;
+    if !(a.friction.is_finite() && a.friction >= 0.0) {
+        anyhow::bail!("--friction {}: the friction coefficient must be a finite number ≥ 0 (the default is {})", a.friction, plausible::physical::friction::DEFAULT_FRICTION);
+    }
     if let Some(path) = &a.explain {
         if path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("png") {
             anyhow::bail!("--explain {}: the picture is a PNG; give a file name ending in .png", path.display());

@@ -116,6 +116,20 @@ pub struct SampleArgs {
     pub epsilon: Option<f64>,
 }
 
+impl SampleArgs {
+    /// Checks the flags before any work, naming them.
+    pub fn check(&self) -> Result<()> {
+        use plausible::physical::samples::MAX_SAMPLES;
+        if !(1..=MAX_SAMPLES).contains(&self.samples) {
+            bail!("--samples {}: between 1 and {MAX_SAMPLES} surface samples per object", self.samples);
+        }
+        if let Some(e) = self.epsilon.filter(|e| !(e.is_finite() && *e > 0.0 && *e < 0.05)) {
+            bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
+        }
+        Ok(())
+    }
+}
+
 /// Where to run, for the benchmarks: the adapter by default (the CPU twin
 /// is measured beside it).
 #[derive(clap::Args, Clone, Debug)]

@@ -131,11 +131,6 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
             let plane = read_camera_plane(path)?;
             plausible::hypotheses::on_plane::check_plane_under_observation(&plane, &obs, mask.as_deref(), mesh.diagonal())
                 .with_context(|| format!("--plane {}", path.display()))?;
-            if let Some(e) = a.sampling.epsilon {
-                if !(e.is_finite() && e > 0.0 && e < 0.05) {
-                    bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
-                }
-            }
             let sm = &a.sampling;
             Some(PlanePhysics::new(&mesh, &plane, None, sm.samples, sm.seed, sm.epsilon)?)
         }
@@ -213,6 +208,7 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     if !a.physics && (sm.samples != DEFAULT_SAMPLES || sm.seed != DEFAULT_SEED || sm.epsilon.is_some()) {
         bail!("--samples, --seed and --epsilon set the physical terms: add --plane P.json --physics");
     }
+    sm.check()?;
     if let Some(out) = &a.out {
         check_out(out)?;
         let inputs = [("--mesh", Some(a.mesh.mesh.as_path())), ("--poses", Some(a.poses.as_path())), ("--plane", a.plane.as_deref())];
