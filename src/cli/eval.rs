@@ -137,7 +137,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
             pb.set_position(done as u64);
             Ok(())
         }))
-        .with_context(|| format!("evaluating {results_name}"))?;
+        .with_context(|| format!("evaluating {results_name} on the dataset {}", a.dataset.display()))?;
     pb.finish_and_clear();
     tracing::trace_span!("report").in_scope(|| print_report(&report, &opts));
     let _write = tracing::trace_span!("write").entered();
