@@ -309,14 +309,19 @@ impl Scene {
     }
 
     /// Checks an image's size against the dataset's camera.json, or without
-    /// one against the first image of the scene read.
+    /// one against the scene's first image by id (the same one whichever
+    /// image is read first: images are read in parallel).
     fn check_size(&self, path: &Path, w: u32, h: u32) -> Result<()> {
         let bad = |reason: String| Error::BadImage { path: path.to_path_buf(), reason };
         match self.image_size {
             Some((cw, ch)) if (w, h) != (cw, ch) => Err(bad(format!("depth is {w}x{h} but the dataset's camera.json says {cw}x{ch}"))),
             Some(_) => Ok(()),
             None => {
-                let (first, fw, fh) = self.first_size.get_or_init(|| (path.to_path_buf(), w, h));
+                let first = self.gt.keys().next().map(|&im| self.depth_path(im)).filter(|p| p.is_file()).unwrap_or_else(|| path.to_path_buf());
+                let (first, fw, fh) = self.first_size.get_or_init(|| {
+                    let (fw, fh) = if first == path { (w, h) } else { png_size(&first).unwrap_or((w, h)) };
+                    (first, fw, fh)
+                });
                 if (w, h) != (*fw, *fh) {
                     return Err(bad(format!(
                         "depth is {w}x{h} but {} is {fw}x{fh}: the images of a dataset share one size (the dataset has no camera.json to say which is right)",
