@@ -145,6 +145,12 @@ impl Db {
     /// Opens (creating if needed) the database at `path`.
     pub fn open(path: impl AsRef<Path>) -> Result<Db> {
         let path = path.as_ref().to_path_buf();
+        // SQLite needs a file beside which it can keep its rollback journal
+        // (`DB-journal`): a device or pipe is no database, and a journal
+        // would be made beside it (e.g. in /dev).
+        if std::fs::metadata(&path).is_ok_and(|m| !m.is_file()) {
+            return Err(Error::Database { path, reason: "not a regular file (a database is a file SQLite can write a journal beside)".into() });
+        }
         let conn = Connection::open(&path).map_err(|e| err(&path, e))?;
         let db = Db { conn, path };
         db.conn
@@ -724,4 +730,19 @@ fn params_key(params_json: &str) -> Result<String> {
         o.remove("drops");
     }
     Ok(sha256_hex(v.to_string().as_bytes()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_regular_file_is_a_database() {
+        let d = tempfile::tempdir().unwrap();
+        let folder = d.path().join("db");
+        std::fs::create_dir(&folder).unwrap();
+        let e = Db::open(&folder).err().expect("a folder is no database").to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        assert!(!d.path().join("db-journal").exists());
+    }
 }
