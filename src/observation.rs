@@ -539,6 +539,14 @@ impl ScoreTarget {
                 normals[v * out_w as usize + u] = normals_full[src];
             }
         }
+        // A sparse mask (a few pixels far apart) can fall between the
+        // samples of a coarse region: with nothing observed every score is 0.
+        if !depth.iter().any(|&d| d > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "the {out_w}x{out_h} region samples none of the mask's pixels with depth (a sparse mask over {:.0}x{:.0} pixels): score at native resolution or a finer region",
+                crop.2, crop.3
+            )));
+        }
         Ok(ScoreTarget { intrinsics, depth, normals, crop, occluder: Vec::new() })
     }
 
