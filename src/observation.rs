@@ -167,6 +167,9 @@ pub fn read_camera_file(path: &Path, frame: Option<&str>) -> Result<(BopCamera, 
     // scene_gt.json) does not concern it. In a scene_camera.json the id
     // must exist, even when the file holds one frame.
     let single = v.get("cam_K").is_some() || v.get("fx").is_some();
+    if v.get("cam_K").is_some() && v.get("fx").is_some() {
+        return Err(bad("holds both cam_K and fx, fy, cx, cy: which camera is meant? Keep one".into()));
+    }
     let cam = if v.get("fx").is_some() {
         let c: DatasetCamera = serde_json::from_value(v)
             .map_err(|e| bad(format!("{e}; a BOP camera.json has fx, fy, cx, cy, width, height and depth_scale")))?;

@@ -217,6 +217,9 @@ fn camera_errors() {
     let p = write(d.path(), "c4.json", r#"{"3": {"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1}}"#);
     assert!(err_text(read_camera(&p, Some("7"))).contains("no frame '7'"));
     assert!(read_camera(&p, None).is_ok());
+    // Two cameras in one entry: neither is picked silently.
+    let p = write(d.path(), "c5.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1, "fx": 1145, "fy": 1145, "cx": 640, "cy": 480}"#);
+    assert!(err_text(read_camera(&p, None)).contains("both cam_K and fx"));
     // depth_scale is required (BOP depth without it has no unit) and plausible.
     let p = write(d.path(), "c5.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1]}"#);
     assert!(err_text(read_camera(&p, None)).contains("depth_scale"));
