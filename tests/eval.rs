@@ -289,6 +289,11 @@ fn bad_results_files_name_the_file_and_line() {
     let far = "2,3,1,0.9,1 0 0 0 1 0 0 0 1,10 20 900,-1";
     std::fs::write(&p, format!("{far}\n{zero}\n{zero}\n{zero}\n")).unwrap();
     assert_eq!(read_results(&p).unwrap().len(), 4);
+    // A byte-order mark (with or without a header) is no field; a folder is
+    // no results file.
+    std::fs::write(&p, format!("\u{feff}{far}\n")).unwrap();
+    assert_eq!(read_results(&p).unwrap().len(), 1);
+    assert!(err_of(read_results(dir.path())).contains("is a folder"));
     // A row of an object the dataset lacks is ignored, as the toolkit does:
     // its target counts as missed.
     let ds = dataset();

@@ -66,6 +66,9 @@ pub fn parse_line(line: &str) -> std::result::Result<Estimate, String> {
 /// duplicated estimates (the same object, image and pose twice, but for
 /// placeholders at t = 0) are errors naming the line.
 pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
+    if path.is_dir() {
+        return Err(Error::InvalidInput(format!("{}: is a folder; a results file is a CSV", path.display())));
+    }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let reader = std::io::BufReader::new(file);
     let mut out = Vec::new();
@@ -73,6 +76,8 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
     for (i, line) in reader.lines().enumerate() {
         let n = i + 1;
         let line = line.map_err(|e| Error::BadLine { path: path.to_path_buf(), line: n, reason: e.to_string() })?;
+        // A byte-order mark from a spreadsheet export is no field.
+        let line = if n == 1 { line.strip_prefix('\u{feff}').map(str::to_owned).unwrap_or(line) } else { line };
         if line.trim().is_empty() || (n == 1 && line.contains(HEADER)) {
             continue;
         }
