@@ -1,9 +1,43 @@
 //! Small file helpers shared by everything that writes results.
 
-use std::io::Write;
+use std::io::{Read as _, Write};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+
+/// Reads a whole input file, refusing it when it holds more than `cap`
+/// bytes: a regular file by its size before anything is read, anything
+/// else (a pipe, `/dev/fd/N` from a shell's process substitution, a
+/// device such as `/dev/zero`) by reading at most `cap + 1` bytes, so an
+/// endless stream is an error rather than memory growing until the
+/// process is killed. `what` names the input in the error ("pose file").
+pub fn read_capped(path: &Path, cap: u64, what: &str) -> Result<Vec<u8>> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_dir() {
+        return Err(Error::InvalidInput(format!("{}: is a folder, expected a {what}", path.display())));
+    }
+    if meta.is_file() && meta.len() > cap {
+        return Err(Error::InvalidInput(format!("{}: a {what} of {} bytes, more than the {} MiB read", path.display(), meta.len(), cap >> 20)));
+    }
+    let mut bytes = Vec::with_capacity(if meta.is_file() { meta.len() as usize } else { 0 });
+    std::fs::File::open(path).and_then(|f| f.take(cap + 1).read_to_end(&mut bytes)).map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > cap {
+        return Err(Error::InvalidInput(format!("{}: not a regular file, and more than the {} MiB a {what} may hold (an endless stream?)", path.display(), cap >> 20)));
+    }
+    Ok(bytes)
+}
+
+/// [`read_capped`] for a text (JSON) input: UTF-8, with a leading byte
+/// order mark dropped (editors on Windows write one; JSON parsers refuse
+/// it as "expected value at line 1 column 1").
+pub fn read_to_string_capped(path: &Path, cap: u64, what: &str) -> Result<String> {
+    let bytes = read_capped(path, cap, what)?;
+    let mut text = String::from_utf8(bytes).map_err(|e| Error::io(path, std::io::Error::new(std::io::ErrorKind::InvalidData, e.utf8_error())))?;
+    if text.starts_with('\u{feff}') {
+        text.drain(..'\u{feff}'.len_utf8());
+    }
+    Ok(text)
+}
 
 /// Writes `path` through a temporary file beside it, renamed into place
 /// only when everything was written: a full disk or a kill leaves the old

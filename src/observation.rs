@@ -160,7 +160,7 @@ pub enum CameraFile {
 
 /// [`read_camera`], also saying which kind of file it read.
 pub fn read_camera_file(path: &Path, frame: Option<&str>) -> Result<(BopCamera, CameraFile)> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_to_string_capped(path, MAX_CAMERA_FILE_BYTES, "camera file")?;
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
     // A bare camera has no frames: a frame id (which may pick poses from a
@@ -208,6 +208,10 @@ pub fn read_camera_file(path: &Path, frame: Option<&str>) -> Result<(BopCamera, 
     Intrinsics::from_k(&cam.cam_k, 1, 1).map_err(|e| bad(e.to_string()))?;
     Ok((cam, if single { CameraFile::Single } else { CameraFile::Frames }))
 }
+
+/// Largest camera file read (256 MiB): a `scene_camera.json` of a hundred
+/// thousand frames is about 30 MB.
+pub const MAX_CAMERA_FILE_BYTES: u64 = 256 << 20;
 
 /// Plausible `depth_scale` range (PNG value × scale = mm).
 pub const MIN_DEPTH_SCALE: f64 = 1e-3;

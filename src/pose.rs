@@ -212,7 +212,7 @@ pub fn read_poses(path: &Path, units: PoseUnits, orthonormalize: bool) -> Result
 /// [`read_poses`], also reading a BOP `scene_gt.json` when `select` picks an
 /// image (and object).
 pub fn read_poses_selected(path: &Path, units: PoseUnits, orthonormalize: bool, select: Option<SceneGtSelection>) -> Result<Vec<Pose>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_to_string_capped(path, MAX_POSE_FILE_BYTES, "pose file")?;
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let raw = parse_pose_entries(path, &text, select)?;
     drop(text);
@@ -260,6 +260,11 @@ pub(crate) fn median(mut values: Vec<f64>) -> Option<f64> {
 /// chunks, and one that did not gets an error instead of an allocation
 /// failure that aborts the process.
 pub const MAX_POSES: usize = 1 << 24;
+
+/// Largest pose file read (2 GiB): [`MAX_POSES`] poses written with short
+/// numbers, about 120 bytes a pose. Beyond it, or on an endless stream
+/// such as `/dev/zero`, reading stops with an error.
+pub const MAX_POSE_FILE_BYTES: u64 = 2 << 30;
 
 /// Refuses more than [`MAX_POSES`] poses, before anything is allocated
 /// for them.

@@ -409,3 +409,46 @@ fn no_adapter_error_names_both_remedies() {
         .to_string();
     assert!(e.contains("no GPU adapter") && e.contains("mesa-vulkan-drivers") && e.contains("device `cpu`"), "{e}");
 }
+
+/// Input files are read through one capped reader: an endless stream such
+/// as /dev/zero is refused once past the cap (it had grown until the
+/// process was killed), a pipe (process substitution) still reads, and a
+/// regular file over the cap is refused by its size before reading.
+#[test]
+fn input_files_are_read_with_a_cap() {
+    let d = tempfile::tempdir().unwrap();
+    let e = err_text(plausible::io::read_capped(Path::new("/dev/zero"), 1 << 20, "pose file"));
+    assert!(e.contains("/dev/zero") && e.contains("pose file") && e.contains("more than the 1 MiB a pose file"), "{e}");
+    let p = write(d.path(), "big.json", &" ".repeat(2000));
+    let e = err_text(plausible::io::read_capped(&p, 1000, "camera file"));
+    assert!(e.contains("big.json") && e.contains("2000 bytes"), "{e}");
+    assert_eq!(plausible::io::read_capped(&p, 2000, "camera file").unwrap().len(), 2000);
+    assert!(err_text(plausible::io::read_capped(d.path(), 1000, "camera file")).contains("is a folder"));
+    // A FIFO with a writer: read to its end, as `--poses <(cat poses.json)` does.
+    let fifo = d.path().join("poses.fifo");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let writer = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::write(&fifo, format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0, 0, 700]}}]"#)).unwrap())
+    };
+    let poses = read_poses(&fifo, PoseUnits::Millimetres, false).unwrap();
+    writer.join().unwrap();
+    assert_eq!(poses.len(), 1);
+}
+
+/// A UTF-8 byte order mark (written by editors on Windows) before the JSON
+/// of a pose, camera or plane file is skipped, as the report does; it had
+/// been refused as "not a JSON list or object" / "expected value".
+#[test]
+fn json_inputs_with_a_byte_order_mark() {
+    let d = tempfile::tempdir().unwrap();
+    let p = write(d.path(), "poses.json", &format!("\u{feff}[{{\"cam_R_m2c\": {GOOD_R}, \"cam_t_m2c\": [0, 0, 700]}}]"));
+    assert_eq!(read_poses(&p, PoseUnits::Millimetres, false).unwrap().len(), 1);
+    let p = write(d.path(), "camera.json", "\u{feff}{\"cam_K\": [572.4, 0, 325.3, 0, 573.6, 242.0, 0, 0, 1], \"depth_scale\": 0.1}");
+    assert_eq!(read_camera(&p, None).unwrap().depth_scale, 0.1);
+    let p = write(d.path(), "plane.json", "\u{feff}{\"point\": [0, 0, 700], \"normal\": [0, 0, -1]}");
+    assert!((plausible::physical::scene::read_camera_plane(&p).unwrap().point.z - 0.7).abs() < 1e-12);
+    let cube = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/cube.obj");
+    let p = write(d.path(), "scene.json", &format!("\u{feff}{{\"objects\": [{{\"mesh\": \"{cube}\", \"units\": \"m\", \"R\": [1,0,0,0,1,0,0,0,1], \"t\": [0,0,0.1]}}]}}"));
+    assert_eq!(plausible::physical::scene::Scene::load(&p).unwrap().objects.len(), 1);
+}

@@ -31,6 +31,13 @@ use crate::pose::{orthonormalize_rotation, Pose, ORTHONORMAL_TOL};
 /// grids and samples stay in memory together).
 pub const MAX_OBJECTS: usize = 256;
 
+/// Largest scene file read: [`MAX_OBJECTS`] objects take a few hundred
+/// kilobytes; the cap only stops an endless stream such as `/dev/zero`.
+pub const MAX_SCENE_FILE_BYTES: u64 = 64 << 20;
+
+/// Largest plane file read (a plane is a few numbers).
+pub const MAX_PLANE_FILE_BYTES: u64 = 1 << 20;
+
 /// Default density of objects in kg/m³ (water; only masses depend on it).
 pub const DEFAULT_DENSITY: f64 = 1000.0;
 
@@ -145,7 +152,7 @@ fn parse<T: serde::de::DeserializeOwned>(text: &str) -> std::result::Result<T, S
 /// Reads a camera-frame support plane ([`CameraPlaneJson`]); the returned
 /// plane is in metres with a unit normal turned towards the camera.
 pub fn read_camera_plane(path: &Path) -> Result<Plane> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_to_string_capped(path, MAX_PLANE_FILE_BYTES, "plane file")?;
     camera_plane_from_json(&text, path)
 }
 
@@ -375,7 +382,7 @@ fn rotation(what: &str, v: &[f64]) -> std::result::Result<DMat3, String> {
 impl Scene {
     /// Reads and validates a scene file; meshes are loaded relative to it.
     pub fn load(path: &Path) -> Result<Scene> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::io::read_to_string_capped(path, MAX_SCENE_FILE_BYTES, "scene file")?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Scene::from_json(&text, &base, path)
     }

@@ -5,7 +5,6 @@
 //! refused with its name rather than drawn as garbage.
 
 use std::collections::BTreeMap;
-use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
@@ -225,20 +224,11 @@ pub fn read_one(path: &Path) -> Result<Input> {
     Ok(Input { path: path.to_path_buf(), kind })
 }
 
-/// Reads a file, refusing it before reading when it is larger than any
-/// input could sensibly be (a PNG is held to the smaller embedding cap).
+/// Reads a file through the library's capped reader (a regular file
+/// larger than any input could sensibly be is refused before it is read,
+/// a stream once past the cap); a PNG is held to the smaller embedding cap.
 fn read_capped(path: &Path) -> Result<Vec<u8>> {
-    let meta = std::fs::metadata(path).with_context(|| format!("cannot read {}", path.display()))?;
-    if !meta.is_file() {
-        bail!("{}: not a regular file", path.display());
-    }
-    if meta.len() > MAX_DATA_BYTES {
-        bail!("{}: {} bytes, larger than any report input ({} MiB at most)", path.display(), meta.len(), MAX_DATA_BYTES >> 20);
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MAX_DATA_BYTES + 1).read_to_end(&mut bytes))
-        .with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = plausible::io::read_capped(path, MAX_DATA_BYTES, "report input")?;
     if bytes.starts_with(PNG_SIGNATURE) && bytes.len() as u64 > MAX_PNG_BYTES {
         bail!("{}: a PNG of {} MiB, larger than the {} MiB a report embeds", path.display(), bytes.len() >> 20, MAX_PNG_BYTES >> 20);
     }
