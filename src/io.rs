@@ -93,8 +93,18 @@ pub fn check_writable(path: &Path) -> Result<()> {
     if path.is_dir() {
         return Err(Error::InvalidInput(format!("{}: is a folder, expected a file name", path.display())));
     }
+    #[cfg(unix)]
+    if let Some(m) = std::fs::metadata(path).ok().filter(|m| std::os::unix::fs::FileTypeExt::is_fifo(&m.file_type())) {
+        // A FIFO is not opened: opening and closing it for writing hands
+        // its reader an end of file, and the real write later blocks for
+        // ever with no reader left. Only its permission bits are checked.
+        if m.permissions().readonly() {
+            return Err(Error::write(path, std::io::Error::from(std::io::ErrorKind::PermissionDenied)));
+        }
+        return Ok(());
+    }
     if path.exists() && !path.is_file() {
-        // A device or FIFO: it must open for writing.
+        // A device (/dev/null, /dev/full): it must open for writing.
         std::fs::OpenOptions::new().write(true).open(path).map_err(|e| Error::write(path, e))?;
         return Ok(());
     }

@@ -304,3 +304,35 @@ fn gpu_tables_past_the_adapters_texture_size_are_refused() {
     let e = GpuScorer::new(&ctx, &mesh, &wide, ScoreParams::default(), 1).err().unwrap().to_string();
     assert!(e.contains("3x3") && e.contains("textures"), "{e}");
 }
+
+/// `--out` on a FIFO: the check before the work must not open the pipe
+/// (opening and closing it for writing had handed the reader an end of
+/// file, and the real write then blocked for ever with no reader).
+#[cfg(unix)]
+#[test]
+fn checking_a_fifo_output_leaves_its_reader_waiting() {
+    let d = tempfile::tempdir().unwrap();
+    let fifo = d.path().join("out.json");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read(&fifo).unwrap())
+    };
+    let (done, wait) = std::sync::mpsc::channel();
+    {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || {
+            plausible::io::check_writable(&fifo).unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            plausible::io::write_atomically(&fifo, |w| std::io::Write::write_all(w, b"[1, 2]")).unwrap();
+            done.send(()).unwrap();
+        });
+    }
+    if wait.recv_timeout(std::time::Duration::from_secs(10)).is_err() {
+        // Unblock the writer stuck in open() before failing.
+        let _ = std::fs::File::open(&fifo);
+        panic!("the write to the FIFO blocked: its reader had already gone");
+    }
+    assert_eq!(reader.join().unwrap(), b"[1, 2]");
+    assert!(fifo.exists() && !fifo.is_file(), "the FIFO is still a FIFO");
+}
