@@ -250,6 +250,13 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
     let img = image::open(path).map_err(|e| bad(e.to_string()))?;
     let img = match img {
         image::DynamicImage::ImageLuma16(i) => i,
+        // A grey PNG with a tRNS chunk (one depth value marked
+        // transparent) comes out of the decoder with an alpha channel;
+        // the grey values are the depth, unchanged.
+        image::DynamicImage::ImageLumaA16(i) => {
+            let luma: Vec<u16> = i.as_raw().chunks_exact(2).map(|p| p[0]).collect();
+            image::ImageBuffer::from_raw(i.width(), i.height(), luma).ok_or_else(|| bad("depth image buffer of the wrong size".into()))?
+        }
         other => {
             return Err(bad(format!(
                 "depth must be a 16-bit single-channel PNG (BOP convention), got {:?}",

@@ -487,3 +487,40 @@ fn pose_objects_read_like_lists() {
     let p = write(d.path(), "trailing.json", &format!("{{\"poses\": {list}}} x"));
     assert!(err_text(read_poses(&p, PoseUnits::Millimetres, false)).contains("trailing"));
 }
+
+/// CRC-32 of PNG chunks, for the hand-made chunk below.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = 0xffff_ffffu32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 != 0 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
+        }
+    }
+    !c
+}
+
+/// A 16-bit grey depth PNG with a tRNS chunk (one grey value marked
+/// transparent) is read with its depth values: the decoder expands it to
+/// grey + alpha, and it had been refused as "got La16".
+#[test]
+fn depth_png_with_transparency_chunk() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("depth.png");
+    let img = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(64, 48, |x, _| image::Luma([if x == 0 { 0 } else { 7000 + x as u16 }]));
+    img.save(&p).unwrap();
+    let mut bytes = std::fs::read(&p).unwrap();
+    // After the signature (8 bytes) and IHDR (4 + 4 + 13 + 4): tRNS marking grey 0.
+    let mut chunk = b"tRNS\x00\x00".to_vec();
+    let crc = crc32(&chunk);
+    chunk.extend_from_slice(&crc.to_be_bytes());
+    let mut trns = 2u32.to_be_bytes().to_vec();
+    trns.extend_from_slice(&chunk);
+    bytes.splice(33..33, trns);
+    std::fs::write(&p, &bytes).unwrap();
+    assert_eq!(image::open(&p).unwrap().color(), image::ColorType::La16, "the test PNG has its tRNS chunk");
+    let cam = BopCamera { cam_k: vec![60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
+    let depth = read_depth_png(&p, &cam).unwrap();
+    assert_eq!(depth.depth[0], 0.0);
+    assert!((depth.depth[5] - 7005.0 * 1e-4).abs() < 1e-6, "{}", depth.depth[5]);
+}
