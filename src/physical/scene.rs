@@ -200,11 +200,10 @@ impl Plane {
         if !(point.is_finite() && normal.is_finite()) {
             return Err(PlaneError::NotFinite);
         }
-        let len = normal.length();
+        let (normal, len) = direction(normal);
         if len <= 1e-12 {
             return Err(PlaneError::ZeroNormal);
         }
-        let normal = normal / len;
         let distance_m = normal.dot(point).abs();
         if distance_m < 0.01 {
             return Err(PlaneError::ThroughCamera { distance_m });
@@ -245,11 +244,11 @@ impl SceneFrame {
         for (i, p) in raw.planes.iter().enumerate() {
             let point = vec3(&format!("plane {i}: point"), &p.point)?;
             let normal = vec3(&format!("plane {i}: normal"), &p.normal)?;
-            let len = normal.length();
+            let (normal, len) = direction(normal);
             if len.is_nan() || len <= 1e-12 {
                 return Err(format!("plane {i}: normal has zero length"));
             }
-            planes.push(Plane { point, normal: normal / len });
+            planes.push(Plane { point, normal });
         }
         let mut gravity = DVec3::new(0.0, 0.0, -9.81);
         // Camera frame: world = plane frame.
@@ -266,8 +265,16 @@ impl SceneFrame {
             planes = vec![Plane { point: DVec3::ZERO, normal: DVec3::Z }];
         } else if let Some(g) = &raw.gravity {
             gravity = vec3("gravity", g)?;
-            if gravity.length() <= 1e-9 {
+            let (_, len) = direction(gravity);
+            if len <= 1e-9 {
                 return Err("gravity has zero length".into());
+            }
+            // Its length is the acceleration the simulation applies (in
+            // f32) and its direction what supports: a length that
+            // overflows had made the direction zero, and every object
+            // "unstable" without a word.
+            if len > MAX_GRAVITY {
+                return Err(format!("gravity is {len:.3e} m/s² long, more than the {MAX_GRAVITY:.0e} a scene may have (the default is 9.81)"));
             }
         }
         Ok(SceneFrame { camera, planes, gravity, to_world })
@@ -324,6 +331,25 @@ struct RawObject {
     is_static: Option<bool>,
     #[serde(default)]
     density: Option<f64>,
+}
+
+/// Longest gravity taken (m/s²): a hundred thousand g, far beyond any
+/// scene, still well inside f32 for the simulation.
+pub const MAX_GRAVITY: f64 = 1e6;
+
+/// A finite vector's direction and length, scaled by its largest
+/// component first: `[0, -1e300, -1e300]` has a length that overflows to
+/// infinity, and dividing by it had given a zero direction (a plane
+/// normal of zero "passes 0.0 mm from the camera"). The length returned
+/// may still be infinite; the direction is unit unless the vector is zero.
+fn direction(v: DVec3) -> (DVec3, f64) {
+    let m = v.abs().max_element();
+    if m == 0.0 || !m.is_finite() {
+        return (DVec3::ZERO, m);
+    }
+    let s = v / m;
+    let l = s.length();
+    (s / l, m * l)
 }
 
 fn vec3(what: &str, v: &[f64]) -> std::result::Result<DVec3, String> {
@@ -434,5 +460,35 @@ impl Scene {
             objects.push(SceneObject { name: oname, mesh, mesh_path, units, pose, is_static: o.is_static.unwrap_or(false), density });
         }
         Ok(Scene { gravity: frame.gravity, planes: frame.planes, objects })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A normal or gravity whose length overflows f64 still has a
+    /// direction: it had been divided by an infinite length, giving zero.
+    #[test]
+    fn huge_normals_and_gravity_keep_their_direction() {
+        let p = Plane::in_camera(DVec3::new(0.0, 0.0, 0.7), DVec3::new(0.0, -1e300, -1e300)).unwrap();
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        assert!((p.normal - DVec3::new(0.0, -h, -h)).length() < 1e-12, "{:?}", p.normal);
+        assert_eq!(Plane::in_camera(DVec3::new(0.0, 0.0, 0.7), DVec3::new(0.0, 1e-300, 0.0)), Err(PlaneError::ZeroNormal));
+        let base = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics"));
+        let scene = |gravity: &str, normal: &str| {
+            let json = format!(
+                r#"{{"gravity": {gravity}, "planes": [{{"point": [0, 0, 0], "normal": {normal}}}], "objects": [{{"mesh": "cube.obj", "units": "m", "R": [1,0,0,0,1,0,0,0,1], "t": [0, 0, 0.025]}}]}}"#
+            );
+            Scene::from_json(&json, base, Path::new("scene.json"))
+        };
+        let s = scene("[0, 0, -9.81]", "[0, 0, 1e300]").unwrap();
+        assert_eq!(s.planes[0].normal, DVec3::Z);
+        let s = scene("[0, 0, -1e-8]", "[1e200, 0, 1e200]").unwrap();
+        assert!((s.planes[0].normal - DVec3::new(h, 0.0, h)).length() < 1e-12);
+        assert_eq!(s.gravity, DVec3::new(0.0, 0.0, -1e-8));
+        let e = scene("[0, 0, -1e300]", "[0, 0, 1]").unwrap_err().to_string();
+        assert!(e.contains("gravity is 1.000e300 m/s² long"), "{e}");
+        assert!(scene("[0, 0, 1e-300]", "[0, 0, 1]").unwrap_err().to_string().contains("gravity has zero length"));
     }
 }
