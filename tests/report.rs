@@ -179,6 +179,63 @@ fn report_escapes_text_from_inputs() {
     assert_eq!(html.matches("<script>").count(), 1, "only the report's own script");
 }
 
+/// The report's size is capped over all its inputs, not only per file: a
+/// picture given many times is embedded once (one 9.7 MB PNG given 64
+/// times had made an 830 MB page), pictures past the count or total size
+/// are refused before any is decoded, and the stable-pose gallery is
+/// capped over all meshes (an export of 100 meshes had made 4800 pictures).
+#[test]
+fn report_size_is_capped_over_all_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("r.html");
+    let pic = d.join("a.png");
+    image::RgbImage::from_pixel(8, 8, image::Rgb([200, 10, 10])).save(&pic).unwrap();
+    let res = plausible().arg("report").args(std::iter::repeat_n(&pic, 64)).arg(d.join(".").join("a.png")).arg("-o").arg(&out).output().unwrap();
+    ok(&res, "report");
+    let html = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(html.matches("src=\"data:image/png;base64,").count(), 1, "the picture given 65 times is embedded once");
+    std::fs::remove_file(&out).unwrap();
+    // 30 pictures of 9 MiB (sparse files: only their signature is written)
+    // pass the total; refused by their sizes, naming the largest.
+    let big: Vec<PathBuf> = (0..30)
+        .map(|i| {
+            let p = d.join(format!("big{i:02}.png"));
+            std::fs::write(&p, b"\x89PNG\r\n\x1a\n").unwrap();
+            std::fs::OpenOptions::new().write(true).open(&p).unwrap().set_len(9 << 20).unwrap();
+            p
+        })
+        .collect();
+    let res = plausible().arg("report").args(&big).arg("-o").arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert_eq!(res.status.code(), Some(1), "{err}");
+    assert!(err.contains("270 MiB, more than the 256 MiB") && err.contains("big00.png (9.0 MiB)"), "{err}");
+    assert!(!out.exists());
+    // 201 pictures from several files and folders: refused before decoding.
+    let many: Vec<PathBuf> = (0..201)
+        .map(|i| {
+            let p = d.join(format!("m{i:03}.png"));
+            std::fs::copy(&pic, &p).unwrap();
+            p
+        })
+        .collect();
+    let res = plausible().arg("report").args(&many).arg("-o").arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert!(err.contains("201 pictures, more than the 200"), "{err}");
+    // An export of 6 meshes of 48 clusters each: 192 cards over all of them.
+    let cluster = serde_json::json!({"probability": 0.5, "ci95": [0.4, 0.6], "count": 10, "gravity_in_model": [0, 0, -1],
+                                     "R_model_to_plane": [1, 0, 0, 0, 1, 0, 0, 0, 1], "height": 0.025});
+    let mesh = serde_json::json!({"mesh": asset("assets/physics/cube.obj"), "sha256": "x", "drops": 10, "settled": 10, "clusters": vec![cluster; 48]});
+    let export = d.join("stable.json");
+    std::fs::write(&export, serde_json::json!({"format": "plausible-stable-poses/1", "meshes": vec![mesh; 6]}).to_string()).unwrap();
+    let res = plausible().arg("report").arg(&export).arg("-o").arg(&out).output().unwrap();
+    ok(&res, "report");
+    let html = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(html.matches("class=\"card\"").count(), 192);
+    assert_eq!(html.matches("class=\"pose\"").count(), 192, "the cube is drawn");
+    assert_eq!(html.matches("gallery pictures went to the meshes above").count(), 2);
+}
+
 /// Chromium, if installed.
 fn chromium() -> Option<PathBuf> {
     let candidates = ["/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome"];

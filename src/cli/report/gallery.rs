@@ -3,6 +3,7 @@
 //! so a cluster looks exactly as `check --explain` would draw it on a
 //! table: surface samples by class, the plane's trace, the centre of mass.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
@@ -25,10 +26,33 @@ pub enum Drawable {
     Missing(String),
 }
 
+/// The gallery of one report: each mesh prepared (loaded and sampled) once
+/// however many export entries name it (it had been loaded again for
+/// each), and the cards left to draw over all exports.
+pub struct Gallery {
+    /// Keyed by the mesh as written, its hash and the export's folder
+    /// (where a relative mesh is looked for).
+    bodies: HashMap<(String, String, PathBuf), Drawable>,
+    pub left: usize,
+}
+
+impl Gallery {
+    /// A gallery of at most `cards` cards.
+    pub fn new(cards: usize) -> Gallery {
+        Gallery { bodies: HashMap::new(), left: cards }
+    }
+
+    /// [`prepare`], once per mesh, hash and export folder.
+    pub fn prepare(&mut self, mesh_path: &str, sha256: &str, export_file: &Path) -> &Drawable {
+        let folder = export_file.parent().map(Path::to_path_buf).unwrap_or_default();
+        self.bodies.entry((mesh_path.to_string(), sha256.to_string(), folder)).or_insert_with(|| prepare(mesh_path, sha256, export_file))
+    }
+}
+
 /// Finds the export's mesh (as written, then beside the export file) and
 /// samples it. The export's hash is of the geometry in metres: a file that
 /// no longer matches it is still drawn, with a note saying so.
-pub fn prepare(mesh_path: &str, sha256: &str, export_file: &Path) -> Drawable {
+fn prepare(mesh_path: &str, sha256: &str, export_file: &Path) -> Drawable {
     if mesh_path.is_empty() {
         return Drawable::Missing("the export names no mesh file".into());
     }

@@ -16,8 +16,12 @@ pub const MAX_DATA_BYTES: u64 = 1 << 30;
 /// Largest PNG embedded: the report carries it as base64, and a browser
 /// page of hundreds of megabytes is no longer a report.
 pub const MAX_PNG_BYTES: u64 = 32 << 20;
-/// Most PNG files taken from one folder.
+/// Most PNG files taken from one folder, and most pictures in one report.
 pub const MAX_FOLDER_PNGS: usize = 200;
+/// Most bytes of pictures one report embeds (a third more as base64):
+/// without it one 9.7 MB PNG given 64 times had made an 830 MB page and
+/// taken 2.25 GB.
+pub const MAX_EMBEDDED_BYTES: u64 = 256 << 20;
 
 const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
 /// Header of `plausible score --out X.csv`.
@@ -188,20 +192,71 @@ impl Input {
 /// Reads every argument: files by content, folders as their PNG files
 /// (sorted by name; other files in a folder are left alone, since an
 /// output folder such as the demo's holds inputs of its own).
+/// A file given twice (or as itself and inside a folder given) is read
+/// once. The pictures are counted and their sizes added up before any
+/// file is read whole or decoded.
 pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Input>> {
-    let mut out = Vec::new();
+    let mut files = Vec::new();
+    let mut seen = std::collections::HashSet::new();
     for p in paths {
-        if p.is_dir() {
-            out.extend(read_folder(p)?);
-        } else {
-            out.push(read_one(p)?);
+        let found = if p.is_dir() { folder_pngs(p)? } else { vec![p.clone()] };
+        for f in found {
+            if seen.insert(f.canonicalize().unwrap_or_else(|_| f.clone())) {
+                files.push(f);
+            }
         }
+    }
+    check_pictures(&files)?;
+    let (mut pictures, mut embedded) = (0usize, 0u64);
+    let mut out = Vec::new();
+    for f in &files {
+        let input = read_one(f)?;
+        if let Kind::Png { bytes, .. } = &input.kind {
+            // Again as read: a pipe's size is only known now.
+            pictures += 1;
+            embedded += bytes.len() as u64;
+            if pictures > MAX_FOLDER_PNGS || embedded > MAX_EMBEDDED_BYTES {
+                bail!("{}: with it the pictures pass the {MAX_FOLDER_PNGS} pictures or {} MiB a report embeds; pass fewer", f.display(), MAX_EMBEDDED_BYTES >> 20);
+            }
+        }
+        out.push(input);
     }
     Ok(out)
 }
 
-/// The PNG files directly inside `dir`, read as pictures.
-fn read_folder(dir: &Path) -> Result<Vec<Input>> {
+/// Refuses more pictures, or more bytes of them, than a report embeds,
+/// telling PNG files by their signature and size (a file that is not a
+/// regular one is counted when it is read).
+fn check_pictures(files: &[PathBuf]) -> Result<()> {
+    let mut pngs: Vec<(u64, &PathBuf)> = Vec::new();
+    for f in files {
+        let Ok(meta) = std::fs::metadata(f) else { continue };
+        let mut head = [0u8; 8];
+        let is_png = meta.is_file() && std::fs::File::open(f).and_then(|mut r| std::io::Read::read_exact(&mut r, &mut head)).is_ok() && head == PNG_SIGNATURE;
+        if is_png {
+            pngs.push((meta.len(), f));
+        }
+    }
+    if pngs.len() > MAX_FOLDER_PNGS {
+        bail!("{} pictures, more than the {MAX_FOLDER_PNGS} a report embeds; pass the ones you want", pngs.len());
+    }
+    let total: u64 = pngs.iter().map(|(n, _)| n).sum();
+    if total > MAX_EMBEDDED_BYTES {
+        pngs.sort_by_key(|p| std::cmp::Reverse(p.0));
+        let largest: Vec<String> = pngs.iter().take(5).map(|(n, f)| format!("{} ({:.1} MiB)", f.display(), *n as f64 / 1048576.0)).collect();
+        bail!(
+            "the {} pictures add up to {} MiB, more than the {} MiB a report embeds; pass fewer or smaller ones (largest: {})",
+            pngs.len(),
+            total >> 20,
+            MAX_EMBEDDED_BYTES >> 20,
+            largest.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// The PNG files directly inside `dir` (by name; read by content later).
+fn folder_pngs(dir: &Path) -> Result<Vec<PathBuf>> {
     let entries = std::fs::read_dir(dir).with_context(|| format!("cannot read the folder {}", dir.display()))?;
     let mut pngs: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -214,7 +269,7 @@ fn read_folder(dir: &Path) -> Result<Vec<Input>> {
         bail!("{}: {} PNG files, more than the {MAX_FOLDER_PNGS} a report embeds; pass the ones you want", dir.display(), pngs.len());
     }
     pngs.sort();
-    pngs.iter().map(|p| read_one(p)).collect()
+    Ok(pngs)
 }
 
 /// Reads one file and tells its kind from its content.
