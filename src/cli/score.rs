@@ -55,7 +55,7 @@ pub struct ScoreArgs {
     /// count. The physical terms always use the full mesh.
     #[arg(long, default_value = "auto")]
     pub lod: LodChoice,
-    /// Region of interest resampled to RES x RES pixels; 0 = native pixels.
+    /// Region of interest resampled to RES x RES pixels (clipped to the image, so an object cut by the border gets fewer pixels of the same size); 0 = native pixels.
     #[arg(long, default_value_t = 128)]
     pub res: u32,
     /// Growth of the mask's bounding box on each side, as a fraction of its size.
