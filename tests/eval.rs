@@ -294,6 +294,10 @@ fn bad_results_files_name_the_file_and_line() {
     std::fs::write(&p, format!("\u{feff}{far}\n")).unwrap();
     assert_eq!(read_results(&p).unwrap().len(), 1);
     assert!(err_of(read_results(dir.path())).contains("is a folder"));
+    // A stream without line ends is refused at the first long line, not
+    // read until memory runs out.
+    #[cfg(unix)]
+    assert!(err_of(read_results(Path::new("/dev/zero"))).contains("longer than 64 KiB"));
     // A row of an object the dataset lacks is ignored, as the toolkit does:
     // its target counts as missed.
     let ds = dataset();

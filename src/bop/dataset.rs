@@ -270,8 +270,8 @@ pub struct Scene {
     /// `None` when the file is missing.
     pub gt_info: Option<BTreeMap<u32, Vec<f64>>>,
     image_size: Option<(u32, u32)>,
-    /// Without a camera.json, the size of the first depth image read: the
-    /// others must match it (BOP images of a dataset share one size, and
+    /// Without a camera.json, the size of the scene's first depth image by
+    /// id: the others must match it (BOP images of a dataset share one size, and
     /// MSPD is scaled by it).
     first_size: std::sync::OnceLock<(PathBuf, u32, u32)>,
 }
@@ -357,9 +357,13 @@ impl Scene {
 }
 
 fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_to_string_capped(path, MAX_JSON_BYTES, "dataset JSON file")?;
     serde_json::from_str(&text).map_err(|e| Error::BadJson { path: path.to_path_buf(), reason: e.to_string() })
 }
+
+/// Largest dataset JSON file read (scene_gt.json, targets, ...): the
+/// largest BOP scene files are tens of MB; the cap stops an endless stream.
+const MAX_JSON_BYTES: u64 = 2 << 30;
 
 fn parse_id(path: &Path, key: &str, what: &str) -> Result<u32> {
     key.parse()

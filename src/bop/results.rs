@@ -4,7 +4,7 @@
 //! unknown), the same for every estimate of an image.
 
 use std::collections::HashMap;
-use std::io::{BufRead, Write};
+use std::io::{BufRead, Read as _, Write};
 use std::path::Path;
 
 use super::dataset::PoseMm;
@@ -70,12 +70,12 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
         return Err(Error::InvalidInput(format!("{}: is a folder; a results file is a CSV", path.display())));
     }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let reader = std::io::BufReader::new(file);
+    let mut reader = std::io::BufReader::new(file);
     let mut out = Vec::new();
     let mut seen: HashMap<(u32, u32, u32, [u64; 12]), usize> = HashMap::new();
-    for (i, line) in reader.lines().enumerate() {
-        let n = i + 1;
-        let line = line.map_err(|e| Error::BadLine { path: path.to_path_buf(), line: n, reason: e.to_string() })?;
+    let mut n = 0;
+    while let Some(line) = next_line(&mut reader).map_err(|reason| Error::BadLine { path: path.to_path_buf(), line: n + 1, reason })? {
+        n += 1;
         // A byte-order mark from a spreadsheet export is no field.
         let line = if n == 1 { line.strip_prefix('\u{feff}').map(str::to_owned).unwrap_or(line) } else { line };
         if line.trim().is_empty() || (n == 1 && line.contains(HEADER)) {
@@ -96,6 +96,26 @@ pub fn read_results(path: &Path) -> Result<Vec<Estimate>> {
     }
     check_millimetres(path, &out)?;
     Ok(out)
+}
+
+/// Longest line read from a results file: a line is about 200 bytes, and
+/// without a bound a stream without newlines (`/dev/zero`) would be read
+/// as one line until memory runs out.
+const MAX_LINE_BYTES: u64 = 64 << 10;
+
+/// The next line without its line end (`\n` or `\r\n`), `None` at the end.
+fn next_line(reader: &mut impl BufRead) -> std::result::Result<Option<String>, String> {
+    let mut line = String::new();
+    let got = reader.by_ref().take(MAX_LINE_BYTES + 1).read_line(&mut line).map_err(|e| e.to_string())?;
+    if got == 0 {
+        return Ok(None);
+    }
+    if got as u64 > MAX_LINE_BYTES && !line.ends_with('\n') {
+        return Err(format!("a line longer than {} KiB: not a BOP results CSV", MAX_LINE_BYTES >> 10));
+    }
+    let end = line.trim_end_matches('\n').trim_end_matches('\r').len();
+    line.truncate(end);
+    Ok(Some(line))
 }
 
 /// BOP results are in millimetres: a median camera distance under 2 cm is

@@ -75,7 +75,8 @@ pub fn read_stable(path: &std::path::Path) -> Result<String> {
         let ex = plausible::stable::export::export(&db, None).with_context(|| format!("--stable {}", path.display()))?;
         return Ok(serde_json::to_string(&ex)?);
     }
-    let text = std::fs::read_to_string(path).with_context(|| format!("--stable {}: not a stable-poses export JSON or database", path.display()))?;
+    let text = plausible::io::read_to_string_capped(path, plausible::stable::export::MAX_EXPORT_BYTES, "stable-poses export")
+        .with_context(|| format!("--stable {}: not a stable-poses export JSON or database", path.display()))?;
     serde_json::from_str::<serde_json::Value>(&text).with_context(|| format!("--stable {}: not a stable-poses export JSON or database", path.display()))?;
     Ok(text)
 }

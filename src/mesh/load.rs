@@ -23,6 +23,16 @@ pub fn load_positions(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
     if !path.exists() {
         return Err(Error::NotFound { path: path.to_path_buf() });
     }
+    // Read whole by every parser: a device such as /dev/zero would be read
+    // until memory runs out, and a file past the caps below holds more
+    // triangles than are taken anyway.
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(malformed(path, "not a regular file"));
+    }
+    if meta.len() > MAX_MESH_FILE_BYTES {
+        return Err(malformed(path, format!("{} bytes, more than the {} GiB a mesh file may have (decimate it first)", meta.len(), MAX_MESH_FILE_BYTES >> 30)));
+    }
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -36,6 +46,10 @@ pub fn load_positions(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
         _ => Err(Error::UnsupportedFormat { path: path.to_path_buf(), ext }),
     }
 }
+
+/// Largest mesh file read (4 GiB): a binary PLY of the 20M triangles a
+/// glTF scene may hold takes about 400 MB.
+pub const MAX_MESH_FILE_BYTES: u64 = 4 << 30;
 
 fn malformed(path: &Path, reason: impl ToString) -> Error {
     Error::MalformedMesh { path: path.to_path_buf(), reason: reason.to_string() }

@@ -16,6 +16,11 @@ use crate::error::Result;
 /// The format tag of the export (checked by readers).
 pub const FORMAT: &str = "plausible-stable-poses/1";
 
+/// Largest export read back (hypotheses, estimate): a mesh's clusters take
+/// a few kilobytes, so 256 MiB holds tens of thousands of meshes; the cap
+/// stops an endless stream such as `/dev/zero`.
+pub const MAX_EXPORT_BYTES: u64 = 256 << 20;
+
 #[derive(Serialize, Debug, Clone, PartialEq)]
 pub struct Export {
     pub format: &'static str,
