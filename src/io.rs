@@ -94,12 +94,16 @@ pub fn check_writable(path: &Path) -> Result<()> {
         return Err(Error::InvalidInput(format!("{}: is a folder, expected a file name", path.display())));
     }
     #[cfg(unix)]
-    if let Some(m) = std::fs::metadata(path).ok().filter(|m| std::os::unix::fs::FileTypeExt::is_fifo(&m.file_type())) {
+    if std::fs::metadata(path).is_ok_and(|m| std::os::unix::fs::FileTypeExt::is_fifo(&m.file_type())) {
         // A FIFO is not opened: opening and closing it for writing hands
         // its reader an end of file, and the real write later blocks for
-        // ever with no reader left. Only its permission bits are checked.
-        if m.permissions().readonly() {
-            return Err(Error::write(path, std::io::Error::from(std::io::ErrorKind::PermissionDenied)));
+        // ever with no reader left. Whether this user may write it is
+        // asked instead (access(2), which knows owner, group and root).
+        use std::os::unix::ffi::OsStrExt;
+        let c = std::ffi::CString::new(path.as_os_str().as_bytes()).map_err(|e| Error::write(path, std::io::Error::new(std::io::ErrorKind::InvalidInput, e)))?;
+        // SAFETY: `c` is a NUL-terminated path that outlives the call.
+        if unsafe { libc::access(c.as_ptr(), libc::W_OK) } != 0 {
+            return Err(Error::write(path, std::io::Error::last_os_error()));
         }
         return Ok(());
     }

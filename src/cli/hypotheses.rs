@@ -133,7 +133,7 @@ fn probability_cut(rests: &[plausible::hypotheses::on_plane::RestingPose], asked
         return Ok(cut);
     }
     if let Some(asked) = asked {
-        bail!("--min-probability {asked}: no resting pose is that probable (the most probable is {top:.3}); give a lower cut");
+        bail!("--min-probability {asked}: no resting pose is that probable (the most probable is {top:.4}); give a lower cut");
     }
     let mut p: Vec<f64> = rests.iter().map(|r| r.group_probability).collect();
     p.sort_by(|a, b| b.total_cmp(a));
@@ -166,7 +166,7 @@ mod tests {
         let duck = rests(&[0.37, 0.2, 0.1, 0.0004]);
         assert_eq!(probability_cut(&duck, Some(0.37)).unwrap(), 0.37);
         // No pose reaches the cut asked for: refused, never lowered.
-        assert!(probability_cut(&duck, Some(0.38)).unwrap_err().to_string().contains("most probable is 0.370"));
+        assert!(probability_cut(&duck, Some(0.38)).unwrap_err().to_string().contains("most probable is 0.3700"));
         // A round object (every facet below the default): the 64 most
         // probable are kept.
         let round = rests(&vec![1.0 / 100.0 - 1e-4; 100]);

@@ -125,6 +125,7 @@ pub fn estimate_frame<'a>(
     let per: Vec<Option<(Vec<crate::pose::Pose>, usize, f64)>> = instances
         .par_iter()
         .map(|inst| {
+            p.refine.stop.check()?;
             let (m, mask) = (inst.model, inst.mask);
             if mask.len() != depth.depth.len() {
                 return Err(Error::InvalidInput(format!("a mask has {} pixels, the depth image {}", mask.len(), depth.depth.len())));
