@@ -38,15 +38,14 @@ impl Intrinsics {
     }
 
     /// Checks the intrinsics belong to an image of this size: the principal
-    /// point inside it (a camera's lies near the centre; the K of a stream
-    /// twice the size puts it past the border, and every pose then projected
-    /// beside the object and scored 0), focal lengths between 1/100 and 100
-    /// image widths (fields of view from 0.6° to 179°).
+    /// point within half an image of it (a crop with its K adjusted may put
+    /// it outside; see [`Self::principal_point_note`]), focal lengths
+    /// between 1/100 and 100 image widths (fields of view from 0.6° to 179°).
     pub fn check_against_image(&self) -> std::result::Result<(), String> {
         let (w, h) = (self.width as f64, self.height as f64);
-        if !((0.0..=w).contains(&self.cx) && (0.0..=h).contains(&self.cy)) {
+        if self.cx < -0.5 * w || self.cx > 1.5 * w || self.cy < -0.5 * h || self.cy > 1.5 * h {
             return Err(format!(
-                "the principal point ({:.1}, {:.1}) lies outside the {}x{} image: is the camera for another image size?",
+                "the principal point ({:.1}, {:.1}) lies far outside the {}x{} image: is the camera for another image size?",
                 self.cx, self.cy, self.width, self.height
             ));
         }
@@ -57,6 +56,21 @@ impl Intrinsics {
             }
         }
         Ok(())
+    }
+
+    /// A warning when the principal point lies outside the image: a
+    /// camera's lies near the centre, so this is a crop with its K adjusted,
+    /// or (more often) the K of another stream, e.g. one twice the size,
+    /// with which every pose projects beside the object and scores 0.
+    pub fn principal_point_note(&self) -> Option<String> {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let inside = (0.0..=w).contains(&self.cx) && (0.0..=h).contains(&self.cy);
+        (!inside).then(|| {
+            format!(
+                "the principal point ({:.1}, {:.1}) lies outside the {}x{} image: right for a crop, but is the camera for another image size (a stream twice as large)?",
+                self.cx, self.cy, self.width, self.height
+            )
+        })
     }
 
     /// Projects a camera-frame point to pixel coordinates.

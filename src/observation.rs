@@ -397,7 +397,9 @@ pub fn normals_from_depth(img: &DepthImage) -> Vec<Vec3> {
 /// How the scored region is sampled.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum RoiSampling {
-    /// Resample the region to `res x res` pixels by scaling the intrinsics.
+    /// Resample the square around the mask to `res x res` pixels by scaling
+    /// the intrinsics, clipped to the image (fewer pixels of that size where
+    /// the square reaches past the border).
     Square(u32),
     /// Native pixels of the region.
     Native,
@@ -553,15 +555,22 @@ impl ScoreTarget {
                 normals[v * out_w as usize + u] = normals_full[src];
             }
         }
-        // A sparse mask (a few pixels far apart) can fall between the
-        // samples of a coarse region: with nothing observed every score is 0.
-        if !depth.iter().any(|&d| d > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "the {out_w}x{out_h} region samples none of the mask's pixels with depth (a sparse mask over {:.0}x{:.0} pixels): score at native resolution or a finer region",
-                crop.2, crop.3
-            )));
-        }
         Ok(ScoreTarget { intrinsics, depth, normals, crop, occluder: Vec::new() })
+    }
+
+    /// Refuses a region none of whose samples holds an observed pixel:
+    /// sparse depth (a few valid pixels far apart) can fall between the
+    /// samples of a coarse region, and every hypothesis would score 0. For
+    /// callers that score one object (a scene's refinement takes such an
+    /// object as unobserved instead).
+    pub fn check_observed(&self) -> Result<()> {
+        if self.observed_pixels() > 0 {
+            return Ok(());
+        }
+        Err(Error::InvalidInput(format!(
+            "the {}x{} region samples none of the pixels with depth in its {:.0}x{:.0} source pixels (sparse depth or mask): score at native resolution or a finer region",
+            self.intrinsics.width, self.intrinsics.height, self.crop.2, self.crop.3
+        )))
     }
 
     /// Sets the depth of the other objects in the scene (one value per

@@ -259,18 +259,20 @@ fn pose_files_name_what_is_wrong() {
 fn depth_png_errors() {
     let d = tempfile::tempdir().unwrap();
     // A 640x480 camera does not belong to a 64x48 image: its principal
-    // point lies outside it.
+    // point lies far outside.
     let vga = read_camera(&camera(d.path()), None).unwrap();
     let small = d.path().join("small.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(64, 48, image::Luma([7000u16])).save(&small).unwrap();
     assert!(err_text(read_depth_png(&small, &vga)).contains("principal point"));
-    // Nor does the K of a stream twice the size: its principal point lies
-    // just past the border.
+    // The K of a stream twice the size puts it just past the border: read
+    // (a crop's adjusted K may do the same), with a note for the caller to
+    // say.
     let vga_png = d.path().join("vga.png");
     image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(640, 480, image::Luma([7000u16])).save(&vga_png).unwrap();
     let double = BopCamera { cam_k: vec![1145.0, 0.0, 651.0, 0.0, 1147.0, 485.0, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
-    assert!(err_text(read_depth_png(&vga_png, &double)).contains("outside the 640x480 image"));
-    assert!(read_depth_png(&vga_png, &vga).is_ok());
+    let note = read_depth_png(&vga_png, &double).unwrap().intrinsics.principal_point_note().unwrap();
+    assert!(note.contains("outside the 640x480 image"), "{note}");
+    assert!(read_depth_png(&vga_png, &vga).unwrap().intrinsics.principal_point_note().is_none());
     let cam = BopCamera { cam_k: vec![60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
     let absurd = BopCamera { cam_k: vec![1e6, 0.0, 31.5, 0.0, 1e6, 23.5, 0.0, 0.0, 1.0], depth_scale: 0.1, width: None, height: None };
     assert!(err_text(read_depth_png(&small, &absurd)).contains("focal length"));
@@ -424,6 +426,9 @@ fn input_files_are_read_with_a_cap() {
     assert!(e.contains("big.json") && e.contains("2000 bytes"), "{e}");
     assert_eq!(plausible::io::read_capped(&p, 2000, "camera file").unwrap().len(), 2000);
     assert!(err_text(plausible::io::read_capped(d.path(), 1000, "camera file")).contains("is a folder"));
+    // Meshes are read whole by their parsers: a device is refused.
+    let e = err_text(plausible::mesh::Mesh::load(Path::new("/dev/zero"), plausible::mesh::MeshUnits::Metres));
+    assert!(e.contains("/dev/zero") && e.contains("not a regular file"), "{e}");
     // A FIFO with a writer: read to its end, as `--poses <(cat poses.json)` does.
     let fifo = d.path().join("poses.fifo");
     assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());

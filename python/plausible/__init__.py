@@ -319,8 +319,8 @@ class Scorer:
         mask: (H, W) object mask (non-zero = object), or None for the frame.
         units: "m" or "mm" for the depth, translations, array vertices and
             reported distances (BOP data is in mm).
-        res: the region around the mask is resampled to res x res pixels
-            (0 = native pixels).
+        res: the square around the mask is resampled to res x res pixels,
+            clipped to the image (0 = native pixels).
         tau: depth tolerance of eq. 4, metres.
         alpha: normal tolerance of eq. 5.
         margin: growth of the mask's box on each side (fraction).

@@ -274,6 +274,9 @@ pub fn read_frame<'py>(
         })
         .map_err(to_py)?;
     let i = &obs.intrinsics;
+    if let Some(note) = i.principal_point_note() {
+        crate::user_warning(py, &format!("{}: {note}", camera.display()))?;
+    }
     let (w, h) = (i.width as usize, i.height as usize);
     let k = vec![i.fx, 0.0, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0].into_pyarray(py).reshape([3, 3])?;
     let d = obs.depth.into_pyarray(py).reshape([h, w])?;

@@ -51,7 +51,8 @@ pub struct Scorer {
 impl Scorer {
     /// `k`: row-major 3x3 camera matrix; `depth` (H, W) metres (0 or NaN =
     /// none); `mask` (H, W) booleans or None (the whole frame); the region
-    /// resampled to `res` x `res` pixels (0 = native pixels).
+    /// resampled to `res` x `res` pixels, clipped to the image (0 = native
+    /// pixels).
     #[new]
     #[pyo3(signature = (mesh, k, depth, mask = None, *, res = 128, tau = 0.02, alpha = 0.7, margin = 0.25, device = "auto", adapter = None, lod = "auto"))]
     #[allow(clippy::too_many_arguments)]
@@ -79,6 +80,7 @@ impl Scorer {
         let mask = convert::mask(mask, &obs)?;
         let sampling = if res == 0 { RoiSampling::Native } else { RoiSampling::Square(res) };
         let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, margin).map_err(to_py)?;
+        target.check_observed().map_err(to_py)?;
         let choice: DeviceChoice = device.parse().map_err(to_py)?;
         let lod: LodChoice = lod.parse().map_err(value_error)?;
         let mesh = mesh.inner.clone();

@@ -89,6 +89,9 @@ impl ObservationArgs {
             bail!("--frame {f}: --camera {} holds one camera, not a scene_camera.json of frames, so there is nothing to pick", self.camera.display());
         }
         let obs = read_depth_png(&self.depth, &cam).context("--depth")?;
+        if let Some(note) = obs.intrinsics.principal_point_note() {
+            eprintln!("warning: --camera {}: {note}", self.camera.display());
+        }
         let mask = match &self.mask {
             Some(p) => {
                 let m = read_mask_png(p, obs.intrinsics.width, obs.intrinsics.height)?;
@@ -123,8 +126,8 @@ impl SampleArgs {
         if !(1..=MAX_SAMPLES).contains(&self.samples) {
             bail!("--samples {}: between 1 and {MAX_SAMPLES} surface samples per object", self.samples);
         }
-        if let Some(e) = self.epsilon.filter(|e| !(e.is_finite() && *e > 0.0 && *e < 0.05)) {
-            bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
+        if let Some(e) = self.epsilon.filter(|e| !(e.is_finite() && *e > 0.0)) {
+            bail!("--epsilon {e}: ε is in metres and must be a positive number (the default is 2-5 mm)");
         }
         Ok(())
     }

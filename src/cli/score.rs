@@ -100,6 +100,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let setup = tracing::trace_span!("setup").entered();
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
+    target.check_observed().context("--res (0 scores native pixels)")?;
     if let Some(w) = target.distance_mismatch(&poses) {
         eprintln!("warning: {w} (--camera's depth_scale, --pose-units)");
     }
@@ -209,6 +210,10 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
         bail!("--samples, --seed and --epsilon set the physical terms: add --plane P.json --physics");
     }
     sm.check()?;
+    // On the table of one object, beyond 5 cm is no contact tolerance.
+    if let Some(e) = sm.epsilon.filter(|e| *e >= 0.05) {
+        bail!("--epsilon {e}: ε is in metres and must lie in (0, 0.05) (the default is 2-5 mm)");
+    }
     if let Some(out) = &a.out {
         check_out(out)?;
         let inputs = [("--mesh", Some(a.mesh.mesh.as_path())), ("--poses", Some(a.poses.as_path())), ("--plane", a.plane.as_deref())];
