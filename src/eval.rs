@@ -356,10 +356,7 @@ fn check_points(path: &std::path::Path, pts: &[DVec3]) -> Result<()> {
     if pts.is_empty() {
         return Err(Error::MalformedMesh { path: path.to_path_buf(), reason: "the model has no vertices: its pose errors would all be 0".into() });
     }
-    if let Some((i, p)) = pts.iter().enumerate().find(|(_, p)| !p.is_finite()) {
-        return Err(Error::NonFiniteVertex { path: path.to_path_buf(), index: i, value: p.to_array() });
-    }
-    Ok(())
+    crate::mesh::check_finite(path, pts)
 }
 
 /// Estimates per (scene, image, object) in file order.

@@ -317,8 +317,8 @@ impl Scene {
             Some((cw, ch)) if (w, h) != (cw, ch) => Err(bad(format!("depth is {w}x{h} but the dataset's camera.json says {cw}x{ch}"))),
             Some(_) => Ok(()),
             None => {
-                let first = self.gt.keys().next().map(|&im| self.depth_path(im)).filter(|p| p.is_file()).unwrap_or_else(|| path.to_path_buf());
                 let (first, fw, fh) = self.first_size.get_or_init(|| {
+                    let first = self.gt.keys().next().map(|&im| self.depth_path(im)).filter(|p| p.is_file()).unwrap_or_else(|| path.to_path_buf());
                     let (fw, fh) = if first == path { (w, h) } else { png_size(&first).unwrap_or((w, h)) };
                     (first, fw, fh)
                 });

@@ -372,6 +372,14 @@ impl Mesh {
     }
 }
 
+/// Refuses the first vertex that is not finite, naming it.
+pub(crate) fn check_finite(path: &Path, vertices: &[DVec3]) -> Result<()> {
+    match vertices.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        Some((index, v)) => Err(Error::NonFiniteVertex { path: path.to_path_buf(), index, value: v.to_array() }),
+        None => Ok(()),
+    }
+}
+
 /// Validation shared by every loader: finite vertices, indices in range, at
 /// least one non-degenerate triangle, units, and a boundary check.
 fn validate_and_clean(
@@ -380,9 +388,7 @@ fn validate_and_clean(
     triangles: Vec<[u32; 3]>,
     units: MeshUnits,
 ) -> Result<(Mesh, MeshReport)> {
-    if let Some((index, v)) = vertices.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-        return Err(Error::NonFiniteVertex { path, index, value: v.to_array() });
-    }
+    check_finite(&path, &vertices)?;
     for (face, t) in triangles.iter().enumerate() {
         if let Some(&i) = t.iter().find(|&&i| i as usize >= vertices.len()) {
             return Err(Error::IndexOutOfRange { path, face, index: i as u64, count: vertices.len() });
