@@ -20,9 +20,10 @@ use rand_chacha::ChaCha8Rng;
 use crate::error::{Error, Result};
 use crate::observation::DepthImage;
 use crate::physical::Plane;
+use crate::stop::Stop;
 
 /// Parameters of the fit.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct PlaneFitParams {
     /// Largest distance (m) of an inlier from the plane.
     pub inlier_m: f64,
@@ -34,11 +35,14 @@ pub struct PlaneFitParams {
     pub max_points: usize,
     /// Pixels the mask is grown by before its pixels are left out.
     pub mask_margin_px: usize,
+    /// Checked between RANSAC hypotheses: a million of them take seconds,
+    /// and a caller (the Python binding on Ctrl-C) may want them to end.
+    pub stop: Stop,
 }
 
 impl Default for PlaneFitParams {
     fn default() -> Self {
-        PlaneFitParams { inlier_m: 0.005, iterations: 500, seed: 0, max_points: 20_000, mask_margin_px: 5 }
+        PlaneFitParams { inlier_m: 0.005, iterations: 500, seed: 0, max_points: 20_000, mask_margin_px: 5, stop: Stop::default() }
     }
 }
 
@@ -107,6 +111,7 @@ pub fn fit_support_plane(obs: &DepthImage, mask: Option<&[bool]>, p: &PlaneFitPa
     };
     let mut best: Option<(usize, Plane)> = None;
     for _ in 0..p.iterations {
+        p.stop.check()?;
         let [a, b, c] = [0; 3].map(|_| subset[rng.random_range(0..subset.len())]);
         let n = (b - a).cross(c - a);
         if n.length() < 1e-9 {

@@ -131,7 +131,7 @@ pub fn refine<'py>(
     let plane = plane_for(plane, p.method.simulates(p.physics), &obs, &masks)?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let out = crate::stoppable(py, |stop| {
+    let out = crate::interruptible(py, |stop| {
             let p = RefineParams { stop, ..p };
             let device = Device::open(choice, adapter, false)?.device;
             let models: Vec<Model> = mesh_data.into_iter().map(|m| Model::new(m, &p)).collect::<plausible::Result<_>>()?;
@@ -185,7 +185,7 @@ pub fn estimate<'py>(
     let rests: Vec<_> = meshes.iter().zip(&stable).map(|(m, s)| convert::resting_poses(py, &m.inner, s.as_deref())).collect::<PyResult<_>>()?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let (out, instance) = crate::stoppable(py, |stop| {
+    let (out, instance) = crate::interruptible(py, |stop| {
             let ep = EstimateParams { refine: RefineParams { stop, ..ep.refine.clone() }, ..ep };
             let device = Device::open(choice, adapter, false)?.device;
             let models: Vec<EstimateModel> = mesh_data

@@ -40,8 +40,10 @@ pub fn fit_plane<'py>(
     }
     let obs = convert::depth_image(k, depth)?;
     let mask = convert::mask(mask, &obs)?;
-    let params = PlaneFitParams { inlier_m: inlier, iterations, seed, mask_margin_px: mask_margin, ..Default::default() };
-    let fit = py.detach(|| fit_support_plane(&obs, mask.as_deref(), &params)).map_err(to_py)?;
+    let fit = crate::interruptible(py, |stop| {
+        let params = PlaneFitParams { inlier_m: inlier, iterations, seed, mask_margin_px: mask_margin, stop, ..Default::default() };
+        fit_support_plane(&obs, mask.as_deref(), &params)
+    })?;
     let d = PyDict::new(py);
     d.set_item("point", fit.plane.point.to_array().to_vec().into_pyarray(py))?;
     d.set_item("normal", fit.plane.normal.to_array().to_vec().into_pyarray(py))?;
@@ -104,14 +106,14 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
     let threads = threads.filter(|&t| t > 0).unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let params = RunParams { drops, seed, collider, ..Default::default() };
     let m = mesh.inner.clone();
-    let (prepared, results) = crate::interruptible(py, |look| {
+    let (prepared, results) = crate::interruptible(py, |stop| {
         let name = m.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "<arrays>".into());
         let prepared = stable::prepare(m, &name, &params)?;
         let indices: Vec<u64> = (0..drops).collect();
         let mut results = Vec::with_capacity(drops as usize);
         stable::run_drops(&prepared, &params, &indices, threads, |r| {
             results.push(r);
-            look()
+            stop.check()
         })?;
         results.sort_by_key(|r| r.index);
         Ok((prepared, results))
@@ -200,7 +202,7 @@ pub fn evaluate<'py>(
     }
     opts.validate().map_err(to_py)?;
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
-    let (report, recs, source) = crate::interruptible(py, |look| {
+    let (report, recs, source) = crate::interruptible(py, |stop| {
         let ds = plausible::bop::Dataset::open(&dataset, split)?;
         let (targets, source) = ds.targets(targets.as_deref())?;
         if targets.is_empty() {
@@ -208,7 +210,7 @@ pub fn evaluate<'py>(
         }
         let results = plausible::bop::read_results(&results)?;
         let device = Device::open(choice, adapter, false)?.device;
-        let (report, recs) = evaluate(&ds, &results, &targets, &device, &opts, &mut |_| look())?;
+        let (report, recs) = evaluate(&ds, &results, &targets, &device, &opts, &mut |_| stop.check())?;
         Ok((report, recs, source))
     })?;
     let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;

@@ -36,44 +36,16 @@ pub(crate) fn user_warning(py: Python<'_>, msg: &str) -> PyResult<()> {
     PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &text, 1)
 }
 
-/// Runs `work` without the GIL, looking for Ctrl-C (a pending Python
-/// signal) about every 50 ms through `look`, which `work` calls at its
-/// cancellation points (between drops, chunks, images). On an interrupt
-/// `look` returns an error for `work` to stop on, and this returns the
-/// `KeyboardInterrupt` (or what the signal handler raised) instead of the
-/// work's result: a long call ends at once instead of after all its work.
-pub(crate) fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce(&mut dyn FnMut() -> plausible::Result<()>) -> plausible::Result<T> + Send) -> PyResult<T> {
-    let mut raised: Option<PyErr> = None;
-    let mut last = std::time::Instant::now();
-    let result = py.detach(|| {
-        let mut look = || {
-            if last.elapsed() < std::time::Duration::from_millis(50) {
-                return Ok(());
-            }
-            last = std::time::Instant::now();
-            match Python::attach(|py| py.check_signals()) {
-                Ok(()) => Ok(()),
-                Err(e) => {
-                    raised = Some(e);
-                    Err(plausible::Error::InvalidInput("interrupted".into()))
-                }
-            }
-        };
-        work(&mut look)
-    });
-    match raised {
-        Some(e) => Err(e),
-        None => result.map_err(to_py),
-    }
-}
-
 /// Runs `work` on a scoped thread without the GIL while this thread looks
-/// for Ctrl-C (a pending Python signal) about every 50 ms; on one it
-/// requests the [`Stop`] that `work` was given (the library checks it
-/// between refinement steps) and returns the `KeyboardInterrupt` once the
-/// work has ended. For work whose loops are inside the library, where
-/// [`interruptible`]'s callback cannot reach.
-pub(crate) fn stoppable<T: Send>(py: Python<'_>, work: impl FnOnce(Stop) -> plausible::Result<T> + Send) -> PyResult<T> {
+/// for Ctrl-C (a pending Python signal) about every 50 ms. On one it
+/// requests the [`Stop`] that `work` was given, which the library checks
+/// between its steps (drops, chunks, images, refinement steps, RANSAC
+/// hypotheses), and returns the `KeyboardInterrupt` (or whatever the
+/// signal handler raised) once the work has ended: a long call ends
+/// promptly instead of after all its work. One mechanism for every long
+/// call: the checks in the work are an atomic load, and signals are only
+/// looked at from the thread that may run Python.
+pub(crate) fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce(Stop) -> plausible::Result<T> + Send) -> PyResult<T> {
     let stop = Stop::default();
     let mut raised: Option<PyErr> = None;
     let result = py.detach(|| {
@@ -81,11 +53,17 @@ pub(crate) fn stoppable<T: Send>(py: Python<'_>, work: impl FnOnce(Stop) -> plau
             let caller = std::thread::current();
             let worker = {
                 let stop = stop.clone();
-                s.spawn(move || {
+                // The caller's stack size: the work ran on Python's main
+                // thread (8 MiB) before it had a thread of its own.
+                std::thread::Builder::new().name("plausible".into()).stack_size(WORKER_STACK).spawn_scoped(s, move || {
                     let r = work(stop);
                     caller.unpark();
                     r
                 })
+            };
+            let worker = match worker {
+                Ok(w) => w,
+                Err(e) => return Err(plausible::Error::Io { path: "(starting a worker thread)".into(), error: e }),
             };
             while !worker.is_finished() {
                 std::thread::park_timeout(std::time::Duration::from_millis(50));
@@ -104,6 +82,9 @@ pub(crate) fn stoppable<T: Send>(py: Python<'_>, work: impl FnOnce(Stop) -> plau
         None => result.map_err(to_py),
     }
 }
+
+/// Stack of the thread [`interruptible`] work runs on.
+const WORKER_STACK: usize = 8 << 20;
 
 /// A `ValueError` with `msg`.
 pub(crate) fn value_error(msg: impl Into<String>) -> PyErr {

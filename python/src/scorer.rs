@@ -192,11 +192,11 @@ impl Scorer {
 /// builds its GPU scorer), a software one still ends within about a second
 /// of Ctrl-C.
 fn in_chunks<T: Send>(py: Python<'_>, poses: &[Pose], mut score: impl FnMut(&[Pose]) -> plausible::Result<Vec<T>> + Send) -> PyResult<Vec<T>> {
-    crate::interruptible(py, |look| {
+    crate::interruptible(py, |stop| {
         let mut out = Vec::with_capacity(poses.len());
         let (mut at, mut size) = (0, BATCH_HINT);
         while at < poses.len() {
-            look()?;
+            stop.check()?;
             let chunk = &poses[at..at.saturating_add(size).min(poses.len())];
             at += chunk.len();
             let start = std::time::Instant::now();

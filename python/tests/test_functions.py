@@ -107,6 +107,14 @@ def test_long_calls_end_on_ctrl_c(demo):
                   method="ref", steps=100, device="cpu")
     timer.join()
     assert time.monotonic() - start < 30
+    # A million RANSAC hypotheses on 20,000 points take many seconds;
+    # Ctrl-C ends the fit at the next one.
+    start = time.monotonic()
+    timer = _interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        pl.fit_plane(K, depth, mask, iterations=1_000_000)
+    timer.join()
+    assert time.monotonic() - start < 5
 
 
 def test_hypotheses_on_the_plane_contain_a_good_one(demo):
