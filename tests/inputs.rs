@@ -182,6 +182,21 @@ fn mesh_formats_agree() {
     }
 }
 
+#[test]
+fn gltfpack_quantized_glb_matches_its_source_obj() {
+    // gltfpack stores positions as 16-bit integers (KHR_mesh_quantization)
+    // and puts the scale back in the node; the mesh read must be the OBJ's
+    // within the quantization step (the file's 1.65 units over 14 bits, 1e-4).
+    let assets = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/");
+    let (obj, _) = Mesh::load(format!("{assets}duck.obj"), MeshUnits::Metres).unwrap();
+    let (glb, _) = Mesh::load(format!("{assets}duck_gltfpack.glb"), MeshUnits::Metres).unwrap();
+    assert_eq!(glb.triangles.len(), obj.triangles.len());
+    let ((a0, a1), (b0, b1)) = (obj.bounds(), glb.bounds());
+    let step = 1.0e-4;
+    assert!(a0.distance(b0) < step && a1.distance(b1) < step, "bounds {a0} {a1} vs {b0} {b1}");
+    assert!((glb.area() / obj.area() - 1.0).abs() < 1e-3, "area {} vs {}", glb.area(), obj.area());
+}
+
 fn base64_encode(data: &[u8]) -> String {
     const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut out = String::new();

@@ -7,7 +7,8 @@
 //! instance of the scene; points and lines primitives have no surface and
 //! are skipped. A glTF node graph is bounded (depth, instances, total
 //! size) since a cycle or a tree of shared nodes would otherwise grow
-//! without limit.
+//! without limit. Quantized glTF positions (KHR_mesh_quantization, as
+//! gltfpack writes them) are read.
 
 use std::path::Path;
 
@@ -156,7 +157,7 @@ struct GltfMesh {
 }
 
 fn load_gltf(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
-    let (doc, buffers, _images) = gltf::import(path).map_err(|e| malformed(path, e))?;
+    let (doc, buffers) = read_gltf(path)?;
     let mut out = GltfMesh::default();
     let scene = doc.default_scene().or_else(|| doc.scenes().next());
     let mut stack: Vec<(gltf::Node, DMat4, usize)> = match &scene {
@@ -189,6 +190,81 @@ fn load_gltf(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
     narrow(path, out.vertices, out.triangles)
 }
 
+/// The one glTF extension that changes how geometry is read: positions
+/// may be 8- or 16-bit integers (normalized or not), scaled back by the
+/// node transforms. [`read_positions`] reads them; the gltf crate's
+/// validation refuses the extension, so it is taken out of the required
+/// list before validating.
+const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
+
+/// The validated document and its buffers. Images are not read: only
+/// geometry is used, and decoding a scene's textures would cost time and
+/// memory for nothing. Buffers are read by [`read_buffers`], not the gltf
+/// crate's importer, which reads `file:` URIs such as `/dev/zero` without
+/// end and panics on a URI that percent-decodes to invalid UTF-8.
+fn read_gltf(path: &Path) -> Result<(gltf::Document, Vec<gltf::buffer::Data>)> {
+    let bytes = crate::io::read_capped(path, MAX_MESH_FILE_BYTES, "glTF file")?;
+    let gltf::Gltf { document, blob } = gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| malformed(path, e))?;
+    drop(bytes);
+    let mut json = document.into_json();
+    json.extensions_required.retain(|e| e != MESH_QUANTIZATION);
+    let doc = gltf::Document::from_json(json).map_err(|e| malformed(path, e))?;
+    let buffers = read_buffers(path, &doc, blob)?;
+    Ok((doc, buffers))
+}
+
+/// Every buffer of `doc`: the GLB's binary chunk, a base64 `data:` URI, or
+/// a file (relative to the glTF, or a `file:` URI) read through the capped
+/// reader, all together at most [`MAX_MESH_FILE_BYTES`]. A buffer shorter
+/// than its declared `byteLength` is an error.
+fn read_buffers(path: &Path, doc: &gltf::Document, mut blob: Option<Vec<u8>>) -> Result<Vec<gltf::buffer::Data>> {
+    use gltf::buffer::Source;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let mut total = 0u64;
+    let mut out = Vec::with_capacity(doc.buffers().len());
+    for buffer in doc.buffers() {
+        let what = || format!("buffer {}", buffer.index());
+        let data = match buffer.source() {
+            Source::Bin => blob.take().ok_or_else(|| malformed(path, format!("{}: refers to a GLB binary chunk there is none of", what())))?,
+            Source::Uri(uri) if uri.starts_with("data:") => {
+                gltf::buffer::Data::from_source(buffer.source(), None).map_err(|e| malformed(path, format!("{}: {e}", what())))?.0
+            }
+            Source::Uri(uri) => {
+                let file = buffer_file(base, uri).map_err(|e| malformed(path, format!("{}: {e}", what())))?;
+                if !file.is_file() {
+                    let why = if file.exists() { "is not a regular file" } else { "does not exist" };
+                    return Err(malformed(path, format!("{}: {} {why}", what(), file.display())));
+                }
+                let cap = MAX_MESH_FILE_BYTES.saturating_sub(total);
+                crate::io::read_capped(&file, cap, "glTF buffer").map_err(|e| malformed(path, format!("{}: {e}", what())))?
+            }
+        };
+        if data.len() < buffer.length() {
+            return Err(malformed(path, format!("{}: holds {} bytes, fewer than its byteLength {}", what(), data.len(), buffer.length())));
+        }
+        total = total.saturating_add(data.len() as u64);
+        if total > MAX_MESH_FILE_BYTES {
+            return Err(malformed(path, format!("the buffers hold more than the {} GiB a mesh may have", MAX_MESH_FILE_BYTES >> 30)));
+        }
+        out.push(gltf::buffer::Data(data));
+    }
+    Ok(out)
+}
+
+/// The file a buffer URI names: `file:` URIs as they are, other URIs
+/// percent-decoded and relative to the glTF's folder. Other schemes
+/// (`http:`) are not fetched.
+fn buffer_file(base: &Path, uri: &str) -> std::result::Result<std::path::PathBuf, String> {
+    if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
+        return Ok(rest.into());
+    }
+    if uri.contains(':') {
+        return Err(format!("URI '{uri}' is neither a data: URI nor a file; only local files are read"));
+    }
+    let decoded = urlencoding::decode(uri).map_err(|_| format!("URI '{uri}' does not percent-decode to UTF-8"))?;
+    Ok(base.join(&*decoded))
+}
+
 /// Appends one primitive, placed by `world`, to `out`. Triangle lists,
 /// strips and fans are read; other modes (points, lines) are skipped. A
 /// triangle primitive whose positions or indices cannot be read is an
@@ -207,17 +283,17 @@ fn add_primitive(
         return Ok(());
     }
     let what = || format!("mesh {} primitive {}", mesh.index(), prim.index());
-    let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-    let pos = reader.read_positions().ok_or_else(|| malformed(path, format!("{}: positions cannot be read", what())))?;
-    let count = pos.len();
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let positions = prim.get(&gltf::Semantic::Positions).ok_or_else(|| malformed(path, format!("{}: has no POSITION", what())))?;
+    let count = positions.count();
     let index_count = prim.indices().map_or(count, |a| a.count());
     check_size(path, out, mode, count, index_count)?;
+    let pos = read_positions(&positions, get).map_err(|e| malformed(path, format!("{}: POSITION {e}", what())))?;
     let base = out.vertices.len() as u64;
-    out.vertices.extend(pos.map(|p| world.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))));
-    let idx: Vec<u64> = match (prim.indices(), reader.read_indices()) {
-        (None, _) => (0..count as u64).collect(),
-        (Some(_), Some(i)) => i.into_u32().map(u64::from).collect(),
-        (Some(_), None) => return Err(malformed(path, format!("{}: indices cannot be read", what()))),
+    out.vertices.extend(pos.into_iter().map(|p| world.transform_point3(p)));
+    let idx: Vec<u64> = match prim.indices() {
+        None => (0..count as u64).collect(),
+        Some(a) => read_indices(&a, get).map_err(|e| malformed(path, format!("{}: indices {e}", what())))?,
     };
     let tris = triangles_of(mode, &idx).map_err(|e| malformed(path, format!("{}: {e}", what())))?;
     let flip = world.determinant() < 0.0;
@@ -225,6 +301,63 @@ fn add_primitive(
         let t = t.map(|i| i + base);
         if flip { [t[0], t[2], t[1]] } else { t }
     }));
+    Ok(())
+}
+
+/// The positions of `a` as the model's coordinates: 32-bit floats, or
+/// (KHR_mesh_quantization) 8- and 16-bit integers, normalized ones mapped
+/// to [0, 1] or [-1, 1] as the extension defines; the node transforms then
+/// scale them back. Any other type is an error rather than bytes read as
+/// the wrong type.
+fn read_positions<'s>(a: &gltf::Accessor, get: impl Clone + Fn(gltf::Buffer) -> Option<&'s [u8]>) -> std::result::Result<Vec<DVec3>, String> {
+    use gltf::accessor::{DataType, Dimensions};
+    if a.dimensions() != Dimensions::Vec3 {
+        return Err(format!("is {:?}, not VEC3", a.dimensions()));
+    }
+    let n = a.normalized();
+    match a.data_type() {
+        DataType::F32 => read_vec3::<f32>(a, get, |x| x as f64),
+        DataType::I8 => read_vec3::<i8>(a, get, |x| if n { (x as f64 / 127.0).max(-1.0) } else { x as f64 }),
+        DataType::U8 => read_vec3::<u8>(a, get, |x| if n { x as f64 / 255.0 } else { x as f64 }),
+        DataType::I16 => read_vec3::<i16>(a, get, |x| if n { (x as f64 / 32767.0).max(-1.0) } else { x as f64 }),
+        DataType::U16 => read_vec3::<u16>(a, get, |x| if n { x as f64 / 65535.0 } else { x as f64 }),
+        DataType::U32 => Err("has 32-bit integer components, which positions may not".into()),
+    }
+}
+
+fn read_vec3<'s, T: gltf::accessor::Item + Copy>(
+    a: &gltf::Accessor,
+    get: impl Clone + Fn(gltf::Buffer) -> Option<&'s [u8]>,
+    f: impl Fn(T) -> f64,
+) -> std::result::Result<Vec<DVec3>, String> {
+    check_readable(a)?;
+    let iter = gltf::accessor::Iter::<[T; 3]>::new(a.clone(), get).ok_or("reaches past its buffer")?;
+    Ok(iter.map(|[x, y, z]| DVec3::new(f(x), f(y), f(z))).collect())
+}
+
+/// The indices of `a`: unsigned 8-, 16- or 32-bit scalars (the gltf
+/// crate's own reader panics on any other type).
+fn read_indices<'s>(a: &gltf::Accessor, get: impl Clone + Fn(gltf::Buffer) -> Option<&'s [u8]>) -> std::result::Result<Vec<u64>, String> {
+    use gltf::accessor::{DataType, Dimensions, Iter};
+    if a.dimensions() != Dimensions::Scalar {
+        return Err(format!("are {:?}, not SCALAR", a.dimensions()));
+    }
+    check_readable(a)?;
+    let past = || "reach past their buffer".to_string();
+    Ok(match a.data_type() {
+        DataType::U8 => Iter::<u8>::new(a.clone(), get).ok_or_else(past)?.map(u64::from).collect(),
+        DataType::U16 => Iter::<u16>::new(a.clone(), get).ok_or_else(past)?.map(u64::from).collect(),
+        DataType::U32 => Iter::<u32>::new(a.clone(), get).ok_or_else(past)?.map(u64::from).collect(),
+        t => return Err(format!("are {t:?}, not unsigned 8-, 16- or 32-bit integers")),
+    })
+}
+
+/// Refuses an empty accessor (the spec requires count >= 1, and the gltf
+/// crate's reader computes `count - 1`).
+fn check_readable(a: &gltf::Accessor) -> std::result::Result<(), String> {
+    if a.count() == 0 {
+        return Err("has count 0".into());
+    }
     Ok(())
 }
 
@@ -387,6 +520,96 @@ mod tests {
         // Accessor 2 reads past the end of its buffer view.
         let prims = r#"[{"attributes":{"POSITION":0},"mode":6},{"attributes":{"POSITION":2}}]"#;
         let e = err(load_gltf(&gltf(d.path(), r#"[{"mesh":0}]"#, prims)));
-        assert!(e.contains("mesh 0 primitive 1") && e.contains("positions cannot be read") && e.contains("t.gltf"), "{e}");
+        assert!(e.contains("mesh 0 primitive 1") && e.contains("POSITION reaches past its buffer") && e.contains("t.gltf"), "{e}");
+    }
+
+    /// A glTF of one tetrahedron: `positions` (one VEC3 accessor of
+    /// `component_type`, 4-byte aligned elements of `stride` bytes),
+    /// u16 indices unless `float_indices`, `node` (JSON) holding mesh 0,
+    /// the buffer at `uri` (None: embedded) and `extra` top-level JSON.
+    fn tetra_gltf(dir: &Path, positions: &[u8], stride: usize, component_type: u32, normalized: bool, node: &str, uri: Option<&str>, extra: &str) -> std::path::PathBuf {
+        let faces = [0u16, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3];
+        let mut bin = positions.to_vec();
+        faces.iter().for_each(|i| bin.extend(i.to_le_bytes()));
+        let uri = uri.map_or_else(|| format!("data:application/octet-stream;base64,{}", base64(&bin)), str::to_string);
+        let text = format!(
+            r#"{{"asset":{{"version":"2.0"}},{extra}"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{node}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+            "buffers":[{{"byteLength":{},"uri":"{uri}"}}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":{},"byteStride":{stride}}},{{"buffer":0,"byteOffset":{},"byteLength":24}}],
+            "accessors":[{{"bufferView":0,"componentType":{component_type},"normalized":{normalized},"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,1]}},
+                         {{"bufferView":1,"componentType":5123,"count":12,"type":"SCALAR"}}]}}"#,
+            bin.len(),
+            positions.len(),
+            positions.len()
+        );
+        write(dir, "q.gltf", &text)
+    }
+
+    const TETRA: [[f64; 3]; 4] = [[0., 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]];
+
+    #[test]
+    fn gltf_quantized_positions_are_read_and_scaled_by_the_node() {
+        let d = tempfile::tempdir().unwrap();
+        let ext = r#""extensionsUsed":["KHR_mesh_quantization"],"extensionsRequired":["KHR_mesh_quantization"],"#;
+        // gltfpack's layout: normalized u16 in [0, 1], scaled back to 0.2 m by the node.
+        let node = r#"{"mesh":0,"scale":[0.2,0.2,0.2],"translation":[0.1,0,0]}"#;
+        let mut bin = Vec::new();
+        TETRA.iter().for_each(|p| {
+            p.iter().for_each(|&c| bin.extend(((c * 65535.0) as u16).to_le_bytes()));
+            bin.extend([0, 0]);
+        });
+        let (v, t) = load_gltf(&tetra_gltf(d.path(), &bin, 8, 5123, true, node, None, ext)).unwrap();
+        assert_eq!(t.len(), 4);
+        for (got, want) in v.iter().zip(TETRA) {
+            let want = DVec3::from(want) * 0.2 + DVec3::new(0.1, 0.0, 0.0);
+            assert!(got.distance(want) < 1e-7, "{got} vs {want}");
+        }
+        // Signed normalized bytes: -128 clamps to -1 as the extension says.
+        let bin: Vec<u8> = [[-128i8, 0, 0], [127, 0, 0], [0, 127, 0], [0, 0, 127]].iter().flat_map(|p| [p[0] as u8, p[1] as u8, p[2] as u8, 0]).collect();
+        let (v, _) = load_gltf(&tetra_gltf(d.path(), &bin, 4, 5120, true, r#"{"mesh":0}"#, None, ext)).unwrap();
+        assert_eq!(v[0], DVec3::new(-1.0, 0.0, 0.0));
+        assert_eq!(v[1], DVec3::new(1.0, 0.0, 0.0));
+        // Plain (not normalized) shorts are their integer values.
+        let mut bin = Vec::new();
+        TETRA.iter().for_each(|p| {
+            p.iter().for_each(|&c| bin.extend(((c * 100.0) as i16).to_le_bytes()));
+            bin.extend([0, 0]);
+        });
+        let (v, _) = load_gltf(&tetra_gltf(d.path(), &bin, 8, 5122, false, r#"{"mesh":0}"#, None, ext)).unwrap();
+        assert_eq!(v[3], DVec3::new(0.0, 0.0, 100.0));
+        // u32 positions are not a glTF position type.
+        let e = err(load_gltf(&tetra_gltf(d.path(), &[0; 48], 12, 5125, false, r#"{"mesh":0}"#, None, ext)));
+        assert!(e.contains("32-bit integer"), "{e}");
+    }
+
+    #[test]
+    fn gltf_hostile_buffers_and_indices_are_errors_not_panics_or_endless_reads() {
+        let d = tempfile::tempdir().unwrap();
+        let mut floats = Vec::new();
+        TETRA.iter().flatten().for_each(|&c| floats.extend((c as f32).to_le_bytes()));
+        let node = r#"{"mesh":0}"#;
+        let p = tetra_gltf(d.path(), &floats, 12, 5126, false, node, None, "");
+        assert_eq!(load_gltf(&p).unwrap().1.len(), 4);
+        // Float indices: the gltf crate's reader hits unreachable!().
+        let text = std::fs::read_to_string(&p).unwrap().replace(r#""componentType":5123"#, r#""componentType":5126"#);
+        let e = err(load_gltf(&write(d.path(), "fi.gltf", &text)));
+        assert!(e.contains("indices are F32"), "{e}");
+        // A URI that percent-decodes to invalid UTF-8 (its importer unwraps).
+        let e = err(load_gltf(&tetra_gltf(d.path(), &floats, 12, 5126, false, node, Some("%FF.bin"), "")));
+        assert!(e.contains("percent-decode"), "{e}");
+        // A device is not a buffer file (its importer read /dev/zero for ever).
+        let e = err(load_gltf(&tetra_gltf(d.path(), &floats, 12, 5126, false, node, Some("file:///dev/zero"), "")));
+        assert!(e.contains("not a regular file"), "{e}");
+        let e = err(load_gltf(&tetra_gltf(d.path(), &floats, 12, 5126, false, node, Some("http://example.com/a.bin"), "")));
+        assert!(e.contains("only local files"), "{e}");
+        // A relative file buffer is read; one too short for its byteLength is refused.
+        let mut bin = floats.clone();
+        [0u16, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3].iter().for_each(|i| bin.extend(i.to_le_bytes()));
+        std::fs::write(d.path().join("a b.bin"), &bin).unwrap();
+        assert_eq!(load_gltf(&tetra_gltf(d.path(), &floats, 12, 5126, false, node, Some("a%20b.bin"), "")).unwrap().1.len(), 4);
+        std::fs::write(d.path().join("a b.bin"), &bin[..40]).unwrap();
+        let e = err(load_gltf(&tetra_gltf(d.path(), &floats, 12, 5126, false, node, Some("a%20b.bin"), "")));
+        assert!(e.contains("fewer than its byteLength"), "{e}");
     }
 }
