@@ -155,7 +155,8 @@ pub struct AutoDeviceArgs {
     /// wgpu adapter, lavapipe included) or `cpu` (the CPU twin).
     #[arg(long, default_value = "auto", value_parser = ["auto", "gpu", "cpu"])]
     pub device: String,
-    /// Use the first adapter whose name contains this text. WGPU_BACKEND
+    /// Use the first adapter whose name contains this text (with `auto`
+    /// too, even a software one; not found is an error). WGPU_BACKEND
     /// (vulkan, metal, dx12, gl) and WGPU_POWER_PREF are honoured too.
     #[arg(long)]
     pub adapter: Option<String>,
@@ -255,6 +256,21 @@ pub fn distinct_files(outputs: &[(&str, Option<&std::path::Path>)], inputs: &[(&
             if q.as_deref().is_some_and(|q| same_file(q, path)) {
                 anyhow::bail!("{flag} and {other} name the same file ({}): give {flag} another path", path.display());
             }
+        }
+    }
+    Ok(())
+}
+
+/// Refuses outputs where `ds` reads from (its models and split folders,
+/// its camera.json, its default targets file): writing there would change
+/// the dataset, e.g. a summary over a scene's scene_gt.json.
+pub fn outside_dataset(ds: &plausible::bop::Dataset, outputs: &[(&str, Option<&std::path::Path>)]) -> Result<()> {
+    for (flag, p) in outputs {
+        if let Some(r) = p.and_then(resolved).filter(|r| ds.reads_at(r)) {
+            anyhow::bail!(
+                "{flag} {}: this is where --dataset reads from (its models or split folders, camera.json or test_targets_bop19.json); give {flag} a path outside them",
+                r.display()
+            );
         }
     }
     Ok(())

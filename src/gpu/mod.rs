@@ -128,13 +128,22 @@ impl Device {
 
     /// Opens `choice` on the first adapter whose name contains `adapter`.
     /// With `fallback`, a missing adapter gives the CPU twin and a note
-    /// instead of an error (`Auto` always falls back).
+    /// instead of an error. `Auto` falls back too, and prefers the CPU twin
+    /// to a software adapter, unless `adapter` names one: then that one is
+    /// used, and a missing one is an error. `Cpu` with an adapter is an
+    /// error (it would be ignored).
     pub fn open(choice: DeviceChoice, adapter: Option<&str>, fallback: bool) -> Result<Opened> {
         if choice == DeviceChoice::Cpu {
+            // The adapter would be ignored: a user who named one meant the GPU.
+            if let Some(a) = adapter {
+                return Err(Error::InvalidInput(format!("adapter '{a}' was asked for, but the cpu device runs the CPU twins and uses no adapter")));
+            }
             return Ok(Opened { device: Device::Cpu, note: None });
         }
         match Context::new(&GpuOptions { adapter: adapter.map(str::to_string), limits: None }) {
-            Ok(ctx) if choice == DeviceChoice::Auto && ctx.is_software() => Ok(Opened {
+            // An adapter named by the user is used even when it is a
+            // software one: they asked for it.
+            Ok(ctx) if choice == DeviceChoice::Auto && ctx.is_software() && adapter.is_none() => Ok(Opened {
                 device: Device::Cpu,
                 note: Some(format!(
                     "the only adapter is {} (software): using the CPU twin, which is faster there (device gpu uses the adapter)",
@@ -146,7 +155,7 @@ impl Device {
                     .then(|| "running on the OpenGL backend; a Vulkan driver is faster and more robust".to_string());
                 Ok(Opened { device: Device::Gpu(Box::new(ctx)), note })
             }
-            Err(e) if fallback || choice == DeviceChoice::Auto => {
+            Err(e) if fallback || (choice == DeviceChoice::Auto && adapter.is_none()) => {
                 Ok(Opened { device: Device::Cpu, note: Some(format!("{e}; falling back to the CPU twin")) })
             }
             Err(e) => Err(e),
