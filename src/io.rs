@@ -31,7 +31,12 @@ pub fn read_capped(path: &Path, cap: u64, what: &str) -> Result<Vec<u8>> {
 /// order mark dropped (editors on Windows write one; JSON parsers refuse
 /// it as "expected value at line 1 column 1").
 pub fn read_to_string_capped(path: &Path, cap: u64, what: &str) -> Result<String> {
-    let bytes = read_capped(path, cap, what)?;
+    text_of(path, read_capped(path, cap, what)?)
+}
+
+/// The bytes read from `path` as UTF-8 text, a leading byte order mark
+/// dropped (see [`read_to_string_capped`]).
+pub fn text_of(path: &Path, bytes: Vec<u8>) -> Result<String> {
     let mut text = String::from_utf8(bytes).map_err(|e| Error::io(path, std::io::Error::new(std::io::ErrorKind::InvalidData, e.utf8_error())))?;
     if text.starts_with('\u{feff}') {
         text.drain(..'\u{feff}'.len_utf8());

@@ -142,6 +142,15 @@ fn refine_refuses_bad_flags_before_any_work() {
         (vec!["--shard", "4/3"], "--shard"),
         (vec!["--masks", "/nonexistent"], "--masks"),
         (vec!["--summary", "/nonexistent/s.json"], "--summary"),
+        // Flags the method has no use for are refused, not ignored.
+        (vec!["--method", "sir", "--exploration", "5"], "--exploration and --discount are for --method rir"),
+        (vec!["--method", "pir", "--no-physics"], "--no-physics is for --method sir and rir"),
+        (vec!["--adapter", "llvm", "--device", "cpu"], "uses no adapter"),
+        // Outputs where the dataset reads would change it (a summary over
+        // a scene's ground truth, pictures among its depth images).
+        (vec!["--summary", "assets/lmo-synth/test/000002/scene_gt.json"], "this is where --dataset reads from"),
+        (vec!["--summary", "assets/lmo-synth/test_targets_bop19.json"], "this is where --dataset reads from"),
+        (vec!["--explain", "assets/lmo-synth/models"], "this is where --dataset reads from"),
     ] {
         let o = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(d.path().join("o.csv")).args(&extra).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
@@ -192,6 +201,69 @@ fn refine_refuses_bad_flags_before_any_work() {
     }
 }
 
+/// Images that cannot be read are found before the first image is worked
+/// on (they had failed the run after all the others), a camera that does
+/// not fit its image is refused or warned about, and an input read from a
+/// pipe is recorded by what was read (a second read hashed nothing, so any
+/// other input resumed the output).
+#[test]
+fn dataset_runs_check_every_image_first_and_record_what_they_read() {
+    let d = tempfile::tempdir().unwrap();
+    let targets: serde_json::Value = serde_json::from_slice(&std::fs::read(dataset().join("test_targets_bop19.json")).unwrap()).unwrap();
+    let mut t = targets.as_array().unwrap().clone();
+    t.push(serde_json::json!({"scene_id": 2, "im_id": 5000, "obj_id": 1, "inst_count": 1}));
+    let bad_targets = d.path().join("targets.json");
+    std::fs::write(&bad_targets, serde_json::to_vec(&t).unwrap()).unwrap();
+    let out = d.path().join("e.csv");
+    let o = plausible().arg("estimate").arg("--dataset").arg(dataset()).arg("--targets").arg(&bad_targets).arg("--out").arg(&out).args(["--quiet", "--device", "cpu"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("scene 2 image 5000"), "{err}");
+    assert_eq!(std::fs::read_to_string(&out).unwrap_or_default().lines().count(), 0, "nothing estimated before the error");
+    // A copy of the dataset whose image 3 has a K of another camera.
+    let copy = d.path().join("ds");
+    copy_dir(&dataset(), &copy);
+    let cams = copy.join("test/000002/scene_camera.json");
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&cams).unwrap()).unwrap();
+    let k = v["3"]["cam_K"].clone();
+    v["3"]["cam_K"] = serde_json::json!([0.572, 0, 0.325, 0, 0.573, 0.242, 0, 0, 1]);
+    std::fs::write(&cams, serde_json::to_vec(&v).unwrap()).unwrap();
+    let o = plausible().arg("estimate").arg("--dataset").arg(&copy).arg("--out").arg(d.path().join("k.csv")).args(["--images", "3", "--quiet", "--device", "cpu"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("fx = 0.572 px is not plausible"), "{err}");
+    v["3"]["cam_K"] = k;
+    v["3"]["cam_K"][2] = serde_json::json!(700.0);
+    std::fs::write(&cams, serde_json::to_vec(&v).unwrap()).unwrap();
+    let o = plausible().arg("estimate").arg("--dataset").arg(&copy).arg("--out").arg(d.path().join("k2.csv")).args(["--images", "3", "--steps", "0", "--quiet", "--device", "cpu"]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("principal point (700.0, 242.0) lies outside"), "{err}");
+    // --init from a pipe, then another --init from a pipe into the same output.
+    let init = dataset().join("perturbed.csv");
+    let lines: Vec<String> = std::fs::read_to_string(&init).unwrap().lines().map(str::to_string).collect();
+    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
+    std::fs::write(&a, lines[..4].join("\n")).unwrap();
+    std::fs::write(&b, [&lines[..1], &lines[16..20]].concat().join("\n")).unwrap();
+    let piped = |init: &Path| {
+        let script = format!("{:?} refine --dataset {:?} --init <(cat {:?}) --out {:?} --steps 1 --quiet --device cpu", env!("CARGO_BIN_EXE_plausible"), dataset(), init, d.path().join("p.csv"));
+        Command::new("bash").arg("-c").arg(script).output().unwrap()
+    };
+    assert!(piped(&a).status.success());
+    let o = piped(&b);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("written with other settings (init"), "{err}");
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
 /// `estimate` from the quasi-static resting poses on the fitted plane, with
 /// the oracle masks, reaches the AR of 0.65 on the 12 shipped frames
 /// (30 targets), and its timings summary has every stage.
@@ -230,6 +302,32 @@ fn estimate_takes_the_stable_pose_database_or_its_export() {
     let (from_db, from_json) = (estimate(&db, "db.csv"), estimate(&json, "json.csv"));
     assert_eq!(from_db.len(), 3);
     assert_eq!(from_db, from_json);
+    // The export from a pipe is read once (sniffing it for a database had
+    // eaten its first bytes: "expected value at line 1 column 1").
+    let piped = d.path().join("piped.csv");
+    let script = format!(
+        "{:?} estimate --dataset {:?} --out {:?} --stable <(cat {:?}) --images 3 --steps 0 --quiet --device cpu",
+        env!("CARGO_BIN_EXE_plausible"), dataset(), piped, json
+    );
+    let o = Command::new("bash").arg("-c").arg(script).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(rows(&piped), from_json);
+    // A dataset with models_eval/ (other geometry hashes) finds the
+    // database's entries of models/ by file name.
+    let copy = d.path().join("ds");
+    copy_dir(&dataset(), &copy);
+    copy_dir(&copy.join("models"), &copy.join("models_eval"));
+    for m in ["obj_000001.ply", "obj_000010.ply", "obj_000011.ply"] {
+        let p = copy.join("models_eval").join(m);
+        let mut bytes = std::fs::read(&p).unwrap();
+        let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let first = bytes[end..].iter().position(|&c| c == b' ').unwrap() + end;
+        bytes.insert(first, b'1'); // the first vertex's x gets another digit
+        std::fs::write(&p, bytes).unwrap();
+    }
+    let out = d.path().join("eval_models.csv");
+    run(plausible().arg("estimate").arg("--dataset").arg(&copy).arg("--out").arg(&out).arg("--stable").arg(&db).args(["--images", "3", "--steps", "0", "--quiet", "--device", "cpu"]));
+    assert_eq!(rows(&out).len(), 3);
     let bad = d.path().join("bad.bin");
     std::fs::write(&bad, [0xffu8, 0xfe, 0, 1]).unwrap();
     let o = plausible().arg("estimate").arg("--dataset").arg(dataset()).arg("--out").arg(d.path().join("x.csv")).arg("--stable").arg(&bad).output().unwrap();

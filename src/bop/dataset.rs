@@ -169,12 +169,19 @@ impl Dataset {
     }
 
     /// Whether `path` (absolute, symlinks resolved) is where this dataset
-    /// reads from: under a models folder or the split folder, or its
-    /// `camera.json`. Writing an output there would change the dataset.
+    /// reads from: under a models folder or the split folder, its
+    /// `camera.json` or its default targets file. Writing an output there
+    /// would change the dataset.
     pub fn reads_at(&self, path: &Path) -> bool {
         let canon = |p: PathBuf| p.canonicalize().unwrap_or(p);
         let folders = [self.models_dir.clone(), self.root.join("models"), self.root.join("models_eval"), self.root.join(&self.split)];
-        folders.into_iter().map(canon).any(|d| path.starts_with(d)) || path == canon(self.root.join("camera.json"))
+        folders.into_iter().map(canon).any(|d| path.starts_with(d))
+            || [self.root.join("camera.json"), self.default_targets()].into_iter().map(canon).any(|f| path == f)
+    }
+
+    /// The targets file read when none is given.
+    fn default_targets(&self) -> PathBuf {
+        self.root.join("test_targets_bop19.json")
     }
 
     /// The model file of an object (`obj_000001.ply`).
@@ -227,7 +234,7 @@ impl Dataset {
     /// dataset when `file` is `None` and it exists), else every annotated
     /// instance. The second value says which.
     pub fn targets(&self, file: Option<&Path>) -> Result<(Vec<Target>, TargetSource)> {
-        let default = self.root.join("test_targets_bop19.json");
+        let default = self.default_targets();
         let path = match file {
             Some(f) => Some(f.to_path_buf()),
             None if default.is_file() => Some(default),
@@ -289,11 +296,16 @@ impl Scene {
             .ok_or_else(|| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("no entry for image {im_id}") })
     }
 
-    /// Intrinsics of an image of `width × height`.
+    /// Intrinsics of an image of `width × height`, checked against its
+    /// size ([`Intrinsics::check_against_image`]): a K with the principal
+    /// point far outside the image or a focal length of a pixel gave every
+    /// estimate metres away and every score 0 without a word.
     pub fn intrinsics(&self, im_id: u32, width: u32, height: u32) -> Result<Intrinsics> {
         let cam = self.frame_camera(im_id)?;
-        Intrinsics::from_k(&cam.k, width, height)
-            .map_err(|e| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("image {im_id}: {e}") })
+        let bad = |reason: String| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("image {im_id}: {reason}") };
+        let i = Intrinsics::from_k(&cam.k, width, height).map_err(|e| bad(e.to_string()))?;
+        i.check_against_image().map_err(bad)?;
+        Ok(i)
     }
 
     /// The size of an image: the dataset's `camera.json`, else the depth

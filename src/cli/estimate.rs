@@ -2,7 +2,7 @@
 //! stable-pose hypotheses on the fitted support plane, scored and refined
 //! (RIR); resumable and shardable like `refine`.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
@@ -10,7 +10,7 @@ use plausible::bop::Dataset;
 use plausible::refine::estimate::{estimate_image, load_estimate_models, EstimateParams, EstimateStats};
 use plausible::refine::{Method, RefineParams};
 
-use super::refine::{check_settings, file_digest, path_setting, shard_of, skip_done, ResultsAppender};
+use super::refine::{check_settings, load_scenes, path_setting, read_digest, shard_of, skip_done, ResultsAppender};
 
 #[derive(clap::Args, Debug)]
 pub struct EstimateArgs {
@@ -64,20 +64,26 @@ pub struct EstimateArgs {
 }
 
 /// The resting poses of `--stable`: a `stable-poses export` JSON as it is,
-/// or a `stable-poses` SQLite database exported in memory.
+/// or a `stable-poses` SQLite database exported in memory. A database is
+/// told by its header; a pipe (`<(cat export.json)`) is read once, as
+/// JSON, since sniffing it would eat its first bytes.
 pub fn read_stable(path: &std::path::Path) -> Result<String> {
+    let not_export = || format!("--stable {}: not a stable-poses export JSON or database", path.display());
+    let regular = std::fs::metadata(path).is_ok_and(|m| m.is_file());
     let mut head = [0u8; 16];
-    let is_sqlite = std::fs::File::open(path)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
-        .is_ok_and(|_| &head == b"SQLite format 3\0");
+    let is_sqlite = regular
+        && std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head)).is_ok_and(|_| &head == b"SQLite format 3\0");
     if is_sqlite {
         let db = plausible::stable::db::Db::open_existing(path).with_context(|| format!("--stable {}", path.display()))?;
         let ex = plausible::stable::export::export(&db, None).with_context(|| format!("--stable {}", path.display()))?;
         return Ok(serde_json::to_string(&ex)?);
     }
-    let text = plausible::io::read_to_string_capped(path, plausible::stable::export::MAX_EXPORT_BYTES, "stable-poses export")
-        .with_context(|| format!("--stable {}: not a stable-poses export JSON or database", path.display()))?;
-    serde_json::from_str::<serde_json::Value>(&text).with_context(|| format!("--stable {}: not a stable-poses export JSON or database", path.display()))?;
+    let bytes = plausible::io::read_capped(path, plausible::stable::export::MAX_EXPORT_BYTES, "stable-poses export").with_context(not_export)?;
+    if bytes.starts_with(b"SQLite format 3\0") {
+        bail!("--stable {}: a stable-poses database must be a file (SQLite cannot read one from a pipe); give its path, or its `export` JSON", path.display());
+    }
+    let text = plausible::io::text_of(path, bytes).with_context(not_export)?;
+    serde_json::from_str::<serde_json::Value>(&text).with_context(not_export)?;
     Ok(text)
 }
 
@@ -88,6 +94,9 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     params.refine = RefineParams { method: Method::parse(&a.method).context("--method")?, steps: a.steps.max(1), physics: !a.no_physics, lod: a.lod, ..Default::default() };
     params.refine.validate().context("check --steps")?;
     params.refine.steps = a.steps;
+    if a.no_physics && matches!(params.refine.method, Method::Ref | Method::Pir) {
+        bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
+    }
     if a.top == 0 || a.top > 100 {
         bail!("--top {}: between 1 and 100 hypotheses are refined", a.top);
     }
@@ -95,14 +104,14 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         bail!("--yaw-steps {}: between 1 and 360", a.yaw_steps);
     }
     let (shard, masks) = a.run.shard_and_masks()?;
-    let _lock = a.run.prepare_outputs(&a.out, &[("--stable", a.stable.as_deref()), ("--targets", a.targets.as_deref())])?;
-    let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--stable", a.stable.as_deref()), ("--targets", a.targets.as_deref())])?;
+    let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
     // Which instances an image's estimates are for: the targets file by
     // content (a resumed run with other targets would mix two sets).
     let targets_setting = match &source {
-        plausible::bop::dataset::TargetSource::File(p) => Some(file_digest(p)?),
+        plausible::bop::dataset::TargetSource::File(_) => Some(read_digest(targets.iter().map(|t| format!("{} {} {} {}", t.scene_id, t.im_id, t.obj_id, t.inst_count)))),
         plausible::bop::dataset::TargetSource::AllInstances => None,
     };
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
@@ -136,18 +145,15 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     objs.dedup();
     let mask_keys: Vec<(u32, u32, u32)> = jobs.iter().flat_map(|((s, i), ts)| ts.iter().map(|t| (*s, *i, t.obj_id))).collect::<std::collections::BTreeSet<_>>().into_iter().collect();
     a.run.check_masks(&masks, &mask_keys, "those objects are not estimated")?;
+    let scenes = load_scenes(&ds, jobs.iter().map(|(k, _)| *k))?;
     let device = a.run.dev.open(verbose)?;
     let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());
     let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;
     let mut out = ResultsAppender::open(&a.out)?;
     let pb = a.run.progress(jobs.len());
-    let mut scenes = HashMap::new();
     let mut total = EstimateStats::default();
     for ((scene_id, im_id), ts) in &jobs {
-        if !scenes.contains_key(scene_id) {
-            scenes.insert(*scene_id, ds.scene(*scene_id).with_context(|| format!("scene {scene_id}"))?);
-        }
         let r = estimate_image(&scenes[scene_id], *im_id, ts, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {scene_id} image {im_id}"))?;
         a.run.save_picture(*scene_id, *im_id, r.picture.as_ref())?;

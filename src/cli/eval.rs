@@ -86,11 +86,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         plausible::io::check_writable(p)?;
     }
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
-    for (flag, p) in outputs {
-        if let Some(r) = p.and_then(super::resolved).filter(|r| ds.reads_at(r)) {
-            bail!("{flag} {}: this is where --dataset reads from (its models or split folders, or its camera.json); give {flag} a path outside them", r.display());
-        }
-    }
+    super::outside_dataset(&ds, &outputs)?;
     match &name {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),

@@ -1,14 +1,19 @@
 //! `plausible refine`: refine another method's BOP results (REF, SIR, RIR)
 //! image by image, resumable and shardable.
 
+use std::collections::HashMap;
 use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::results::{format_line, HEADER};
+use plausible::bop::dataset::Scene;
 use plausible::bop::{read_results, Dataset};
 use plausible::refine::dataset::{image_jobs, load_models, refine_image, resume_from, ImageStats, Masks};
 use plausible::refine::{Method, RefineParams};
+
+const DEFAULT_EXPLORATION: f64 = 0.1;
+const DEFAULT_DISCOUNT: f64 = 1.0;
 
 #[derive(clap::Args, Debug)]
 pub struct RefineArgs {
@@ -53,13 +58,13 @@ pub struct RefineArgs {
     /// ICP iterations per refinement step.
     #[arg(long, default_value_t = 5)]
     pub icp_iterations: usize,
-    /// UCB exploration constant.
-    #[arg(long, default_value_t = 0.1)]
+    /// UCB exploration constant (RIR).
+    #[arg(long, default_value_t = DEFAULT_EXPLORATION)]
     pub exploration: f64,
     /// UCB discount γ in (0, 1]: 1 is UCB1; below 1 is discounted UCB,
     /// which forgets old rewards (the paper: 0.99 when rewards change as
-    /// the rest of the scene does).
-    #[arg(long, default_value_t = 1.0)]
+    /// the rest of the scene does). RIR.
+    #[arg(long, default_value_t = DEFAULT_DISCOUNT)]
     pub discount: f64,
 #[command(flatten)]
     pub run: ImageRunArgs,
@@ -160,11 +165,12 @@ impl ImageRunArgs {
     }
 
     /// Before any work, so a bad path fails fast: checks that `out` and
-    /// `--summary` can be written and that no output names an input (or
-    /// another output: the side files of `out` included), makes the
-    /// `--explain` folder, and takes `out`'s lock, held until the returned
-    /// file is dropped.
-    pub fn prepare_outputs(&self, out: &std::path::Path, inputs: &[(&str, Option<&std::path::Path>)]) -> Result<Option<std::fs::File>> {
+    /// `--summary` can be written, that no output names an input (or
+    /// another output: the side files of `out` and the `--explain` folder
+    /// included) or lies where the dataset reads, makes the `--explain`
+    /// folder, and takes `out`'s lock, held until the returned file is
+    /// dropped.
+    pub fn prepare_outputs(&self, ds: &Dataset, out: &std::path::Path, inputs: &[(&str, Option<&std::path::Path>)]) -> Result<Option<std::fs::File>> {
         plausible::io::check_writable(out)?;
         let (settings, journal) = (settings_path(out), plausible::refine::dataset::journal_path(out));
         let outputs = [
@@ -172,12 +178,17 @@ impl ImageRunArgs {
             ("--out's settings record", Some(settings.as_path())),
             ("--out's journal", Some(journal.as_path())),
             ("--summary", self.summary.as_deref()),
+            ("--explain", self.explain.as_deref()),
         ];
         super::distinct_files(&outputs, inputs)?;
+        super::outside_dataset(ds, &outputs)?;
         if let Some(p) = &self.summary {
             plausible::io::check_writable(p).context("--summary")?;
         }
         if let Some(d) = &self.explain {
+            if d.exists() && !d.is_dir() {
+                bail!("--explain {}: is a file; it names the folder the pictures are written to", d.display());
+            }
             std::fs::create_dir_all(d).with_context(|| format!("--explain {}: cannot create the folder", d.display()))?;
             plausible::io::check_writable(&d.join(".plausible-write-test")).with_context(|| format!("--explain {}", d.display()))?;
         }
@@ -213,6 +224,32 @@ fn id_list(ids: impl Iterator<Item = u32>) -> String {
         s.push("...".into());
     }
     s.join(", ")
+}
+
+/// The scenes of `images`, each image checked before any work: its camera
+/// entry, its depth PNG and intrinsics that fit its size. A missing one
+/// had failed the run after every image before it was done. A principal
+/// point outside the image is warned about once per scene.
+pub fn load_scenes(ds: &Dataset, images: impl Iterator<Item = (u32, u32)>) -> Result<HashMap<u32, Scene>> {
+    let mut scenes: HashMap<u32, Scene> = HashMap::new();
+    let mut warned = std::collections::HashSet::new();
+    for (scene_id, im_id) in images {
+        if !scenes.contains_key(&scene_id) {
+            scenes.insert(scene_id, ds.scene(scene_id).with_context(|| format!("scene {scene_id}"))?);
+        }
+        let scene = &scenes[&scene_id];
+        let at = || format!("scene {scene_id} image {im_id}");
+        let depth = scene.depth_path(im_id);
+        if !depth.is_file() {
+            bail!("{}: no depth image {}", at(), depth.display());
+        }
+        let (w, h) = scene.image_size(im_id).with_context(at)?;
+        let k = scene.intrinsics(im_id, w, h).with_context(at)?;
+        if let Some(note) = k.principal_point_note().filter(|_| warned.insert(scene_id)) {
+            eprintln!("warning: {} (image {im_id}, and maybe others of the scene): {note}", scene.dir.join("scene_camera.json").display());
+        }
+    }
+    Ok(scenes)
 }
 
 /// `oracle` or a folder of masks.
@@ -336,11 +373,19 @@ fn beside(out: &std::path::Path, suffix: &str) -> PathBuf {
     PathBuf::from(name)
 }
 
-/// SHA-256 of a file's contents (an input whose path may stay the same
-/// while it is rebuilt, like a stable-pose database).
-pub fn file_digest(path: &std::path::Path) -> Result<String> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
-    plausible::stable::db::sha256_hex_reader(file).with_context(|| format!("cannot read {}", path.display()))
+/// SHA-256 of what was read from an input, one canonical line per item,
+/// for the settings record. Not of the file: a pipe (`--init <(...)`)
+/// cannot be read twice, and a second read hashed nothing, so any other
+/// input resumed the output silently; and a file rewritten with the same
+/// contents is the same input.
+pub fn read_digest(lines: impl Iterator<Item = String>) -> String {
+    use sha2::Digest as _;
+    let mut hash = sha2::Sha256::new();
+    for line in lines {
+        hash.update(line.as_bytes());
+        hash.update(b"\n");
+    }
+    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// A path as recorded in the settings: absolute where it resolves.
@@ -425,9 +470,16 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if a.budget.is_some() && params.method != Method::Rir {
         bail!("--budget is for --method rir (the other methods take --steps per hypothesis)");
     }
+    // Flags the method has no use for are refused, not ignored.
+    if params.method != Method::Rir && (a.exploration != DEFAULT_EXPLORATION || a.discount != DEFAULT_DISCOUNT) {
+        bail!("--exploration and --discount are for --method rir (its UCB over the hypotheses)");
+    }
+    if a.no_physics && matches!(params.method, Method::Ref | Method::Pir) {
+        bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
+    }
     let (shard, masks) = a.run.shard_and_masks()?;
-    let _lock = a.run.prepare_outputs(&a.out, &[("--init", Some(&a.init))])?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--init", Some(&a.init))])?;
     let init = read_results(&a.init).context("--init")?;
     let mut jobs = shard_of(a.run.select_images(image_jobs(&init), |j| (j.scene_id, j.im_id), "estimates")?, shard);
     // What decides an image's refined poses (not which images).
@@ -435,7 +487,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         "command": "refine",
         "dataset": path_setting(&a.dataset),
         "split": a.split,
-        "init": file_digest(&a.init)?,
+        "init": read_digest(init.iter().map(format_line)),
         "method": a.method,
         "no_physics": a.no_physics,
         "lod": a.lod.to_string(),
@@ -456,21 +508,15 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     }
     let mask_keys: Vec<(u32, u32, u32)> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| (j.scene_id, j.im_id, e.obj_id))).collect::<std::collections::BTreeSet<_>>().into_iter().collect();
     a.run.check_masks(&masks, &mask_keys, "those objects' estimates are written as they were")?;
+    let scenes = load_scenes(&ds, jobs.iter().map(|j| (j.scene_id, j.im_id)))?;
     let device = a.run.dev.open(verbose)?;
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
     let mut file = ResultsAppender::open(&a.out)?;
     let pb = a.run.progress(jobs.len());
-    let mut scenes = std::collections::HashMap::new();
     let mut total = ImageStats::default();
     for job in &jobs {
-        let scene = match scenes.entry(job.scene_id) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => {
-                e.insert(ds.scene(job.scene_id).with_context(|| format!("scene {}", job.scene_id))?)
-            }
-        };
-        let r = refine_image(scene, job, &models, &device, &masks, &params, a.run.explain.is_some())
+        let r = refine_image(&scenes[&job.scene_id], job, &models, &device, &masks, &params, a.run.explain.is_some())
             .with_context(|| format!("scene {} image {}", job.scene_id, job.im_id))?;
         a.run.save_picture(job.scene_id, job.im_id, r.picture.as_ref())?;
         file.append((job.scene_id, job.im_id), &r.estimates)?;
