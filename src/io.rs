@@ -44,6 +44,21 @@ pub fn text_of(path: &Path, bytes: Vec<u8>) -> Result<String> {
     Ok(text)
 }
 
+/// The file a path names once symbolic links are followed (the link's
+/// target, made if it does not exist yet): renaming a new file over the
+/// path itself would replace the link and leave its target unchanged.
+pub fn link_target(path: &Path) -> PathBuf {
+    let mut p = path.to_path_buf();
+    for _ in 0..40 {
+        let Ok(target) = std::fs::read_link(&p) else { break };
+        p = match p.parent() {
+            Some(d) if target.is_relative() => d.join(target),
+            _ => target,
+        };
+    }
+    p
+}
+
 /// Writes `path` through a temporary file beside it, renamed into place
 /// only when everything was written: a full disk or a kill leaves the old
 /// file (or none), never half a new one.
@@ -52,6 +67,7 @@ pub fn text_of(path: &Path, bytes: Vec<u8>) -> Result<String> {
 /// `/dev/full`) is written in place: renaming over it would replace the
 /// device.
 pub fn write_atomically(path: &Path, body: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>) -> Result<()> {
+    let path = &link_target(path);
     if path.exists() && !path.is_file() && !path.is_dir() {
         let result = (|| {
             let file = std::fs::OpenOptions::new().write(true).open(path)?;

@@ -221,6 +221,12 @@ pub const MAX_DEPTH_SCALE: f64 = 100.0;
 /// before anything is decoded.
 pub fn png_size(path: &Path) -> Result<(u32, u32)> {
     let bad = |reason: String| Error::BadImage { path: path.to_path_buf(), reason };
+    // A PNG is opened twice (header, then pixels), which a pipe cannot
+    // serve, and a FIFO without a writer blocks the open for ever.
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(bad("not a regular file (an image is read from a file, not a pipe or device)".into()));
+    }
     let reader = image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
     let reader = reader.with_guessed_format().map_err(|e| Error::io(path, e))?;
     let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;

@@ -336,3 +336,24 @@ fn checking_a_fifo_output_leaves_its_reader_waiting() {
     assert_eq!(reader.join().unwrap(), b"[1, 2]");
     assert!(fifo.exists() && !fifo.is_file(), "the FIFO is still a FIFO");
 }
+
+/// Outputs written through a symbolic link land in the file it names (a
+/// rename over the link had replaced the link and left its target as it
+/// was), and an image that is a FIFO is refused rather than waited on for
+/// ever (a FIFO without a writer in a --masks folder hung refine).
+#[cfg(unix)]
+#[test]
+fn writes_follow_symlinks_and_images_must_be_files() {
+    let d = tempfile::tempdir().unwrap();
+    let target = d.path().join("real.json");
+    std::fs::write(&target, b"old").unwrap();
+    let link = d.path().join("link.json");
+    std::os::unix::fs::symlink("real.json", &link).unwrap();
+    plausible::io::write_atomically(&link, |w| std::io::Write::write_all(w, b"new")).unwrap();
+    assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink(), "the link is still a link");
+    assert_eq!(std::fs::read(&target).unwrap(), b"new");
+    let fifo = d.path().join("mask.png");
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let e = plausible::observation::read_mask_png(&fifo, 4, 4).unwrap_err().to_string();
+    assert!(e.contains("not a regular file"), "{e}");
+}

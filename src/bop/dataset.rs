@@ -369,13 +369,22 @@ impl Scene {
 }
 
 fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = crate::io::read_to_string_capped(path, MAX_JSON_BYTES, "dataset JSON file")?;
+    read_json_capped(path, MAX_JSON_BYTES)
+}
+
+fn read_json_capped<T: DeserializeOwned>(path: &Path, cap: u64) -> Result<T> {
+    let text = crate::io::read_to_string_capped(path, cap, "dataset JSON file")?;
     serde_json::from_str(&text).map_err(|e| Error::BadJson { path: path.to_path_buf(), reason: e.to_string() })
 }
 
-/// Largest dataset JSON file read (scene_gt.json, targets, ...): the
-/// largest BOP scene files are tens of MB; the cap stops an endless stream.
+/// Largest dataset JSON file read (scene_gt.json, ...): the largest BOP
+/// scene files are tens of MB; the cap stops an endless stream.
 const MAX_JSON_BYTES: u64 = 2 << 30;
+
+/// Largest targets file read: BOP's hold a few thousand entries of about
+/// 60 bytes; a smaller cap than scene files' ends `--targets /dev/zero`
+/// sooner (it read 2 GiB).
+const MAX_TARGETS_BYTES: u64 = 256 << 20;
 
 fn parse_id(path: &Path, key: &str, what: &str) -> Result<u32> {
     key.parse()
@@ -591,7 +600,7 @@ fn image_targets(path: &Path, ds: &Dataset, raw: &[RawTarget]) -> Result<Vec<Tar
 /// A list of `{scene_id, im_id}` alone (BOP'24's `test_targets_bop24.json`)
 /// makes every annotated instance of those images a target.
 pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
-    let raw: Vec<RawTarget> = read_json(path)?;
+    let raw: Vec<RawTarget> = read_json_capped(path, MAX_TARGETS_BYTES)?;
     if !raw.is_empty() && raw.iter().all(|t| t.obj_id.is_none()) {
         tracing::warn!(
             "{} names images only (BOP'24 targets): every annotated instance of those images is a target, with its instance count (BOP'24's detection AP is not computed; plausible evaluates the BOP'19 recalls)",

@@ -459,13 +459,15 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
     for i in &args.inputs {
         Db::open_existing(i).with_context(|| format!("input {}", i.display()))?;
     }
-    let tmp = args.output.with_file_name(format!(
+    // Through a symbolic link, the file it names is merged into.
+    let output = plausible::io::link_target(&args.output);
+    let tmp = output.with_file_name(format!(
         ".{}.merge-{}.tmp",
-        args.output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+        output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
         std::process::id()
     ));
-    if args.output.exists() {
-        std::fs::copy(&args.output, &tmp).with_context(|| format!("copying {}", args.output.display()))?;
+    if output.exists() {
+        std::fs::copy(&output, &tmp).with_context(|| format!("copying {}", args.output.display()))?;
     }
     let result = (|| -> anyhow::Result<u64> {
         let mut out = Db::open(&tmp)?;
@@ -479,7 +481,7 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
     })();
     match result {
         Ok(total) => {
-            std::fs::rename(&tmp, &args.output).with_context(|| format!("writing {}", args.output.display()))?;
+            std::fs::rename(&tmp, &output).with_context(|| format!("writing {}", args.output.display()))?;
             println!("{}: {total} drops merged", args.output.display());
             Ok(())
         }
