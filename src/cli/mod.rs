@@ -232,14 +232,7 @@ fn resolved(p: &std::path::Path) -> Option<PathBuf> {
         return Some(r);
     }
     // A symlink to a file not made yet: the file it will make.
-    let mut p = p.to_path_buf();
-    for _ in 0..8 {
-        let Ok(target) = std::fs::read_link(&p) else { break };
-        p = match p.parent() {
-            Some(d) if target.is_relative() => d.join(target),
-            _ => target,
-        };
-    }
+    let p = plausible::io::link_target(p);
     let dir = match p.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.canonicalize().ok()?,
         _ => std::env::current_dir().ok()?,
