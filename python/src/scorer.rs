@@ -117,9 +117,10 @@ impl Scorer {
         if let Some(w) = self.target.distance_mismatch(&poses) {
             crate::user_warning(py, &w)?;
         }
+        let pixels = self.target.intrinsics.pixels();
         let Some((point, normal)) = plane else {
             let scorer = &self.scorer;
-            let records = in_chunks(py, &poses, |chunk| Ok(scorer.score(chunk, &mut |_| {})?.0))?;
+            let records = in_chunks(py, &poses, pixels, |chunk| Ok(scorer.score(chunk, &mut |_| {})?.0))?;
             let rank = ranks(&records);
             return records_dict(py, &records, &rank);
         };
@@ -130,7 +131,7 @@ impl Scorer {
             seed,
             epsilon,
         };
-        let (records, evals): (Vec<_>, Vec<_>) = in_chunks(py, &poses, |chunk| {
+        let (records, evals): (Vec<_>, Vec<_>) = in_chunks(py, &poses, pixels, |chunk| {
             let (r, e) = self.score_physics(key.clone(), chunk)?;
             Ok(r.into_iter().zip(e).collect())
         })?
@@ -185,16 +186,24 @@ impl Scorer {
     }
 }
 
+/// Poses in the first chunk of [`in_chunks`] for a region of `pixels`:
+/// [`BATCH_HINT`] at the default 128 x 128 pixels, fewer as a pose costs
+/// more pixels (at least one).
+fn first_chunk(pixels: usize) -> usize {
+    (BATCH_HINT.saturating_mul(128 * 128) / pixels.max(1)).clamp(1, BATCH_HINT)
+}
+
 /// `score` over `poses` in chunks, with Ctrl-C looked for between them
 /// (each pose's result is its own, so chunks change nothing). The first
-/// chunk is [`BATCH_HINT`] poses and each one that took under 0.25 s
-/// doubles the next: a fast GPU makes few calls (a call with physics
-/// builds its GPU scorer), a software one still ends within about a second
-/// of Ctrl-C.
-fn in_chunks<T: Send>(py: Python<'_>, poses: &[Pose], mut score: impl FnMut(&[Pose]) -> plausible::Result<Vec<T>> + Send) -> PyResult<Vec<T>> {
+/// chunk is sized by what a pose costs ([`first_chunk`] of the region's
+/// `pixels`: 4096 poses at 128 x 128, 64 at 1024 x 1024, 4 at 4096 x
+/// 4096) and each one that took under 0.25 s doubles the next: a fast GPU
+/// makes few calls (a call with physics builds its GPU scorer), a
+/// software one still ends within about a second of Ctrl-C at any `res`.
+fn in_chunks<T: Send>(py: Python<'_>, poses: &[Pose], pixels: usize, mut score: impl FnMut(&[Pose]) -> plausible::Result<Vec<T>> + Send) -> PyResult<Vec<T>> {
     crate::interruptible(py, |stop| {
         let mut out = Vec::with_capacity(poses.len());
-        let (mut at, mut size) = (0, BATCH_HINT);
+        let (mut at, mut size) = (0, first_chunk(pixels));
         while at < poses.len() {
             stop.check()?;
             let chunk = &poses[at..at.saturating_add(size).min(poses.len())];

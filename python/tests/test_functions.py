@@ -216,3 +216,20 @@ def test_refine_and_estimate_refuse_bad_input(demo):
     for what, call in cases.items():
         with pytest.raises(ValueError):
             call()
+
+
+def test_ctrl_c_ends_a_high_res_score_promptly(demo):
+    # At res=1024 a pose costs 64 times the pixels of the default 128: the
+    # first chunk is 64 poses, not 4096, so Ctrl-C ends the call after about
+    # a second on the CPU twin (a thousand poses take many seconds).
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    scorer = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu", res=1024)
+    R0, t0 = demo_truth(demo)
+    R, t = np.tile(R0, (1000, 1, 1)), np.tile(t0, (1000, 1))
+    start = time.monotonic()
+    timer = _interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        scorer.score(R, t)
+    timer.join()
+    assert time.monotonic() - start < 5
+    assert len(scorer.score(R[:2], t[:2])) == 2
