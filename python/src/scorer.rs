@@ -63,8 +63,8 @@ impl Scorer {
         depth: PyReadonlyArray2<f32>,
         mask: Option<PyReadonlyArray2<bool>>,
         res: u32,
-        tau: f32,
-        alpha: f32,
+        tau: f64,
+        alpha: f64,
         margin: f64,
         device: &str,
         adapter: Option<String>,
@@ -76,6 +76,9 @@ impl Scorer {
         if !(alpha > 0.0 && alpha <= 2.0) {
             return Err(value_error(format!("alpha {alpha}: the normal tolerance (on 1 - cos of the angle) must lie in (0, 2] (usually 0.7)")));
         }
+        // Checked as given, then narrowed to the kernels' f32: a positive
+        // value that rounds to 0 there would score with a zero tolerance.
+        let (tau, alpha) = (narrow("tau", tau)?, narrow("alpha", alpha)?);
         let obs = convert::depth_image(k, depth)?;
         let mask = convert::mask(mask, &obs)?;
         let sampling = if res == 0 { RoiSampling::Native } else { RoiSampling::Square(res) };
@@ -184,6 +187,17 @@ impl Scorer {
         let (records, evals, _) = score_poses_with_physics(&self.device, &self.rmesh, &self.target, poses, self.params, physics, |_| {})?;
         Ok((records, evals))
     }
+}
+
+/// A positive tolerance checked in f64, as the kernels' f32: one that is
+/// not zero but rounds to zero there is refused rather than scored with no
+/// tolerance at all.
+fn narrow(name: &str, value: f64) -> PyResult<f32> {
+    let v = value as f32;
+    if v == 0.0 && value != 0.0 {
+        return Err(value_error(format!("{name} {value:e}: too small for the kernels' 32-bit floats (it would be 0)")));
+    }
+    Ok(v)
 }
 
 /// Poses in the first chunk of [`in_chunks`] for a region of `pixels`:

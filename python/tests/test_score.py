@@ -239,3 +239,13 @@ def test_threads_share_a_scorer_and_meshes_come_from_any_arrays(demo):
     for v, f in [(m.vertices, m.faces.astype(np.float64)), (m.vertices + 0j, m.faces), (m.vertices.ravel(), m.faces)]:
         with pytest.raises(ValueError):
             pl.Mesh(v, f)
+
+
+def test_tolerances_too_small_for_f32_are_refused_as_given(demo):
+    K, depth, mask = frame(demo)
+    mesh = demo / "duck_0.15m.obj"
+    with pytest.raises(ValueError, match="tau 1e-50: too small for the kernels' 32-bit floats"):
+        pl.Scorer(mesh, K, depth, mask, tau=1e-50, device="cpu")
+    with pytest.raises(ValueError, match="alpha 1e-50: too small for the kernels' 32-bit floats"):
+        pl.Scorer(mesh, K, depth, mask, alpha=1e-50, device="cpu")
+    pl.Scorer(mesh, K, depth, mask, tau=1e-30, device="cpu")  # small, but an f32
