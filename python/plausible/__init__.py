@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import threading
 from numbers import Real
 from pathlib import Path
@@ -109,6 +110,49 @@ def _bool(name: str, value: Any) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{name} {value!r}: expected True or False")
     return bool(value)
+
+
+#: Largest text files read (bytes), as the native side caps them: a scene
+#: JSON, a plane JSON, a stable-pose export.
+MAX_SCENE_BYTES = 64 << 20
+MAX_PLANE_BYTES = 1 << 20
+MAX_EXPORT_BYTES = 256 << 20
+
+
+def _read_text(path: Union[str, os.PathLike], what: str, cap: int) -> str:
+    """The UTF-8 text of the file ``path`` given as argument ``what``, read
+    to at most ``cap`` bytes: a regular file larger than that is refused by
+    its size before anything is read, anything else (a device such as
+    /dev/zero, a pipe) once it has given more, so an endless stream is an
+    error rather than memory growing until the process is killed. A binary
+    file is a ValueError naming the argument and the path; a leading byte
+    order mark is dropped (as the native readers drop it)."""
+    p = os.fspath(path)
+    try:
+        with open(p, "rb") as f:
+            st = os.fstat(f.fileno())
+            if stat.S_ISREG(st.st_mode) and st.st_size > cap:
+                raise ValueError(f"{what} {p!r}: a file of {st.st_size} bytes, more than the {cap >> 20} MiB read")
+            data = f.read(cap + 1)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {p!r}: not found") from None
+    except IsADirectoryError:
+        raise IsADirectoryError(f"{what} {p!r}: is a folder, expected a file") from None
+    if len(data) > cap:
+        raise ValueError(f"{what} {p!r}: not a regular file, and more than the {cap >> 20} MiB read (an endless stream?)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{what} {p!r}: not a UTF-8 text file (byte {e.start}: {e.reason}); expected JSON") from None
+    return text[1:] if text.startswith("\ufeff") else text
+
+
+def _json_file(path: Union[str, os.PathLike], what: str, cap: int) -> Any:
+    """The JSON in the file ``path`` (argument ``what``), read by :func:`_read_text`."""
+    try:
+        return json.loads(_read_text(path, what, cap))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{what} {os.fspath(path)!r}: not JSON ({e})") from None
 
 
 def load_mesh(path: Union[str, os.PathLike], units: str = "auto") -> Mesh:
@@ -274,11 +318,10 @@ def _plane(plane: PlaneLike, scale: float) -> Tuple[np.ndarray, np.ndarray]:
     (``fit_plane``'s, or the plane JSON's with its "units", default mm), a
     path to a plane JSON, or a (point, normal) pair in the caller's units."""
     if isinstance(plane, (str, os.PathLike)):
-        with open(plane, encoding="utf-8") as f:
-            try:
-                plane = json.load(f)
-            except json.JSONDecodeError as e:
-                raise ValueError(f"{os.fspath(plane)}: not a plane JSON ({e})") from None
+        path = os.fspath(plane)
+        plane = _json_file(path, "plane", MAX_PLANE_BYTES)
+        if not isinstance(plane, Mapping):
+            raise ValueError(f'plane {path!r}: expected a plane JSON {{"point": [x, y, z], "normal": [nx, ny, nz], "units": "mm"|"m"}}')
     if isinstance(plane, Mapping):
         if "point" not in plane or "normal" not in plane:
             raise ValueError('plane: expected {"point": [x, y, z], "normal": [nx, ny, nz], "units": "mm"|"m"}')
@@ -471,10 +514,7 @@ def check(scene: Union[Mapping[str, Any], str, os.PathLike], *, simulate: bool =
     under rapier. Options: samples, seed, epsilon, sdf_resolution, friction."""
     if isinstance(scene, (str, os.PathLike)):
         path = Path(scene)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: not found") from None
+        text = _read_text(path, "scene", MAX_SCENE_BYTES)
         return _native.check(text, str(path.parent), str(path), simulate=simulate, **options)
     if not isinstance(scene, Mapping):
         raise ValueError("scene: give a dict in the plausible check format or a path to its JSON")
@@ -513,13 +553,13 @@ def _finite(value: Any, what: str, size: int) -> List[float]:
     return a.tolist()
 
 
-def _export_text(stable: Any, mesh: Mesh) -> Optional[str]:
+def _export_text(stable: Any, mesh: Mesh, what: str = "stable") -> Optional[str]:
     """A stable-pose export's JSON text from :func:`stable_poses`' list, an
     export dict, or a path to an export."""
     if stable is None:
         return None
     if isinstance(stable, (str, os.PathLike)):
-        return Path(stable).read_text(encoding="utf-8")
+        return _read_text(stable, what, MAX_EXPORT_BYTES)
     if isinstance(stable, Mapping):
         return json.dumps(stable)
     clusters, families = [], []
@@ -727,7 +767,7 @@ def estimate(
     s = _scale(units)
     d = _depth(depth, s)
     meshes, masks = _frame_objects(objects, units, mesh_units, d.shape)
-    stable = [_export_text(o.get("stable"), m) for o, m in zip(objects, meshes)]
+    stable = [_export_text(o.get("stable"), m, f"object {i} stable") for i, (o, m) in enumerate(zip(objects, meshes))]
     pl = None if plane is None else _plane(plane, s)
     out = _native.estimate(
         _camera(K), d, meshes, masks, stable, plane=pl, method=method, steps=_uint("steps", steps), top=_uint("top", top),

@@ -218,6 +218,45 @@ def test_refine_and_estimate_refuse_bad_input(demo):
             call()
 
 
+def test_files_are_read_capped_and_binary_ones_named(demo, tmp_path):
+    """Every file the Python side reads (a scene, a plane, a stable-pose
+    export) is read to a cap: an endless device is an error, not memory
+    growing until the process is killed; a regular file over the cap is
+    refused by its size; a binary file is a ValueError naming the argument."""
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    mesh = demo / "duck_0.15m.obj"
+    s = pl.Scorer(mesh, K, depth, mask, device="cpu")
+    R, t = demo_truth(demo)
+    if Path("/dev/zero").exists():
+        with pytest.raises(ValueError, match="scene '/dev/zero': not a regular file, and more than the 64 MiB"):
+            pl.check("/dev/zero")
+        with pytest.raises(ValueError, match="plane '/dev/zero': not a regular file, and more than the 1 MiB"):
+            s.score(R, t, plane="/dev/zero")
+        with pytest.raises(ValueError, match="stable '/dev/zero': not a regular file, and more than the 256 MiB"):
+            pl.hypotheses(mesh, K, depth, mask, demo / "plane.json", stable="/dev/zero")
+    big = tmp_path / "big.json"
+    with open(big, "wb") as f:
+        f.truncate((64 << 20) + 1)  # sparse: refused by its size, never read
+    with pytest.raises(ValueError, match="a file of 67108865 bytes, more than the 64 MiB"):
+        pl.check(big)
+    with pytest.raises(ValueError, match="plane .*a file of 67108865 bytes, more than the 1 MiB"):
+        s.score(R, t, plane=big)
+    with pytest.raises(ValueError, match=r"scene '.*depth\.png': not a UTF-8 text file"):
+        pl.check(demo / "depth.png")
+    with pytest.raises(ValueError, match=r"plane '.*depth\.png': not a UTF-8 text file"):
+        s.score(R, t, plane=demo / "depth.png")
+    with pytest.raises(ValueError, match=r"object 0 stable '.*depth\.png': not a UTF-8 text file"):
+        pl.estimate(K, depth, [{"mesh": mesh, "mask": mask, "stable": demo / "depth.png"}], device="cpu")
+    with pytest.raises(IsADirectoryError, match="scene .*is a folder"):
+        pl.check(tmp_path)
+    with pytest.raises(FileNotFoundError, match="plane .*not found"):
+        s.score(R, t, plane=tmp_path / "none.json")
+    # A byte order mark (Windows editors) is dropped, as the native readers drop it.
+    bom = tmp_path / "plane.json"
+    bom.write_bytes(b"\xef\xbb\xbf" + (demo / "plane.json").read_bytes())
+    assert s.score(R, t, plane=bom)["verdict"][0] == "plausible"
+
+
 def test_ctrl_c_ends_a_high_res_score_promptly(demo):
     # At res=1024 a pose costs 64 times the pixels of the default 128: the
     # first chunk is 64 poses, not 4096, so Ctrl-C ends the call after about
