@@ -190,50 +190,70 @@ def _mesh(mesh: MeshLike, units: str, mesh_units: str) -> Mesh:
     else:
         raise ValueError("mesh: give a plausible.Mesh, a file path, (vertices, faces) arrays or a trimesh.Trimesh")
     v = _array(vertices, np.float64, "vertices", (None, 3))
-    f = np.asarray(faces)
+    f = _numbers(faces, "faces")
     if f.dtype.kind not in "iu":
         raise ValueError(f"faces: expected integer vertex indices, got dtype {f.dtype}")
     f = _array(f, np.int64, "faces", (None, 3))
     return Mesh(v, f, units)
 
 
-def _array(a: Any, dtype: Any, what: str, shape: Sequence[Optional[int]]) -> np.ndarray:
-    """``a`` as a C-contiguous array of ``dtype`` with ``shape`` (None = any)."""
-    _real(a, what)
+def _numbers(a: Any, what: str) -> np.ndarray:
+    """``a`` (argument ``what``) as an array of real numbers, not yet
+    converted: an array given stays as it is (a broadcast view costs
+    nothing until copied), so its shape can be checked first. Ragged
+    lists, None, strings and complex numbers (numpy would drop their
+    imaginary part) are ValueErrors naming the argument."""
     try:
-        arr = np.ascontiguousarray(np.asarray(a), dtype=dtype)
+        arr = np.asarray(a)
     except (TypeError, ValueError) as e:
-        raise ValueError(f"{what}: cannot be read as {np.dtype(dtype).name} numbers ({e})") from None
-    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise ValueError(f"{what}: expected shape {want}, got {arr.shape}")
+        raise ValueError(f"{what}: cannot be read as an array of numbers ({e})") from None
+    if arr.dtype.kind == "c":
+        raise ValueError(f"{what}: expected real numbers, got complex ones")
+    if arr.dtype.kind == "O" and arr.ndim == 0:
+        raise ValueError(f"{what}: expected an array of numbers, got {type(a).__name__} {a!r:.60}")
+    if arr.dtype.kind not in "biufO":
+        raise ValueError(f"{what}: expected numbers, got dtype {arr.dtype}")
     return arr
 
 
-def _real(a: Any, what: str) -> None:
-    """Refuses complex numbers (numpy would drop their imaginary part)."""
-    if np.iscomplexobj(np.asarray(a) if not isinstance(a, np.ndarray) else a):
-        raise ValueError(f"{what}: expected real numbers, got complex ones")
+def _check_shape(arr: np.ndarray, what: str, shape: Sequence[Optional[int]]) -> None:
+    """ValueError unless ``arr`` has ``shape`` (None = any), naming ``what``."""
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{what}: expected shape {want}, got {arr.shape}")
+
+
+def _convert(arr: np.ndarray, dtype: Any, what: str) -> np.ndarray:
+    """``arr`` as a C-contiguous array of ``dtype`` (the copy, once its shape is checked)."""
+    try:
+        return np.ascontiguousarray(arr, dtype=dtype)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what}: cannot be read as {np.dtype(dtype).name} numbers ({e})") from None
+
+
+def _array(a: Any, dtype: Any, what: str, shape: Sequence[Optional[int]]) -> np.ndarray:
+    """``a`` as a C-contiguous array of ``dtype`` with ``shape`` (None =
+    any); the shape is checked on the input, before any copy."""
+    arr = _numbers(a, what)
+    _check_shape(arr, what, shape)
+    return _convert(arr, dtype, what)
 
 
 def _camera(K: Any) -> np.ndarray:
     """The row-major 3x3 camera matrix, from (3, 3), 9 numbers or (fx, fy, cx, cy)."""
-    _real(K, "K")
-    try:
-        k = np.asarray(K, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"K: cannot be read as numbers ({e})") from None
+    given = _numbers(K, "K")
+    if given.size not in (4, 9):
+        raise ValueError(f"K: expected a 3x3 matrix, 9 numbers or (fx, fy, cx, cy), got shape {given.shape}")
+    k = _convert(given, np.float64, "K").reshape(-1)
     if k.size == 4:
         fx, fy, cx, cy = k
         k = np.array([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
-    if k.size != 9:
-        raise ValueError(f"K: expected a 3x3 matrix, 9 numbers or (fx, fy, cx, cy), got {np.shape(K)}")
     return np.ascontiguousarray(k)
 
 
 def _depth(depth: Any, scale: float) -> np.ndarray:
     """Depth (H, W) in metres, float32."""
-    d = np.asarray(depth)
+    d = _numbers(depth, "depth")
     if d.ndim == 3 and d.shape[2] == 1:
         d = d[:, :, 0]
     if d.ndim != 2:
@@ -258,16 +278,17 @@ def _mask(mask: Any) -> Optional[np.ndarray]:
     """Mask (H, W) as booleans (non-zero = object)."""
     if mask is None:
         return None
-    m = np.asarray(mask)
+    m = _numbers(mask, "mask")
     if m.ndim == 3 and m.shape[2] == 1:
         m = m[:, :, 0]
     if m.ndim != 2:
         raise ValueError(f"mask: expected an (H, W) image, got shape {m.shape}")
+    # Its sides first: np.isnan below makes an array as large as the mask.
+    _check_side("mask", m.shape)
     if m.dtype.kind not in "biuf":
         raise ValueError(f"mask: expected booleans or numbers, got dtype {m.dtype}")
     if m.dtype.kind == "f" and np.isnan(m).any():
         raise ValueError("mask: holds NaN (neither object nor background)")
-    _check_side("mask", m.shape)
     return np.ascontiguousarray(m != 0)
 
 
@@ -280,36 +301,35 @@ def _required_mask(mask: Any) -> np.ndarray:
 
 def _poses(R: Any, t: Any, scale: float) -> Tuple[np.ndarray, np.ndarray]:
     """Rotations (N, 3, 3) and translations (N, 3) in metres, from R and t,
-    or from 4x4 matrices (N, 4, 4) given as R alone."""
-    n = np.shape(R)[0] if np.ndim(R) == 3 else 1
+    or from 4x4 matrices (N, 4, 4) given as R alone. Shapes are checked as
+    given, before any copy (a broadcast view costs nothing until then)."""
+    r = _numbers(R, "R" if t is not None else "poses")
+    n = r.shape[0] if r.ndim == 3 else 1
     if n > _native.MAX_POSES:
-        # Before any copy (a broadcast view costs nothing until then).
         raise ValueError(f"{n} poses: at most {_native.MAX_POSES} are scored at once; give them in chunks")
     if t is None:
-        _real(R, "poses")
-        T = np.asarray(R, dtype=np.float64)
-        if T.ndim == 2:
-            T = T[None]
+        T = r[None] if r.shape == (4, 4) else r
         if T.ndim != 3 or T.shape[1:] != (4, 4):
-            raise ValueError(f"poses: give R (N, 3, 3) and t (N, 3), or 4x4 matrices (N, 4, 4); got shape {T.shape}")
+            raise ValueError(f"poses: give R (N, 3, 3) and t (N, 3), or 4x4 matrices (N, 4, 4); got shape {r.shape}")
+        T = _convert(T, np.float64, "poses")
         # (np.linalg.inv leaves ~1e-17 there: rounding, not another matrix)
         bad = np.flatnonzero(np.any(~(np.abs(T[:, 3, :] - [0.0, 0.0, 0.0, 1.0]) <= 1e-9), axis=1))
         if bad.size:
             raise ValueError(f"pose {bad[0]}: the bottom row of a 4x4 pose must be [0, 0, 0, 1], got {T[bad[0], 3].tolist()}")
-        R, t = T[:, :3, :3], T[:, :3, 3]
-    _real(R, "R")
-    _real(t, "t")
-    try:
-        r = np.asarray(R, dtype=np.float64)
-        tt = np.asarray(t, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"poses: R and t must be numbers ({e})") from None
-    if r.ndim == 2:
-        r = r[None]
-    if tt.ndim == 1:
-        tt = tt[None]
-    r = _array(r, np.float64, "R", (None, 3, 3))
-    tt = _array(tt, np.float64, "t", (r.shape[0], 3))
+        r, tt = T[:, :3, :3], T[:, :3, 3]
+    else:
+        if r.shape == (3, 3):
+            r = r[None]
+        if r.ndim != 3 or r.shape[1:] != (3, 3):
+            raise ValueError(f"R: expected shape (N, 3, 3) or (3, 3), got {r.shape}")
+        tt = _numbers(t, "t")
+        given = tt.shape
+        if tt.shape == (3,):
+            tt = tt[None]
+        if tt.shape != (r.shape[0], 3):
+            raise ValueError(f"t: expected shape ({r.shape[0]}, 3) for {r.shape[0]} rotation{'s' if r.shape[0] != 1 else ''}, got {given}")
+    r = _convert(r, np.float64, "R")
+    tt = _convert(tt, np.float64, "t")
     return r, np.ascontiguousarray(tt * scale)
 
 
@@ -543,11 +563,10 @@ def stable_poses(mesh: MeshLike, *, drops: int = 1000, seed: int = 0, collider: 
 
 def _finite(value: Any, what: str, size: int) -> List[float]:
     """``size`` finite real numbers (any shape holding them), or ValueError."""
-    _real(value, what)
-    try:
-        a = np.asarray(value, dtype=np.float64).reshape(size)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what}: expected {size} numbers") from None
+    given = _numbers(value, what)
+    if given.size != size:
+        raise ValueError(f"{what}: expected {size} numbers, got shape {given.shape}")
+    a = _convert(given, np.float64, what).reshape(size)
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{what}: holds NaN or infinite values")
     return a.tolist()

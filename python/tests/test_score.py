@@ -249,3 +249,29 @@ def test_tolerances_too_small_for_f32_are_refused_as_given(demo):
     with pytest.raises(ValueError, match="alpha 1e-50: too small for the kernels' 32-bit floats"):
         pl.Scorer(mesh, K, depth, mask, alpha=1e-50, device="cpu")
     pl.Scorer(mesh, K, depth, mask, tau=1e-30, device="cpu")  # small, but an f32
+
+
+def test_shapes_are_checked_before_any_copy(demo):
+    """A huge broadcast view with the wrong shape is refused from its shape:
+    no gigabytes are allocated to find it out."""
+    import tracemalloc
+
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    mesh = pl.load_mesh(demo / "duck_0.15m.obj")
+    s = pl.Scorer(mesh, K, depth, mask, device="cpu")
+    cases = {
+        r"t: expected shape \(1, 3\) for 1 rotation, got \(100000000, 3\)": lambda: s.score(R[0], np.broadcast_to(t[0], (100_000_000, 3))),
+        r"plane point: expected shape \(3\), got \(300000000,\)": lambda: s.score(R[:2], t[:2], plane=(np.broadcast_to(1.0, (300_000_000,)), [0, 0, 1])),
+        "mask: 40000x100000 pixels": lambda: pl.Scorer(mesh, K, depth, np.broadcast_to(np.float32(1), (100_000, 40_000)), device="cpu"),
+        r"K: expected a 3x3 matrix, 9 numbers or \(fx, fy, cx, cy\), got shape \(100000000,\)": lambda: pl.Scorer(mesh, np.broadcast_to(np.float32(1), (100_000_000,)), depth, mask, device="cpu"),
+    }
+    for message, call in cases.items():
+        tracemalloc.start()
+        try:
+            with pytest.raises(ValueError, match=message):
+                call()
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 50 << 20, (message, peak)
