@@ -193,8 +193,10 @@ def _mesh(mesh: MeshLike, units: str, mesh_units: str) -> Mesh:
     f = _numbers(faces, "faces")
     if f.dtype.kind not in "iu":
         raise ValueError(f"faces: expected integer vertex indices, got dtype {f.dtype}")
-    f = _array(f, np.int64, "faces", (None, 3))
-    return Mesh(v, f, units)
+    _check_shape(f, "faces", (None, 3))
+    # As they are: Mesh reads unsigned indices as uint64 and signed ones as
+    # int64 (a cast here would turn uint64 2**64 - 1 into -1).
+    return Mesh(v, np.ascontiguousarray(f), units)
 
 
 def _numbers(a: Any, what: str) -> np.ndarray:

@@ -27,15 +27,39 @@ fn numbers<'py, T: numpy::Element>(obj: &Bound<'py, PyAny>, kinds: &str, dtype: 
         let got = a.getattr("dtype")?.str()?.to_string();
         return Err(value_error(format!("{what}: expected {} numbers, got dtype {got}", if kinds == "iu" { "integer" } else { "real" })));
     }
+    // The shape before the copy: a broadcast view costs nothing until then.
+    let shape: Vec<usize> = a.getattr("shape")?.extract()?;
+    if shape.len() != 2 || shape[1] != 3 {
+        let shape = a.getattr("shape")?.str()?.to_string();
+        return Err(value_error(format!("{what}: expected shape (N, 3), got {shape}")));
+    }
     let kw = pyo3::types::PyDict::new(obj.py());
     kw.set_item("dtype", dtype)?;
     let c = np.call_method("ascontiguousarray", (a,), Some(&kw))?;
-    let ndim: usize = c.getattr("ndim")?.extract()?;
-    if ndim != 2 {
-        let shape = c.getattr("shape")?.str()?.to_string();
-        return Err(value_error(format!("{what}: expected a 2-D array ({what} x 3), got shape {shape}")));
-    }
     Ok(c.extract::<PyReadonlyArray2<T>>()?)
+}
+
+/// Face indices (F, 3) as u32 vertex indices. Unsigned arrays are read as
+/// uint64 and signed ones as int64, so no index wraps on the way (a uint64
+/// 2**64 - 1 cast to int64 would read as -1).
+fn face_indices(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<[u32; 3]>> {
+    let np = obj.py().import("numpy")?;
+    let a = np.call_method1("asarray", (obj,)).map_err(|e| value_error(format!("faces: not an array of numbers ({e})")))?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    fn read<T: numpy::Element + Copy + std::fmt::Display>(a: PyReadonlyArray2<'_, T>, name: &str, index: impl Fn(T) -> Option<u32>) -> PyResult<Vec<[u32; 3]>> {
+        let f = a.as_slice().map_err(|_| value_error("faces: expected a C-contiguous array"))?;
+        let mut tris = Vec::with_capacity(f.len() / 3);
+        for (i, c) in f.chunks_exact(3).enumerate() {
+            let idx = |k: usize| index(c[k]).ok_or_else(|| value_error(format!("{name}: face {i} refers to vertex {}, which does not exist", c[k])));
+            tris.push([idx(0)?, idx(1)?, idx(2)?]);
+        }
+        Ok(tris)
+    }
+    if kind == "u" {
+        read(numbers::<u64>(&a, "u", "uint64", "faces")?, name, |v| u32::try_from(v).ok())
+    } else {
+        read(numbers::<i64>(&a, "iu", "int64", "faces")?, name, |v| u32::try_from(v).ok())
+    }
 }
 
 /// Metres per unit of `units` (`m` or `mm`).
@@ -70,21 +94,9 @@ impl Mesh {
     fn new(py: Python<'_>, vertices: &Bound<'_, PyAny>, faces: &Bound<'_, PyAny>, units: &str, name: &str) -> PyResult<Mesh> {
         let scale = unit_scale(units)?;
         let vertices = numbers::<f64>(vertices, "fiu", "float64", "vertices")?;
-        let faces = numbers::<i64>(faces, "iu", "int64", "faces")?;
-        let (vs, fs) = (vertices.shape(), faces.shape());
-        if vs[1] != 3 || fs[1] != 3 {
-            return Err(value_error(format!("vertices must be (V, 3) and faces (F, 3), got {vs:?} and {fs:?}")));
-        }
+        let tris = face_indices(faces, name)?;
         let v = vertices.as_slice().map_err(|_| value_error("vertices: expected a C-contiguous array"))?;
-        let f = faces.as_slice().map_err(|_| value_error("faces: expected a C-contiguous array"))?;
         let verts: Vec<DVec3> = v.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2]) * scale).collect();
-        let mut tris = Vec::with_capacity(f.len() / 3);
-        for (i, c) in f.chunks_exact(3).enumerate() {
-            let idx = |k: usize| {
-                u32::try_from(c[k]).map_err(|_| value_error(format!("{name}: face {i} refers to vertex {}, which does not exist", c[k])))
-            };
-            tris.push([idx(0)?, idx(1)?, idx(2)?]);
-        }
         let (inner, report) = plausible::mesh::Mesh::from_raw(name, verts, tris).map_err(to_py)?;
         Mesh::warned(py, inner, report.warnings)
     }

@@ -275,3 +275,27 @@ def test_shapes_are_checked_before_any_copy(demo):
         finally:
             tracemalloc.stop()
         assert peak < 50 << 20, (message, peak)
+
+
+def test_mesh_faces_are_read_without_wrapping_or_copying(demo):
+    """uint64 faces are read as they are (2**64 - 1 had been cast to -1), and
+    a Mesh's arrays are refused from their shape, before any copy."""
+    import tracemalloc
+
+    K, depth, mask = frame(demo)
+    with pytest.raises(ValueError, match="face 0 refers to vertex 18446744073709551615"):
+        pl.Scorer((np.eye(3), np.array([[2**64 - 1, 1, 2]], dtype=np.uint64)), K, depth, mask, device="cpu")
+    with pytest.raises(ValueError, match="face 0 refers to vertex 18446744073709551615"):
+        pl.Mesh(np.eye(3), np.array([[0, 1, 2**64 - 1]], dtype=np.uint64))
+    with pytest.warns(UserWarning, match="mesh is open"):
+        assert len(pl.Mesh(np.eye(3), np.array([[0, 1, 2]], dtype=np.uint64))) == 1
+    m = pl.load_mesh(demo / "duck_0.15m.obj")
+    for faces in (np.broadcast_to(np.uint64(0), (100_000_000, 4)), np.broadcast_to(np.int32(0), (100_000_000, 4))):
+        tracemalloc.start()
+        try:
+            with pytest.raises(ValueError, match=r"faces: expected shape \(N, 3\), got \(100000000, 4\)"):
+                pl.Mesh(m.vertices, faces)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 50 << 20, peak
