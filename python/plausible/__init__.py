@@ -112,6 +112,19 @@ def _bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def _float(name: str, value: Any) -> float:
+    """A real-number argument (tolerances, distances), or TypeError naming
+    it: a string such as "0.02" is refused, not parsed."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real):
+        raise TypeError(f"{name} {value!r}: expected a number")
+    return float(value)
+
+
+def _opt_float(name: str, value: Any) -> Optional[float]:
+    """:func:`_float`, or None."""
+    return None if value is None else _float(name, value)
+
+
 #: Largest text files read (bytes), as the native side caps them: a scene
 #: JSON, a plane JSON, a stable-pose export.
 MAX_SCENE_BYTES = 64 << 20
@@ -153,6 +166,29 @@ def _json_file(path: Union[str, os.PathLike], what: str, cap: int) -> Any:
         return json.loads(_read_text(path, what, cap))
     except json.JSONDecodeError as e:
         raise ValueError(f"{what} {os.fspath(path)!r}: not JSON ({e})") from None
+
+
+def _jsonable(o: Any) -> Any:
+    """``json.dumps``' fallback: numpy arrays as lists, numpy scalars as
+    numbers, paths as strings."""
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, os.PathLike):
+        return os.fspath(o)
+    raise TypeError(f"{type(o).__name__} {o!r:.60}: not a JSON value (numbers, strings, lists, dicts, numpy arrays)")
+
+
+def _to_json(value: Any, what: str) -> str:
+    """``value`` (argument ``what``) as JSON text, numpy arrays and scalars
+    included; NaN and infinity, which JSON has no words for, are refused."""
+    try:
+        return json.dumps(value, default=_jsonable, allow_nan=False)
+    except TypeError as e:
+        raise TypeError(f"{what}: {e}") from None
+    except ValueError as e:
+        raise ValueError(f"{what}: cannot be written as JSON ({e}: NaN and infinity have no JSON form)") from None
 
 
 def load_mesh(path: Union[str, os.PathLike], units: str = "auto") -> Mesh:
@@ -431,9 +467,9 @@ class Scorer:
             _depth(depth, self._scale),
             _mask(mask),
             res=int(res),
-            tau=float(tau),
-            alpha=float(alpha),
-            margin=float(margin),
+            tau=_float("tau", tau),
+            alpha=_float("alpha", alpha),
+            margin=_float("margin", margin),
             device=device,
             adapter=adapter,
             lod=str(lod),
@@ -519,7 +555,7 @@ def fit_plane(
     ``inlier`` is in metres."""
     s = _scale(units)
     fit = _native.fit_plane(
-        _camera(K), _depth(depth, s), _mask(mask), inlier=float(inlier), iterations=_uint("iterations", iterations), seed=_uint("seed", seed), mask_margin=_uint("mask_margin", mask_margin)
+        _camera(K), _depth(depth, s), _mask(mask), inlier=_float("inlier", inlier), iterations=_uint("iterations", iterations), seed=_uint("seed", seed), mask_margin=_uint("mask_margin", mask_margin)
     )
     fit["point"] = fit["point"] / s
     fit["rms"] = fit["rms"] / s
@@ -533,14 +569,39 @@ def check(scene: Union[Mapping[str, Any], str, os.PathLike], *, simulate: bool =
     folder): per object its verdict (plausible, floating, intersecting,
     unstable), contact counts, minimum distance and stability margin
     (metres), friction equilibrium, and with ``simulate`` the displacement
-    under rapier. Options: samples, seed, epsilon, sdf_resolution, friction."""
+    under rapier. Options: samples, seed, epsilon, sdf_resolution, friction.
+    A dict may hold numpy arrays and numbers, rotations as (3, 3)."""
+    opts: Dict[str, Any] = {}
+    for name, value in options.items():
+        if name in ("samples", "seed", "sdf_resolution"):
+            opts[name] = _uint(name, value)
+        elif name in ("epsilon", "friction"):
+            opts[name] = _opt_float(name, value) if name == "epsilon" else _float(name, value)
+        else:
+            opts[name] = value  # the native side names an unknown option
+    simulate = _bool("simulate", simulate)
     if isinstance(scene, (str, os.PathLike)):
         path = Path(scene)
         text = _read_text(path, "scene", MAX_SCENE_BYTES)
-        return _native.check(text, str(path.parent), str(path), simulate=simulate, **options)
+        return _native.check(text, str(path.parent), str(path), simulate=simulate, **opts)
     if not isinstance(scene, Mapping):
         raise ValueError("scene: give a dict in the plausible check format or a path to its JSON")
-    return _native.check(json.dumps(scene), os.getcwd(), "<scene dict>", simulate=simulate, **options)
+    objects = scene.get("objects")
+    if isinstance(objects, (list, tuple)):
+        # Rotations as (3, 3) arrays or nested lists: the format's 9 numbers, row-major.
+        objects = [
+            dict(o, **{k: np.asarray(o[k]).reshape(9) for k in ("R", "cam_R_m2c") if k in o and _is_3x3(o[k])}) if isinstance(o, Mapping) else o
+            for o in objects
+        ]
+        scene = dict(scene, objects=objects)
+    return _native.check(_to_json(scene, "scene"), os.getcwd(), "<scene dict>", simulate=simulate, **opts)
+
+
+def _is_3x3(value: Any) -> bool:
+    try:
+        return np.shape(value) == (3, 3)
+    except ValueError:  # ragged: left to the native side's message
+        return False
 
 
 def stable_poses(mesh: MeshLike, *, drops: int = 1000, seed: int = 0, collider: str = "hull", threads: Optional[int] = None, units: str = "m", mesh_units: str = "auto") -> List[Dict[str, Any]]:
@@ -631,7 +692,7 @@ def hypotheses(
     out = _native.hypotheses(
         m, _camera(K), _depth(depth, s), _required_mask(mask), p, n,
         stable_export=_export_text(stable, m), yaw_steps=_uint("yaw_steps", yaw_steps), grid_radius=_uint("grid_radius", grid_radius),
-        grid_step=float(grid_step), min_probability=float(min_probability),
+        grid_step=_float("grid_step", grid_step), min_probability=_float("min_probability", min_probability),
     )
     out["t"] = out["t"] / s
     return out
@@ -657,7 +718,7 @@ def eval(  # noqa: A001 - the CLI's verb
     "mspd", "ad"]."""
     return _native.evaluate(
         os.fspath(dataset), os.fspath(results), targets=None if targets is None else os.fspath(targets), split=split,
-        errors=None if errors is None else ([errors] if isinstance(errors, str) else list(errors)), add_threshold=float(add_threshold), dataset_name=dataset_name,
+        errors=None if errors is None else ([errors] if isinstance(errors, str) else list(errors)), add_threshold=_float("add_threshold", add_threshold), dataset_name=dataset_name,
         device=device, adapter=adapter, records=records,
     )
 

@@ -257,6 +257,40 @@ def test_files_are_read_capped_and_binary_ones_named(demo, tmp_path):
     assert s.score(R, t, plane=bom)["verdict"][0] == "plausible"
 
 
+def test_options_name_themselves(demo):
+    """Numbers given as strings or None, negative counts and numpy values
+    in a scene dict: each error names its argument."""
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    mesh = demo / "duck_0.15m.obj"
+    stack = ASSETS / "physics" / "stack.json"
+    for name in ("samples", "seed", "sdf_resolution"):
+        with pytest.raises(ValueError, match=f"{name} -1: expected a non-negative integer"):
+            pl.check(stack, **{name: -1})
+    for name in ("epsilon", "friction"):
+        with pytest.raises(TypeError, match=f"{name} 'x': expected a number"):
+            pl.check(stack, **{name: "x"})
+    with pytest.raises(TypeError, match="inlier '0.005': expected a number"):
+        pl.fit_plane(K, depth, mask, inlier="0.005")
+    with pytest.raises(TypeError, match="grid_step 'x': expected a number"):
+        pl.hypotheses(mesh, K, depth, mask, demo / "plane.json", grid_step="x")
+    with pytest.raises(TypeError, match="add_threshold None: expected a number"):
+        pl.eval(ASSETS / "lmo-synth", ASSETS / "lmo-synth" / "perturbed.csv", add_threshold=None)
+    # numpy arrays and scalars in a scene dict are written as JSON numbers.
+    scene = json.loads(stack.read_text())
+    for o in scene["objects"]:
+        o["mesh"] = stack.parent / o["mesh"]
+        o["R"], o["t"] = np.asarray(o["R"], dtype=np.float32).reshape(3, 3), [np.float64(x) for x in o["t"]]
+    assert [o["verdict"] for o in pl.check(scene)] == [o["verdict"] for o in pl.check(stack)]
+    with pytest.raises(ValueError, match="scene: cannot be written as JSON"):
+        pl.check(dict(scene, gravity=[0, 0, float("nan")]))
+    with pytest.raises(TypeError, match="scene: object .*not a JSON value"):
+        pl.check(dict(scene, gravity=object()))
+    # A folder as a mesh is said to be one.
+    tmp = {"objects": [dict(scene["objects"][0], mesh=str(stack.parent))]}
+    with pytest.raises(ValueError, match="is a folder, not a mesh file"):
+        pl.check(tmp)
+
+
 def test_ctrl_c_ends_a_high_res_score_promptly(demo):
     # At res=1024 a pose costs 64 times the pixels of the default 128: the
     # first chunk is 64 poses, not 4096, so Ctrl-C ends the call after about

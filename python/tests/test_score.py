@@ -241,6 +241,30 @@ def test_threads_share_a_scorer_and_meshes_come_from_any_arrays(demo):
             pl.Mesh(v, f)
 
 
+def test_errors_name_the_argument_and_the_shape_given(demo):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    mesh = demo / "duck_0.15m.obj"
+    s = pl.Scorer(mesh, K, depth, mask, device="cpu")
+    value_errors = {
+        "R: cannot be read as an array of numbers .*inhomogeneous": lambda: s.score([[[1, 0, 0], [0, 1, 0]], [[1, 0, 0]]], t[:2]),
+        "K: cannot be read as an array of numbers .*inhomogeneous": lambda: pl.Scorer(mesh, [[1, 2], [3]], depth, mask, device="cpu"),
+        r"R: expected shape \(N, 3, 3\) or \(3, 3\), got \(64, 9\)": lambda: s.score(R[:64].reshape(-1, 9), t[:64]),
+        "R: expected an array of numbers, got NoneType None": lambda: s.score(None, t[:2]),
+        r"t: expected shape \(2, 3\) for 2 rotations, got \(3,\)": lambda: s.score(R[:2], t[0]),
+        r"t: expected an array of numbers, got ndarray array\(None": lambda: s.score(R[0], np.array(None)),
+        "R: expected numbers, got dtype <U1": lambda: s.score(np.full((3, 3), "1"), t[0]),
+    }
+    for message, call in value_errors.items():
+        with pytest.raises(ValueError, match=message):
+            call()
+    for name in ("tau", "alpha", "margin"):
+        for value in ("x", "0.02", None, True):
+            with pytest.raises(TypeError, match=f"{name} {value!r}: expected a number"):
+                pl.Scorer(mesh, K, depth, mask, device="cpu", **{name: value})
+    assert len(pl.Scorer(mesh, K, depth, mask, device="cpu", tau=np.float32(0.02), alpha=1, margin=np.float64(0.25)).score(R[:2], t[:2])) == 2
+
+
 def test_tolerances_too_small_for_f32_are_refused_as_given(demo):
     K, depth, mask = frame(demo)
     mesh = demo / "duck_0.15m.obj"

@@ -448,7 +448,10 @@ impl Scene {
             let mesh = match cache.iter().find(|(p, u, _)| *p == mesh_path && *u == units) {
                 Some((_, _, m)) => m.clone(),
                 None => {
-                    if !mesh_path.is_file() {
+                    if mesh_path.is_dir() {
+                        return Err(bad(format!("{label}: mesh '{}' is a folder, not a mesh file ({})", o.mesh, mesh_path.display())));
+                    }
+                    if !mesh_path.exists() {
                         return Err(bad(format!("{label}: mesh '{}' not found (looked for {})", o.mesh, mesh_path.display())));
                     }
                     let (m, _) = Mesh::load(&mesh_path, units).map_err(|e| bad(format!("{label}: {e}")))?;
