@@ -518,18 +518,22 @@ class Scorer:
         physics = plane is not None if physics is None else _bool("physics", physics)
         if physics and plane is None:
             raise ValueError("physics=True needs the support plane: pass plane=... (plausible.fit_plane fits one)")
+        # Checked on every call, used or not: a wrong value is wrong
+        # whether or not this call has a plane.
+        epsilon = _opt_float("epsilon", epsilon)
+        if epsilon is not None and not (0.0 < epsilon < 0.05):
+            raise ValueError(f"epsilon {epsilon}: the contact tolerance is in metres and must lie in (0, 0.05)")
+        if not (0 < _uint("samples", samples) <= 50_000):
+            raise ValueError(f"samples {samples}: between 1 and 50,000 surface samples")
+        seed = _uint("seed", seed)
         if not physics:
             with self._lock:
                 cols = self._native.score(r, tt, orthonormalize=orthonormalize)
             return _records(cols, SCORE_DTYPE, self._scale)
-        if epsilon is not None and not (0.0 < float(epsilon) < 0.05):
-            raise ValueError(f"epsilon {epsilon}: the contact tolerance is in metres and must lie in (0, 0.05)")
-        if not (0 < _uint("samples", samples) <= 50_000):
-            raise ValueError(f"samples {samples}: between 1 and 50,000 surface samples")
         p, n = _plane(plane, self._scale)
         with self._lock:
             cols = self._native.score(
-                r, tt, (p, n), samples=int(samples), seed=_uint("seed", seed), epsilon=epsilon, orthonormalize=orthonormalize
+                r, tt, (p, n), samples=int(samples), seed=seed, epsilon=epsilon, orthonormalize=orthonormalize
             )
         return _records(cols, PHYSICS_DTYPE, self._scale)
 

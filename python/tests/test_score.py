@@ -275,6 +275,24 @@ def test_tolerances_too_small_for_f32_are_refused_as_given(demo):
     pl.Scorer(mesh, K, depth, mask, tau=1e-30, device="cpu")  # small, but an f32
 
 
+def test_physics_options_are_checked_without_a_plane(demo):
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    s = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu")
+    with pytest.raises(ValueError, match="epsilon -5"):
+        s.score(R[:2], t[:2], epsilon=-5)
+    with pytest.raises(ValueError, match="samples -5"):
+        s.score(R[:2], t[:2], samples=-5)
+    with pytest.raises(ValueError, match="samples 0"):
+        s.score(R[:2], t[:2], samples=0)
+    with pytest.raises(ValueError, match="seed -1"):
+        s.score(R[:2], t[:2], seed=-1)
+    for epsilon in ("x", "0.001"):
+        with pytest.raises(TypeError, match=f"epsilon '{epsilon}': expected a number"):
+            s.score(R[:2], t[:2], epsilon=epsilon)
+    assert len(s.score(R[:2], t[:2], epsilon=0.001, samples=10)) == 2
+
+
 def test_shapes_are_checked_before_any_copy(demo):
     """A huge broadcast view with the wrong shape is refused from its shape:
     no gigabytes are allocated to find it out."""
