@@ -641,20 +641,29 @@ def _finite(value: Any, what: str, size: int) -> List[float]:
 
 def _export_text(stable: Any, mesh: Mesh, what: str = "stable") -> Optional[str]:
     """A stable-pose export's JSON text from :func:`stable_poses`' list, an
-    export dict, or a path to an export."""
+    export dict, or a path to an export (argument ``what``). A list keeps
+    the geometry hash its entries carry (the mesh they were dropped as), so
+    the native side matches it as it matches an export's and warns when it
+    is another mesh's; a list without one is taken to be ``mesh``'s."""
     if stable is None:
         return None
     if isinstance(stable, (str, os.PathLike)):
         return _read_text(stable, what, MAX_EXPORT_BYTES)
     if isinstance(stable, Mapping):
-        return json.dumps(stable)
-    clusters, families = [], []
+        return _to_json(stable, what)
+    if isinstance(stable, bytes) or not hasattr(stable, "__iter__"):
+        raise ValueError(f"{what}: give stable_poses()' list, an export dict or the path of an export, got {type(stable).__name__}")
+    clusters, families, hashes = [], [], set()
     for i, c in enumerate(stable):
         if not isinstance(c, Mapping) or "probability" not in c:
             raise ValueError(f"stable[{i}]: expected a dict of stable_poses() with a probability, got {type(c).__name__}")
         p = c["probability"]
         if not isinstance(p, Real) or not 0.0 <= float(p) <= 1.0:
             raise ValueError(f"stable[{i}]: probability {p!r} is not a number in [0, 1]")
+        if c.get("sha256") is not None:
+            if not isinstance(c["sha256"], str):
+                raise ValueError(f"stable[{i}]: sha256 {c['sha256']!r} is not a geometry hash (a string)")
+            hashes.add(c["sha256"])
         if c.get("kind", "pose") == "pose":
             if "R_model_to_plane" not in c:
                 raise ValueError(f"stable[{i}]: a resting pose needs its R_model_to_plane (3, 3)")
@@ -665,7 +674,10 @@ def _export_text(stable: Any, mesh: Mesh, what: str = "stable") -> Optional[str]
             if axis is not None:
                 axis = _finite(axis, f"stable[{i}] axis", 3)
             families.append({"kind": c["kind"], "axis": axis, "probability": float(p)})
-    return json.dumps({"format": "plausible-stable-poses/1", "meshes": [{"mesh": "", "sha256": mesh.sha256, "clusters": clusters, "families": families}]})
+    if len(hashes) > 1:
+        raise ValueError(f"{what}: its entries come from {len(hashes)} different meshes (sha256 {', '.join(sorted(h[:12] for h in hashes))}...): give one mesh's stable_poses()")
+    sha256 = hashes.pop() if hashes else mesh.sha256
+    return json.dumps({"format": "plausible-stable-poses/1", "meshes": [{"mesh": "", "sha256": sha256, "clusters": clusters, "families": families}]})
 
 
 def hypotheses(

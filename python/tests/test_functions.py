@@ -257,6 +257,30 @@ def test_files_are_read_capped_and_binary_ones_named(demo, tmp_path):
     assert s.score(R, t, plane=bom)["verdict"][0] == "plausible"
 
 
+def test_stable_poses_of_another_mesh_warn_as_an_export_does(demo):
+    """A stable_poses() list keeps its mesh's geometry hash: another mesh's
+    list warns, as the same poses given as an export do; the mesh's own
+    list does not."""
+    import warnings
+
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    mesh = demo / "duck_0.15m.obj"
+    plane = pl.fit_plane(K, depth, mask)
+    cube = pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=50)
+    with pytest.warns(UserWarning, match="matches neither the geometry of duck_0.15m.obj"):
+        pl.hypotheses(mesh, K, depth, mask, plane, stable=cube, yaw_steps=4)
+    with warnings.catch_warnings():
+        # The warning as an error: estimate stops there, before its work.
+        warnings.simplefilter("error")
+        with pytest.raises(UserWarning, match="matches neither the geometry of duck_0.15m.obj"):
+            pl.estimate(K, depth, [{"mesh": mesh, "mask": mask, "stable": cube}], device="cpu")
+        own = pl.stable_poses(mesh, drops=30, seed=1)
+        assert len(pl.hypotheses(mesh, K, depth, mask, plane, stable=own, yaw_steps=4)["t"]) > 0
+    mixed = [dict(cube[0]), dict(own[0], probability=0.0)]
+    with pytest.raises(ValueError, match="stable: its entries come from 2 different meshes"):
+        pl.hypotheses(mesh, K, depth, mask, plane, stable=mixed)
+
+
 def test_options_name_themselves(demo):
     """Numbers given as strings or None, negative counts and numpy values
     in a scene dict: each error names its argument."""
