@@ -748,6 +748,8 @@ def _frame_objects(objects: Sequence[Mapping[str, Any]], units: str, mesh_units:
         if not isinstance(o, Mapping) or "mesh" not in o or "mask" not in o:
             raise ValueError(f'object {i}: expected a dict with "mesh" and "mask"')
         meshes.append(_mesh(o["mesh"], units, mesh_units))
+        if o["mask"] is None:
+            raise ValueError(f"object {i}: mask None: each object needs its mask (H, W), non-zero where the object is")
         m = _mask(o["mask"])
         if m.shape != depth_shape:
             raise ValueError(f"object {i}: mask shape {m.shape}, but the depth image is {depth_shape}")
@@ -805,6 +807,8 @@ def refine(
     meshes, masks = _frame_objects(objects, units, mesh_units, d.shape)
     rs, ts, leads = [], [], []
     for i, o in enumerate(objects):
+        if "poses" in o and ("R" in o or "t" in o):
+            raise ValueError(f'object {i}: give its hypotheses as "R" and "t" or as "poses" (N, 4, 4), not both')
         if "poses" in o:
             r, t = _poses(o["poses"], None, s)
         elif "R" in o and "t" in o:

@@ -281,6 +281,21 @@ def test_stable_poses_of_another_mesh_warn_as_an_export_does(demo):
         pl.hypotheses(mesh, K, depth, mask, plane, stable=mixed)
 
 
+def test_refine_objects_name_what_is_wrong(demo):
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    R0, t0 = demo_truth(demo)
+    mesh = demo / "duck_0.15m.obj"
+    R, t = np.tile(R0, (3, 1, 1)), np.tile(t0, (3, 1))
+    with pytest.raises(ValueError, match="object 0: mask None"):
+        pl.refine(K, depth, [{"mesh": mesh, "mask": None, "R": R, "t": t}], device="cpu")
+    with pytest.raises(ValueError, match="object 0: mask None"):
+        pl.estimate(K, depth, [{"mesh": mesh, "mask": None}], device="cpu")
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[:, :3, :3], T[:, :3, 3] = R, t
+    with pytest.raises(ValueError, match='object 0: give its hypotheses as "R" and "t" or as "poses" .*not both'):
+        pl.refine(K, depth, [{"mesh": mesh, "mask": mask, "poses": T, "R": R, "t": t}], device="cpu")
+
+
 def test_options_name_themselves(demo):
     """Numbers given as strings or None, negative counts and numpy values
     in a scene dict: each error names its argument."""
