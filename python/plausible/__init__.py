@@ -541,6 +541,12 @@ class Scorer:
         with self._lock:
             return repr(self._native)
 
+    def __reduce__(self) -> Any:
+        raise TypeError(
+            "a plausible.Scorer cannot be pickled or copied: it holds an open device and its uploaded buffers; "
+            "send its Mesh (which pickles) and arrays instead and build a Scorer in each process"
+        )
+
 
 def fit_plane(
     K: Any,

@@ -101,6 +101,39 @@ impl Mesh {
         Mesh::warned(py, inner, report.warnings)
     }
 
+    /// Pickling (and `copy`): the mesh is rebuilt from its vertices in
+    /// metres and faces, bit for bit, with its source and the warnings its
+    /// loading gave (kept, not emitted again). Meshes reach other processes
+    /// this way (multiprocessing).
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let py = slf.py();
+        let me = slf.get();
+        let source = me.inner.source.clone();
+        let args = (me.vertices(py), me.faces(py), source, me.warnings.clone());
+        Ok((slf.get_type().getattr("_restore")?, args.into_pyobject(py)?.into_any()))
+    }
+
+    /// The inverse of `__reduce__`: the mesh from the state it gave,
+    /// checked as any mesh from arrays is, and refused unless it comes back
+    /// exactly (no face dropped on the way).
+    #[staticmethod]
+    fn _restore(vertices: PyReadonlyArray2<'_, f64>, faces: PyReadonlyArray2<'_, u32>, source: Option<std::path::PathBuf>, warnings: Vec<String>) -> PyResult<Mesh> {
+        let (v, f) = (vertices.as_array(), faces.as_array());
+        if v.ncols() != 3 || f.ncols() != 3 {
+            return Err(value_error(format!("Mesh state: vertices must be (V, 3) and faces (F, 3), got {:?} and {:?}", v.shape(), f.shape())));
+        }
+        let verts: Vec<DVec3> = v.rows().into_iter().map(|r| DVec3::new(r[0], r[1], r[2])).collect();
+        let tris: Vec<[u32; 3]> = f.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        let count = tris.len();
+        let name = source.clone().unwrap_or_else(|| "<arrays>".into());
+        let (mut inner, _) = plausible::mesh::Mesh::from_raw(name, verts, tris).map_err(to_py)?;
+        if inner.triangles.len() != count {
+            return Err(value_error(format!("Mesh state: {} of its {count} faces are degenerate, so it was not a plausible.Mesh's", count - inner.triangles.len())));
+        }
+        inner.source = source;
+        Ok(Mesh { inner, warnings })
+    }
+
     /// Loads .obj, .ply, .stl, .gltf or .glb; `units` "m", "cm", "mm" or "auto"
     /// (a diagonal above 5 m is taken as millimetres).
     #[staticmethod]

@@ -319,6 +319,28 @@ def test_shapes_are_checked_before_any_copy(demo):
         assert peak < 50 << 20, (message, peak)
 
 
+def test_meshes_pickle_exactly_and_scorers_refuse_clearly(demo):
+    import copy
+    import pickle
+
+    K, depth, mask = frame(demo)
+    R, t = poses(demo)
+    for m in (pl.load_mesh(demo / "duck_0.15m.obj"), pl.load_mesh(demo / "duck_0.15m.obj", units="mm"), pl.Mesh(np.eye(3) * 0.1, [[0, 1, 2]], units="m")):
+        for back in (pickle.loads(pickle.dumps(m)), copy.deepcopy(m), copy.copy(m)):
+            assert back.vertices.tobytes() == m.vertices.tobytes()
+            assert back.faces.tobytes() == m.faces.tobytes()
+            assert back.sha256 == m.sha256 and repr(back) == repr(m) and back.warnings == m.warnings
+    m = pl.load_mesh(demo / "duck_0.15m.obj")
+    back = pickle.loads(pickle.dumps(m))
+    a = pl.Scorer(m, K, depth, mask, device="cpu").score(R[:64], t[:64])
+    b = pl.Scorer(back, K, depth, mask, device="cpu").score(R[:64], t[:64])
+    np.testing.assert_array_equal(a, b)
+    s = pl.Scorer(m, K, depth, mask, device="cpu")
+    for how in (pickle.dumps, copy.copy, copy.deepcopy):
+        with pytest.raises(TypeError, match="a plausible.Scorer cannot be pickled or copied"):
+            how(s)
+
+
 def test_mesh_faces_are_read_without_wrapping_or_copying(demo):
     """uint64 faces are read as they are (2**64 - 1 had been cast to -1), and
     a Mesh's arrays are refused from their shape, before any copy."""
