@@ -98,3 +98,31 @@ impl Error {
         Error::Io { path: path.into(), error }
     }
 }
+
+/// `v` for a message: `decimals` places in the usual range, and in
+/// scientific notation when its magnitude is 1e6 or more or below 1e-3, so
+/// that a value such as 1e300 read from a file is not printed as 300
+/// digits (nor 1e-9 as 0.000).
+pub fn compact(v: f64, decimals: usize) -> String {
+    let a = v.abs();
+    if a != 0.0 && a.is_finite() && !(1e-3..1e6).contains(&a) {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.decimals$}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::compact;
+
+    #[test]
+    fn compact_numbers_stay_short() {
+        assert_eq!(compact(1e300, 3), "1.000e300");
+        assert_eq!(compact(-2.5e-7, 1), "-2.500e-7");
+        assert_eq!(compact(0.142, 3), "0.142");
+        assert_eq!(compact(999_999.0, 1), "999999.0");
+        assert_eq!(compact(0.0, 2), "0.00");
+        assert_eq!(compact(f64::INFINITY, 1), "inf");
+    }
+}

@@ -122,3 +122,80 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
         assert!((r.r_model_to_plane * DVec3::Z).z.abs() < 1e-12, "the axis lies flat");
     }
 }
+
+/// The lmo-synth scene the CLI tests run `plausible hypotheses` on: frame 3
+/// of scene 2, the ape's mask, and a plane fitted there (written to `dir`).
+struct ApeFrame {
+    dir: tempfile::TempDir,
+}
+
+impl ApeFrame {
+    fn new() -> ApeFrame {
+        let dir = tempfile::tempdir().unwrap();
+        let f = ApeFrame { dir };
+        let plane = f.path("plane.json");
+        let mut args = vec!["plane".to_string()];
+        args.extend(f.observation());
+        args.extend(["--out".to_string(), plane]);
+        let (code, err) = run(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert_eq!(code, 0, "{err}");
+        f
+    }
+
+    fn path(&self, name: &str) -> String {
+        self.dir.path().join(name).to_string_lossy().into_owned()
+    }
+
+    fn observation(&self) -> Vec<String> {
+        let s = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/test/000002");
+        ["--camera", &format!("{s}/scene_camera.json"), "--frame", "3", "--depth", &format!("{s}/depth/000003.png"), "--mask", &format!("{s}/mask_visib/000003_000000.png")]
+            .map(String::from)
+            .to_vec()
+    }
+
+    /// Runs `plausible hypotheses` on `mesh` with `extra` flags (the fitted
+    /// plane unless they give one); returns (exit code, stderr).
+    fn hypotheses(&self, mesh: &str, extra: &[&str]) -> (i32, String) {
+        let mut args = vec!["hypotheses".to_string(), "--mesh".to_string(), mesh.to_string()];
+        args.extend(self.observation());
+        if !extra.contains(&"--plane") {
+            args.extend(["--plane".to_string(), self.path("plane.json")]);
+        }
+        args.extend(["--out".to_string(), self.path("hypotheses.json")]);
+        args.extend(extra.iter().map(|s| s.to_string()));
+        run(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    }
+}
+
+/// Runs the binary; returns (exit code, stderr).
+fn run(args: &[&str]) -> (i32, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_plausible")).args(args).output().unwrap();
+    (o.status.code().unwrap_or(-1), String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+fn lmo_model(id: u32) -> String {
+    format!(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_{:06}.ply"), id)
+}
+
+/// Values such as 1e300 in a flag or a plane file had been printed in full
+/// (300 digits) in error messages.
+#[test]
+fn huge_values_are_printed_short_in_messages() {
+    let f = ApeFrame::new();
+    let ape = lmo_model(1);
+    let (code, err) = f.hypotheses(&ape, &["--grid-step-mm", "1e308", "--grid-radius", "1"]);
+    assert!(code == 1 && err.contains("a grid step of 1.000e305 m"), "{err}");
+    assert!(err.len() < 400, "{err}");
+    let far = f.path("far.json");
+    std::fs::write(&far, r#"{"point": [1e300, 1e300, 1e300], "normal": [0, 0, 1]}"#).unwrap();
+    let (code, err) = f.hypotheses(&ape, &["--plane", &far]);
+    assert!(code == 1 && err.contains("lie 1.000e297 m above the support plane"), "{err}");
+    assert!(err.len() < 600, "{err}");
+    // A plane through the camera, its point far along it: the hint's
+    // distance is short too.
+    let through = f.path("through.json");
+    std::fs::write(&through, r#"{"point": [1e150, 0, 5], "normal": [0, 0, 1]}"#).unwrap();
+    let (code, err) = f.hypotheses(&ape, &["--plane", &through]);
+    assert!(code == 1 && err.contains("the point is 1.000e150 mm from the camera"), "{err}");
+    assert!(err.len() < 600, "{err}");
+}

@@ -133,7 +133,7 @@ fn probability_cut(rests: &[plausible::hypotheses::on_plane::RestingPose], asked
         return Ok(cut);
     }
     if let Some(asked) = asked {
-        bail!("--min-probability {asked}: no resting pose is that probable (the most probable is {top:.4}); give a lower cut");
+        bail!("--min-probability {}: no resting pose is that probable (the most probable is {top:.4}); give a lower cut", plausible::error::compact(asked, 4));
     }
     let mut p: Vec<f64> = rests.iter().map(|r| r.group_probability).collect();
     p.sort_by(|a, b| b.total_cmp(a));

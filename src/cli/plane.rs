@@ -36,7 +36,7 @@ pub fn run(a: PlaneArgs) -> Result<()> {
         bail!("--iterations must be at least 1");
     }
     if !(a.inlier_mm.is_finite() && a.inlier_mm > 0.0 && a.inlier_mm < 500.0) {
-        bail!("--inlier-mm {}: the inlier distance must lie in (0, 500) mm (default 5)", a.inlier_mm);
+        bail!("--inlier-mm {}: the inlier distance must lie in (0, 500) mm (default 5)", plausible::error::compact(a.inlier_mm, 1));
     }
     let (obs, mask) = a.obs.load(false)?;
     let params = PlaneFitParams {

@@ -189,7 +189,7 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             return Err(bad(format!("cluster {i}: R_model_to_plane is not a rotation (scaled, sheared or a reflection)")));
         }
         if !(0.0..=1.0).contains(&c.probability) {
-            return Err(bad(format!("cluster {i}: probability {} is not in [0, 1]", c.probability)));
+            return Err(bad(format!("cluster {i}: probability {} is not in [0, 1]", crate::error::compact(c.probability, 3))));
         }
         out.push(RestingPose { r_model_to_plane: r, probability: c.probability, group_probability: c.probability });
     }
@@ -294,11 +294,11 @@ fn check_object_on_plane(points: &[DVec3], to_plane: &Pose, diagonal: f64) -> Re
     let median = heights[heights.len() / 2];
     if median < -0.5 * diagonal - 0.01 || median > 1.5 * diagonal + 0.01 {
         return Err(Error::InvalidInput(format!(
-            "the object's observed points lie {:.3} m {} the support plane, and the object is {:.3} m across: \
+            "the object's observed points lie {} m {} the support plane, and the object is {} m across: \
              is the plane in other units (\"units\": \"mm\" or \"m\"), or fitted to another surface?",
-            median.abs(),
+            crate::error::compact(median.abs(), 3),
             if median < 0.0 { "below" } else { "above" },
-            diagonal
+            crate::error::compact(diagonal, 3)
         )));
     }
     Ok(())
@@ -345,13 +345,13 @@ pub fn on_plane_hypotheses(
         return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())));
     }
     if !(p.grid_step.is_finite() && p.grid_step > 0.0) {
-        return Err(Error::InvalidInput(format!("the grid step must be a positive number of metres, got {}", p.grid_step)));
+        return Err(Error::InvalidInput(format!("the grid step must be a positive number of metres, got {}", crate::error::compact(p.grid_step, 3))));
     }
     if p.grid_step > mesh.diagonal() {
         return Err(Error::InvalidInput(format!(
-            "a grid step of {} m is larger than the object ({:.3} m across): the offsets would place hypotheses away from the observed object",
-            p.grid_step,
-            mesh.diagonal()
+            "a grid step of {} m is larger than the object ({} m across): the offsets would place hypotheses away from the observed object",
+            crate::error::compact(p.grid_step, 3),
+            crate::error::compact(mesh.diagonal(), 3)
         )));
     }
     if p.grid_radius > MAX_GRID_RADIUS {

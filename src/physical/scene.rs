@@ -172,7 +172,7 @@ pub fn camera_plane_from_json(text: &str, name: &Path) -> Result<Plane> {
     Plane::in_camera(point, normal).map_err(|e| {
         let hint = match e {
             PlaneError::ThroughCamera { distance_m } if scale == 1e-3 && distance_m > 1e-5 => {
-                format!("; the point is {:.1} mm from the camera: is it in metres? (add \"units\": \"m\")", point.length() * 1e3)
+                format!("; the point is {} mm from the camera: is it in metres? (add \"units\": \"m\")", crate::error::compact(point.length() * 1e3, 1))
             }
             _ => String::new(),
         };
