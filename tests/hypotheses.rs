@@ -92,6 +92,9 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     };
     assert_eq!(by("bb", "duck"), (1, ExportMatch::Hash));
     assert_eq!(by("zz", "duck"), (2, ExportMatch::Name));
+    // The mesh's file name, as estimate and Python pass it, matches by its
+    // stem (they passed "obj_000001.ply", which never matched).
+    assert_eq!(by("zz", "duck.obj"), (2, ExportMatch::Name));
     // A single entry matched by name is a name match, not a fallback.
     assert_eq!(resting_poses_from_export(&export(vec![a.clone()]), "zz", "duck").unwrap().1, ExportMatch::Name);
     let err = resting_poses_from_export(&export(vec![a.clone(), b]), "zz", "cup").unwrap_err().to_string();
@@ -100,6 +103,13 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     assert!(resting_poses_from_export(&export(vec![skewed]), "x", "x").unwrap_err().to_string().contains("not a rotation"));
     let mirrored = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 1.0, "R_model_to_plane": [-1, 0, 0, 0, -1, 0, 0, 0, -1]}]});
     assert!(resting_poses_from_export(&export(vec![mirrored]), "x", "x").unwrap_err().to_string().contains("reflection"));
+    // Probabilities are shares of the same settled drops: 0.6 + 0.6 is an
+    // edited file and named as such; 1.005 is rounding.
+    let doubled = serde_json::json!({"mesh": "models/duck.obj", "sha256": "x", "clusters": [cluster(0.6), cluster(0.6)]});
+    let e = resting_poses_from_export(&export(vec![doubled]), "x", "x").unwrap_err().to_string();
+    assert!(e.contains("the entry of models/duck.obj") && e.contains("sum to 1.200"), "{e}");
+    let rounded = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [cluster(0.5)], "families": [{"kind": "circle", "axis": [0.0, 0.0, 1.0], "probability": 0.505}]});
+    assert!(resting_poses_from_export(&export(vec![rounded]), "x", "x").is_ok());
     let improbable = serde_json::json!({"mesh": "x.obj", "sha256": "x", "clusters": [{"probability": 5.0, "R_model_to_plane": [1, 0, 0, 0, 1, 0, 0, 0, 1]}]});
     assert!(resting_poses_from_export(&export(vec![improbable]), "x", "x").unwrap_err().to_string().contains("not in [0, 1]"));
     // An export without meshes says so (the message was cut off).
@@ -121,6 +131,34 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
         assert!((r.probability - 0.05).abs() < 1e-12 && r.group_probability == 0.6);
         assert!((r.r_model_to_plane * DVec3::Z).z.abs() < 1e-12, "the axis lies flat");
     }
+}
+
+/// A drop test stopped before clustering (killed, or Ctrl-C) had been
+/// reported as "the mesh has no clusters (did its drops settle?)" though
+/// every drop it finished had settled: the entry is named and the message
+/// says to resume the run; a finished run of the same mesh is preferred to
+/// an unfinished larger one.
+#[test]
+fn an_unfinished_drop_test_is_named_and_resumed_not_blamed_on_settling() {
+    let export = |meshes: Vec<serde_json::Value>| serde_json::json!({"format": "plausible-stable-poses/1", "meshes": meshes}).to_string();
+    let cluster = serde_json::json!({"probability": 1.0, "R_model_to_plane": [1, 0, 0, 0, 1, 0, 0, 0, 1]});
+    let killed = serde_json::json!({"mesh": "models/obj_000001.ply", "sha256": "a", "drops": 2176, "drops_requested": 3000, "settled": 2176, "clusters": []});
+    let e = resting_poses_from_export(&export(vec![killed.clone()]), "a", "obj_000001.ply").unwrap_err().to_string();
+    assert!(e.contains("the entry of models/obj_000001.ply") && e.contains("unfinished (2176 of 3000 drops stored"), "{e}");
+    assert!(e.contains("stable-poses run` again with the same arguments") && !e.contains("did its drops settle"), "{e}");
+    // Every drop run, none settled: that is what the message says.
+    let unsettled = serde_json::json!({"mesh": "models/ball.ply", "sha256": "a", "drops": 64, "drops_requested": 64, "settled": 0, "clusters": []});
+    let e = resting_poses_from_export(&export(vec![unsettled]), "a", "ball.ply").unwrap_err().to_string();
+    assert!(e.contains("the entry of models/ball.ply") && e.contains("none of its 64 drops settled"), "{e}");
+    // Only ball-like families: no resting orientation to offer.
+    let ball = serde_json::json!({"mesh": "ball.ply", "sha256": "a", "drops": 64, "drops_requested": 64, "settled": 64, "clusters": [],
+        "families": [{"kind": "scattered", "axis": null, "probability": 1.0}]});
+    let e = resting_poses_from_export(&export(vec![ball]), "a", "ball.ply").unwrap_err().to_string();
+    assert!(e.contains("ball-like"), "{e}");
+    // A finished 64-drop run beside the killed 3000-drop one: the finished one.
+    let finished = serde_json::json!({"mesh": "models/obj_000001.ply", "sha256": "a", "drops": 64, "drops_requested": 64, "settled": 64, "clusters": [cluster]});
+    let (rests, how) = resting_poses_from_export(&export(vec![killed, finished]), "a", "obj_000001.ply").unwrap();
+    assert_eq!((rests.len(), how), (1, ExportMatch::Hash));
 }
 
 /// The lmo-synth scene the CLI tests run `plausible hypotheses` on: frame 3
@@ -175,6 +213,32 @@ fn run(args: &[&str]) -> (i32, String) {
 
 fn lmo_model(id: u32) -> String {
     format!(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/lmo-synth/models/obj_{:06}.ply"), id)
+}
+
+/// Every BOP dataset names its models obj_0000NN.ply: a database made from
+/// another dataset (here the eggbox saved as obj_000001.ply) had given the
+/// ape the eggbox's resting poses without a word. It still may, but says so.
+#[test]
+fn resting_poses_matched_by_file_name_only_are_warned_about() {
+    let f = ApeFrame::new();
+    let other = f.dir.path().join("other");
+    std::fs::create_dir(&other).unwrap();
+    std::fs::copy(lmo_model(10), other.join("obj_000001.ply")).unwrap();
+    std::fs::copy(lmo_model(11), other.join("obj_000099.ply")).unwrap();
+    let db = f.path("other.db");
+    let (a, b) = (other.join("obj_000001.ply"), other.join("obj_000099.ply"));
+    let (code, err) = run(&["stable-poses", "run", "--db", &db, "--drops", "32", "--quiet", a.to_str().unwrap(), b.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let (code, err) = f.hypotheses(&lmo_model(1), &["--stable", &db]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("matches the file name only, not the geometry"), "{err}");
+    // The ape's own database: found by geometry, no warning.
+    let own = f.path("own.db");
+    let (code, err) = run(&["stable-poses", "run", "--db", &own, "--drops", "32", "--quiet", &lmo_model(1), &lmo_model(10)]);
+    assert_eq!(code, 0, "{err}");
+    let (code, err) = f.hypotheses(&lmo_model(1), &["--stable", &own]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("file name only"), "{err}");
 }
 
 /// Values such as 1e300 in a flag or a plane file had been printed in full

@@ -106,14 +106,21 @@ pub fn pose_arrays<'py>(py: Python<'py>, poses: &[Pose]) -> PyResult<(Bound<'py,
 
 /// The resting poses of `mesh` from a stable-pose export's text (or the
 /// hull's quasi-static analysis), warning as `plausible hypotheses` does
-/// when the export's only entry matches neither the mesh's geometry nor its
-/// name and is used anyway.
+/// when the entry used matches the mesh's file name but not its geometry,
+/// or is the export's only entry and matches neither.
 pub fn resting_poses(py: Python<'_>, mesh: &plausible::mesh::Mesh, export: Option<&str>) -> PyResult<Vec<plausible::hypotheses::on_plane::RestingPose>> {
     use plausible::hypotheses::on_plane::{resting_poses, ExportMatch};
     let name = mesh.source.as_ref().and_then(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let (rests, how) = py.detach(|| resting_poses(mesh, export, &name)).map_err(to_py)?;
-    if how == Some(ExportMatch::OnlyEntry) {
-        crate::user_warning(py, &format!("the stable-pose export's only mesh matches neither the geometry of {name} nor its name; using it anyway"))?;
+    match how {
+        Some(ExportMatch::OnlyEntry) => {
+            crate::user_warning(py, &format!("the stable-pose export's only mesh matches neither the geometry of {name} nor its name; using it anyway"))?
+        }
+        Some(ExportMatch::Name) => crate::user_warning(
+            py,
+            &format!("the stable-pose export's entry for {name} matches its file name only, not its geometry (another object of the same name, other units or an edited mesh?); using it anyway"),
+        )?,
+        Some(ExportMatch::Hash) | None => {}
     }
     Ok(rests)
 }

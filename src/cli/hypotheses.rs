@@ -61,16 +61,10 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     let (rests, source) = match &a.stable {
         Some(path) => {
             let text = super::estimate::read_stable(path)?;
-            let stem = a.mesh.mesh.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let name = a.mesh.mesh.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             let sha = plausible::stable::mesh_sha256(&mesh);
-            let (rests, how) = resting_poses_from_export(&text, &sha, &stem).with_context(|| path.display().to_string())?;
-            if how == ExportMatch::OnlyEntry {
-                eprintln!(
-                    "warning: {}: its only mesh matches neither the geometry of {} nor its name; using it anyway",
-                    path.display(),
-                    a.mesh.mesh.display()
-                );
-            }
+            let (rests, how) = resting_poses_from_export(&text, &sha, &name).with_context(|| path.display().to_string())?;
+            warn_match(how, path, &a.mesh.mesh);
             (rests, format!("drop-test clusters of {}", path.display()))
         }
         None => (
@@ -114,6 +108,22 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     );
     println!("wrote {}", a.out.display());
     Ok(())
+}
+
+/// Warns when the stable poses used were not found by the mesh's geometry:
+/// BOP datasets all name their models obj_0000NN.ply, so a database of
+/// another dataset matches by name and would give one object another's
+/// resting poses without a word.
+fn warn_match(how: ExportMatch, stable: &std::path::Path, mesh: &std::path::Path) {
+    let (stable, mesh) = (stable.display(), mesh.display());
+    match how {
+        ExportMatch::Hash => {}
+        ExportMatch::Name => eprintln!(
+            "warning: --stable {stable}: its entry for {mesh} matches the file name only, not the geometry (another object of the same name, \
+             other units or an edited mesh?); using its resting poses anyway"
+        ),
+        ExportMatch::OnlyEntry => eprintln!("warning: --stable {stable}: its only mesh matches neither the geometry of {mesh} nor its name; using it anyway"),
+    }
 }
 
 /// Most probable resting poses taken when none reaches `--min-probability`:

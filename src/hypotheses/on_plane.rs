@@ -53,9 +53,15 @@ struct MeshIn {
     mesh: String,
     sha256: String,
     /// Settled drops of the run (several runs of one mesh: the largest
-    /// is taken, its probabilities the most precise).
+    /// clustered one is taken, its probabilities the most precise).
     #[serde(default)]
     settled: u64,
+    /// Drops stored and asked for: with no clusters, fewer stored than
+    /// asked (or settled drops) mean a run stopped before clustering.
+    #[serde(default)]
+    drops: u64,
+    #[serde(default)]
+    drops_requested: u64,
     clusters: Vec<ClusterIn>,
     #[serde(default)]
     families: Vec<FamilyIn>,
@@ -153,8 +159,12 @@ pub fn resting_poses(mesh: &Mesh, export: Option<&str>, name: &str) -> Result<(V
 
 /// The resting poses of one mesh in a `plausible stable-poses export` JSON:
 /// the entry whose `sha256` matches `sha256`, else the one whose file name
-/// stem is `name`, else the only entry (reported as [`ExportMatch::OnlyEntry`]
-/// so the caller can warn). Clusters give one resting pose each, rolling
+/// stem is that of `name` (the mesh's file name; reported as
+/// [`ExportMatch::Name`]: BOP datasets all name their models
+/// obj_0000NN.ply, so the caller should warn that the geometry differs),
+/// else the only entry (reported as [`ExportMatch::OnlyEntry`] so the caller
+/// can warn). Of several runs of one mesh the clustered one with the most
+/// settled drops is taken. Clusters give one resting pose each, rolling
 /// families [`ROLL_STEPS`] (their probability split evenly).
 pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<(Vec<RestingPose>, ExportMatch)> {
     let bad = |reason: String| Error::InvalidInput(format!("stable-pose JSON: {reason}"));
@@ -168,12 +178,16 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
     }
     let meshes = &v.meshes;
     let stem = |m: &MeshIn| std::path::Path::new(&m.mesh).file_stem().map(|s| s.to_string_lossy().into_owned());
+    let name = std::path::Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    // A run stopped before clustering has no clusters: a finished run of
+    // the same mesh is preferred to it whatever their sizes.
+    let best = |m: &&MeshIn| (!(m.clusters.is_empty() && m.families.is_empty()), m.settled);
     let (entry, how) = meshes
         .iter()
         .filter(|m| m.sha256 == sha256)
-        .max_by_key(|m| m.settled)
+        .max_by_key(best)
         .map(|m| (m, ExportMatch::Hash))
-        .or_else(|| meshes.iter().filter(|m| stem(m).as_deref() == Some(name)).max_by_key(|m| m.settled).map(|m| (m, ExportMatch::Name)))
+        .or_else(|| meshes.iter().filter(|m| stem(m).as_deref() == Some(name.as_str())).max_by_key(best).map(|m| (m, ExportMatch::Name)))
         .or_else(|| (meshes.len() == 1).then(|| (&meshes[0], ExportMatch::OnlyEntry)))
         .ok_or_else(|| {
             let names: Vec<String> = meshes.iter().filter_map(stem).collect();
@@ -182,14 +196,21 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
                 if names.is_empty() { "no meshes".to_string() } else { names.join(", ") }
             ))
         })?;
+    let label = if entry.mesh.is_empty() { format!("sha256 {}", entry.sha256.chars().take(12).collect::<String>()) } else { entry.mesh.clone() };
+    let out = entry_resting_poses(entry).map_err(|reason| bad(format!("the entry of {label}: {reason}")))?;
+    Ok((out, how))
+}
+
+/// The resting poses of one export entry; `Err` says what is wrong with it.
+fn entry_resting_poses(entry: &MeshIn) -> std::result::Result<Vec<RestingPose>, String> {
     let mut out = Vec::new();
     for (i, c) in entry.clusters.iter().enumerate() {
         let r = rows(&c.r_model_to_plane);
         if ((r.transpose() * r) - DMat3::IDENTITY).to_cols_array().iter().any(|x| !(x.abs() <= 1e-6)) || r.determinant() < 0.0 {
-            return Err(bad(format!("cluster {i}: R_model_to_plane is not a rotation (scaled, sheared or a reflection)")));
+            return Err(format!("cluster {i}: R_model_to_plane is not a rotation (scaled, sheared or a reflection)"));
         }
         if !(0.0..=1.0).contains(&c.probability) {
-            return Err(bad(format!("cluster {i}: probability {} is not in [0, 1]", crate::error::compact(c.probability, 3))));
+            return Err(format!("cluster {i}: probability {} is not in [0, 1]", crate::error::compact(c.probability, 3)));
         }
         out.push(RestingPose { r_model_to_plane: r, probability: c.probability, group_probability: c.probability });
     }
@@ -202,11 +223,11 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             continue;
         }
         let (Some(axis), p) = (f.axis, f.probability) else {
-            return Err(bad(format!("family {i} (a rolling family) needs an axis")));
+            return Err(format!("family {i} (a rolling family) needs an axis"));
         };
         let axis = DVec3::from_array(axis).normalize();
         if !axis.is_finite() || !(0.0..=1.0).contains(&p) {
-            return Err(bad(format!("family {i} has a zero axis or no probability in [0, 1]")));
+            return Err(format!("family {i} has a zero axis or no probability in [0, 1]"));
         }
         let start = axis.any_orthonormal_vector();
         for k in 0..ROLL_STEPS {
@@ -218,10 +239,45 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             });
         }
     }
+    check_entry_probabilities(entry)?;
     if out.is_empty() {
-        return Err(Error::InvalidInput("stable-pose JSON: the mesh has no clusters (did its drops settle?)".into()));
+        return Err(no_resting_poses(entry));
     }
-    Ok((out, how))
+    Ok(out)
+}
+
+/// Refuses cluster and family probabilities that sum to more than 1 (by
+/// more than rounding): each is a share of the same settled drops, so such
+/// an entry was edited or made by another tool, and its poses would be
+/// weighted wrongly without a word.
+fn check_entry_probabilities(entry: &MeshIn) -> std::result::Result<(), String> {
+    let sum: f64 = entry.clusters.iter().map(|c| c.probability).chain(entry.families.iter().map(|f| f.probability)).sum();
+    if sum > 1.01 {
+        return Err(format!(
+            "its {} cluster and {} family probabilities sum to {}, more than 1 (each is a share of the same settled drops): edited or made by another tool?",
+            entry.clusters.len(),
+            entry.families.len(),
+            crate::error::compact(sum, 3)
+        ));
+    }
+    Ok(())
+}
+
+/// Why an entry gives no resting pose: a run stopped before clustering
+/// (drops stored but no clusters; `stable-poses run` resumes it), drops that
+/// never settled, or only ball-like families (no resting orientation).
+fn no_resting_poses(entry: &MeshIn) -> String {
+    let (stored, asked, settled) = (entry.drops, entry.drops_requested, entry.settled);
+    if entry.clusters.is_empty() && entry.families.is_empty() && (settled > 0 || stored < asked) {
+        format!(
+            "no clusters: its drop test is unfinished ({stored} of {asked} drops stored, {settled} settled, not yet clustered); \
+             resume it by running `plausible stable-poses run` again with the same arguments"
+        )
+    } else if !entry.families.is_empty() {
+        "its drops settled only in ball-like (scattered) families, which have no resting orientation".to_string()
+    } else {
+        format!("no clusters: none of its {stored} drops settled")
+    }
 }
 
 /// Largest in-plane grid radius: (2·20 + 1)² = 1681 offsets per (resting

@@ -19,7 +19,7 @@ use super::{ObjectView, RefineParams, MIN_OBSERVED_POINTS};
 use crate::bop::dataset::{PoseMm, Scene, Target};
 use crate::bop::results::Estimate;
 use crate::error::{Error, Result};
-use crate::hypotheses::on_plane::{on_plane_hypotheses, OnPlaneParams, RestingPose};
+use crate::hypotheses::on_plane::{on_plane_hypotheses, ExportMatch, OnPlaneParams, RestingPose};
 use crate::support_plane::PlaneFitParams;
 use crate::visual::Device;
 
@@ -236,8 +236,16 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
             // of models/ serves models_eval/, whose hashes differ).
             let name = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             let (rests, how) = crate::hypotheses::on_plane::resting_poses(&mesh, stable, &name)?;
-            if how == Some(crate::hypotheses::on_plane::ExportMatch::OnlyEntry) {
-                return Err(Error::InvalidInput(format!("the stable poses given (a database or its export) have no entry for {name} (object {id}): drop-test that model too")));
+            match how {
+                Some(ExportMatch::OnlyEntry) => {
+                    return Err(Error::InvalidInput(format!("the stable poses given (a database or its export) have no entry for {name} (object {id}): drop-test that model too")));
+                }
+                // Every BOP dataset names its models obj_0000NN.ply: a
+                // database of another dataset matches by name alone.
+                Some(ExportMatch::Name) => tracing::warn!(
+                    "the stable poses given match {name} (object {id}) by file name only, not by geometry (another dataset's object of the same name, other units or an edited model?); using them anyway"
+                ),
+                Some(ExportMatch::Hash) | None => {}
             }
             Ok((id, EstimateModel { model: Model::new(mesh, p)?, rests }))
         })
