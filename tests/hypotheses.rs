@@ -161,6 +161,24 @@ fn an_unfinished_drop_test_is_named_and_resumed_not_blamed_on_settling() {
     assert_eq!((rests.len(), how), (1, ExportMatch::Hash));
 }
 
+/// 100000 resting poses x 3600 yaws had collected 360 million (pose, yaw)
+/// jobs (a 5.8 GB allocation that aborted the process) before the count
+/// was checked; the count is now checked first, from the numbers alone.
+#[test]
+fn the_hypothesis_count_is_refused_before_anything_is_allocated() {
+    let k = plausible::camera::Intrinsics { fx: 500.0, fy: 500.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
+    let obs = plausible::observation::DepthImage { intrinsics: k, depth: vec![0.7; 64 * 48] };
+    let mask = vec![true; 64 * 48];
+    let rest = plausible::hypotheses::on_plane::RestingPose { r_model_to_plane: DMat3::IDENTITY, probability: 1e-5, group_probability: 1e-5 };
+    let rests = vec![rest; 100_000];
+    let plane = plausible::physical::Plane::in_camera(DVec3::new(0.0, 0.0, 0.75), DVec3::new(0.0, 0.0, -1.0)).unwrap();
+    let p = OnPlaneParams { yaw_steps: 3600, min_probability: 0.0, ..Default::default() };
+    let t = std::time::Instant::now();
+    let e = on_plane_hypotheses(&duck(), &rests, &plane, &obs, &mask, &p).unwrap_err().to_string();
+    assert!(e.contains("100000 resting poses x 3600 yaws x 1 offsets make 360000000 hypotheses; at most 1000000"), "{e}");
+    assert!(t.elapsed().as_secs_f64() < 1.0, "refused at once, not after the work");
+}
+
 /// The lmo-synth scene the CLI tests run `plausible hypotheses` on: frame 3
 /// of scene 2, the ape's mask, and a plane fitted there (written to `dir`).
 struct ApeFrame {
@@ -239,6 +257,34 @@ fn resting_poses_matched_by_file_name_only_are_warned_about() {
     let (code, err) = f.hypotheses(&lmo_model(1), &["--stable", &own]);
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("file name only"), "{err}");
+}
+
+/// The mesh's size against what the mask sees: a millimetre model read as
+/// centimetres or metres (10 and 1000 times too large) had given poses
+/// "centred on the observed object" metres away from it, and a metre model
+/// read as millimetres a grid-step error while the grid was off.
+#[test]
+fn a_mesh_in_the_wrong_units_is_refused_or_warned_about() {
+    let f = ApeFrame::new();
+    let ape = lmo_model(1);
+    let (code, err) = f.hypotheses(&ape, &[]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("times smaller"), "the right units: no warning: {err}");
+    for units in ["cm", "m"] {
+        let (code, err) = f.hypotheses(&ape, &["--mesh-units", units]);
+        assert_eq!(code, 0, "{units}: {err}");
+        assert!(err.contains("times smaller: is the mesh in other units") && err.contains("--mesh-units"), "{units}: {err}");
+    }
+    let duck = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
+    let (code, err) = f.hypotheses(duck, &["--mesh-units", "mm"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("the visible part cannot be larger than the object") && err.contains("--mesh-units"), "{err}");
+    assert!(!err.contains("grid step"), "the grid is off: {err}");
+    // The grid step is checked against the object only with a grid.
+    let (code, err) = f.hypotheses(&ape, &["--grid-step-mm", "500"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, err) = f.hypotheses(&ape, &["--grid-step-mm", "500", "--grid-radius", "1"]);
+    assert!(code == 1 && err.contains("a grid step of 0.500 m is larger than the object (0.142 m across)"), "{err}");
 }
 
 /// Values such as 1e300 in a flag or a plane file had been printed in full

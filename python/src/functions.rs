@@ -157,6 +157,11 @@ pub fn hypotheses<'py>(
     let mask = convert::mask(Some(mask), &obs)?.expect("given");
     let plane = convert::plane(&plane_point, &plane_normal)?;
     let m = &mesh.inner;
+    // A mesh far larger than what the mask sees (units?) is warned about;
+    // one smaller than it is refused by on_plane_hypotheses.
+    if let Some(w) = plausible::hypotheses::on_plane::check_mesh_size(m, &obs, &mask).map_err(to_py)? {
+        crate::user_warning(py, &w)?;
+    }
     let rests = convert::resting_poses(py, m, stable_export)?;
     let params = OnPlaneParams { yaw_steps, grid_radius, grid_step, min_probability, ..Default::default() };
     let hyps = py.detach(|| on_plane_hypotheses(m, &rests, &plane, &obs, &mask, &params)).map_err(to_py)?;

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
-use plausible::hypotheses::on_plane::{analytic_resting_poses, on_plane_hypotheses, resting_poses_from_export, ExportMatch, OnPlaneParams};
+use plausible::hypotheses::on_plane::{analytic_resting_poses, check_mesh_size, on_plane_hypotheses, resting_poses_from_export, ExportMatch, OnPlaneParams};
 use plausible::physical::scene::read_camera_plane;
 
 #[derive(clap::Args, Debug)]
@@ -58,6 +58,11 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
         bail!("--mask is required: the object's observed points place the hypotheses on the plane");
     };
     let plane = read_camera_plane(&a.plane)?;
+    // Library words, with the flag that fixes a mesh read in wrong units.
+    let units = |e: String| format!("--mesh {}: {e} (--mesh-units m, cm or mm states its units)", a.mesh.mesh.display());
+    if let Some(w) = check_mesh_size(&mesh, &obs, &mask).map_err(|e| anyhow::anyhow!(units(e.to_string())))? {
+        eprintln!("warning: {}", units(w));
+    }
     let (rests, source) = match &a.stable {
         Some(path) => {
             let text = super::estimate::read_stable(path)?;
