@@ -232,9 +232,9 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
         .map(|&id| {
             let path = ds.model_path(id);
             let mesh = model_mesh(ds, id)?;
-            // The stem, as the export's entries are matched by (a database
-            // of models/ serves models_eval/, whose hashes differ).
-            let name = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            // Matched by its stem when the hash differs (a database of
+            // models/ serves models_eval/).
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             let (rests, how) = crate::hypotheses::on_plane::resting_poses(&mesh, stable, &name)?;
             match how {
                 Some(ExportMatch::OnlyEntry) => {
