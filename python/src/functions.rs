@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use plausible::gpu::{Device, DeviceChoice};
 use plausible::physical::check::{check_scene, CheckOptions};
-use plausible::physical::simulate::{displacement, SimSettings};
+use plausible::physical::simulate::{displacement_until, SimSettings};
 use plausible::physical::Scene;
 use plausible::support_plane::{fit_support_plane, PlaneFitParams};
 use numpy::prelude::*;
@@ -70,15 +70,13 @@ pub fn check<'py>(
     friction: f64,
     simulate: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let opts = CheckOptions { samples, seed, epsilon, sdf_resolution, friction };
-    let (checks, sims) = py
-        .detach(|| -> plausible::Result<_> {
-            let scene = Scene::from_json(scene_json, &base, &name)?;
-            let checks = check_scene(&scene, &opts)?;
-            let sims = if simulate { displacement(&scene, &SimSettings::default())? } else { vec![None; checks.len()] };
-            Ok((checks, sims))
-        })
-        .map_err(to_py)?;
+    let (checks, sims) = crate::interruptible(py, |stop| {
+        let scene = Scene::from_json(scene_json, &base, &name)?;
+        let opts = CheckOptions { samples, seed, epsilon, sdf_resolution, friction, stop: stop.clone() };
+        let checks = check_scene(&scene, &opts)?;
+        let sims = if simulate { displacement_until(&scene, &SimSettings::default(), &stop)? } else { vec![None; checks.len()] };
+        Ok((checks, sims))
+    })?;
     let records: Vec<_> = checks.iter().zip(&sims).map(|(o, sim)| o.record(sim.as_deref())).collect();
     let v = serde_json::to_value(&records).map_err(|e| value_error(e.to_string()))?;
     json_to_py(py, &v)

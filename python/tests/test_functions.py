@@ -115,6 +115,17 @@ def test_long_calls_end_on_ctrl_c(demo):
         pl.fit_plane(K, depth, mask, iterations=1_000_000)
     timer.join()
     assert time.monotonic() - start < 5
+    # 200 cubes at 20,000 samples each take about half a minute; Ctrl-C
+    # ends the check at the next object.
+    cube = str(ASSETS / "physics" / "cube.obj")
+    objects = [{"name": f"c{i}", "mesh": cube, "units": "m", "R": [1, 0, 0, 0, 1, 0, 0, 0, 1], "t": [0.1 * (i % 20), 0.1 * (i // 20), 0.035]} for i in range(200)]
+    scene = {"gravity": [0, 0, -9.81], "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1]}], "objects": objects}
+    start = time.monotonic()
+    timer = _interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        pl.check(scene, simulate=True, samples=20_000)
+    timer.join()
+    assert time.monotonic() - start < 5
 
 
 def test_hypotheses_on_the_plane_contain_a_good_one(demo):

@@ -80,6 +80,7 @@ pub fn run(a: CheckArgs) -> Result<()> {
         epsilon: a.sampling.epsilon,
         sdf_resolution: a.sdf_resolution,
         friction: a.friction,
+        ..Default::default()
     };
     let checks = tracing::trace_span!("check").in_scope(|| check_scene(&scene, &opts))?;
     if let Some(path) = &a.explain {

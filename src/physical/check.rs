@@ -31,6 +31,10 @@ pub struct CheckOptions {
     pub sdf_resolution: usize,
     /// Friction coefficient μ of the static-equilibrium check.
     pub friction: f64,
+    /// Checked before each object is prepared and checked: a scene of
+    /// hundreds of objects at a fine SDF takes minutes, and a caller (the
+    /// Python binding on Ctrl-C) may want it to end.
+    pub stop: crate::stop::Stop,
 }
 
 impl Default for CheckOptions {
@@ -41,6 +45,7 @@ impl Default for CheckOptions {
             epsilon: None,
             sdf_resolution: DEFAULT_RESOLUTION,
             friction: super::friction::DEFAULT_FRICTION,
+            stop: Default::default(),
         }
     }
 }
@@ -166,6 +171,7 @@ pub fn prepare(scene: &Scene, opts: &CheckOptions) -> Result<Prepared> {
     let mut done: Vec<MeshPrepared> = Vec::new();
     let (mut bodies, mut grids, mut mass, mut notes) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for o in &scene.objects {
+        opts.stop.check()?;
         let found = done.iter().find(|(m, ..)| Arc::ptr_eq(m, &o.mesh));
         let (b, g, mp, n) = match found {
             Some((_, b, g, mp, n)) => (b.clone(), g.clone(), mp.clone(), n.clone()),
@@ -237,6 +243,7 @@ pub fn check_scene(scene: &Scene, opts: &CheckOptions) -> Result<Vec<ObjectCheck
     for (i, o) in scene.objects.iter().enumerate() {
         // One span per object (a scene has a handful), not per sample.
         let _span = tracing::trace_span!("check_object", object = %o.name).entered();
+        opts.stop.check()?;
         let env = environment_of(scene, &prep, i);
         let body = &prep.bodies[i];
         env.check_epsilon(body.epsilon)?;

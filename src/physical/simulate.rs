@@ -220,10 +220,18 @@ impl SimWorld {
 /// Per object (in scene order): the displacement after every round, or
 /// `None` for static objects.
 pub fn displacement(scene: &Scene, settings: &SimSettings) -> Result<Vec<Option<Vec<Displacement>>>> {
+    displacement_until(scene, settings, &crate::stop::Stop::default())
+}
+
+/// [`displacement`], ending with [`crate::Error::Stopped`] at the next
+/// round once `stop` is requested (a long simulation from the Python
+/// binding, on Ctrl-C).
+pub fn displacement_until(scene: &Scene, settings: &SimSettings, stop: &crate::stop::Stop) -> Result<Vec<Option<Vec<Displacement>>>> {
     let _span = tracing::trace_span!("simulate", rounds = settings.rounds).entered();
     let mut sim = SimWorld::new(scene, settings)?;
     let mut out: Vec<Option<Vec<Displacement>>> = sim.handles.iter().map(|h| h.map(|_| Vec::new())).collect();
     for round in 0..settings.rounds {
+        stop.check()?;
         sim.round();
         let time_s = ((round + 1) * settings.steps) as f64 * settings.dt;
         for (i, o) in scene.objects.iter().enumerate() {
