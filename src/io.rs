@@ -48,6 +48,11 @@ pub fn text_of(path: &Path, bytes: Vec<u8>) -> Result<String> {
 /// target, made if it does not exist yet): renaming a new file over the
 /// path itself would replace the link and leave its target unchanged.
 pub fn link_target(path: &Path) -> PathBuf {
+    // A device, pipe or folder is used as it is: /dev/stdout on a pipe
+    // links to "pipe:[N]", which names no file.
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        return path.to_path_buf();
+    }
     let mut p = path.to_path_buf();
     for _ in 0..40 {
         let Ok(target) = std::fs::read_link(&p) else { break };
@@ -102,8 +107,10 @@ fn temp_beside(path: &Path) -> PathBuf {
 }
 
 /// Checks before long work that `path` can be written: its folder exists
-/// and a file can be created there.
+/// and a file can be created there. Through a symbolic link, the folder of
+/// the file it names, where [`write_atomically`] writes.
 pub fn check_writable(path: &Path) -> Result<()> {
+    let path = &link_target(path);
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),

@@ -357,3 +357,18 @@ fn writes_follow_symlinks_and_images_must_be_files() {
     let e = plausible::observation::read_mask_png(&fifo, 4, 4).unwrap_err().to_string();
     assert!(e.contains("not a regular file"), "{e}");
 }
+
+/// `/dev/stdout` on a pipe links to "pipe:[N]", which names no file: an
+/// output there is written in place, not through a temporary file beside
+/// a path that does not exist.
+#[cfg(unix)]
+#[test]
+fn an_output_on_a_piped_stdout_is_written_in_place() {
+    assert_eq!(plausible::io::link_target(Path::new("/dev/null")), Path::new("/dev/null"));
+    let d = tempfile::tempdir().unwrap();
+    let cube = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/cube.obj");
+    let script = format!("{:?} stable-poses {cube} --drops 8 --quiet --db {:?} --json /dev/stdout | cat", env!("CARGO_BIN_EXE_plausible"), d.path().join("s.db"));
+    let piped = Command::new("bash").arg("-c").arg(script).output().unwrap();
+    let out = String::from_utf8_lossy(&piped.stdout);
+    assert!(piped.status.success() && out.contains("\"clusters\""), "{out}\n{}", String::from_utf8_lossy(&piped.stderr));
+}

@@ -250,6 +250,46 @@ fn dataset_runs_check_every_image_first_and_record_what_they_read() {
     let o = piped(&b);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.code() == Some(1) && err.contains("written with other settings (init"), "{err}");
+    // An output started by an earlier version, which recorded the digest
+    // of the --init file's bytes, still resumes.
+    let legacy = d.path().join("legacy.csv");
+    refine(&a, &legacy, &["--steps", "1", "--images", "3"]);
+    let stamp = d.path().join("legacy.csv.settings.json");
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&stamp).unwrap()).unwrap();
+    use sha2::Digest as _;
+    let bytes: String = sha2::Sha256::digest(std::fs::read(&a).unwrap()).iter().map(|b| format!("{b:02x}")).collect();
+    v["init"] = serde_json::json!(bytes);
+    std::fs::write(&stamp, serde_json::to_vec(&v).unwrap()).unwrap();
+    refine(&a, &legacy, &["--steps", "1"]);
+}
+
+/// A mask larger than its object (a loose detector mask, or one file
+/// shared by two instances) is no reason to stop a dataset run: estimate
+/// places hypotheses from it as before (the mesh-size check that refuses
+/// such a mask is `hypotheses`', whose mesh units come from the user).
+#[test]
+fn estimate_takes_a_loose_mask() {
+    let d = tempfile::tempdir().unwrap();
+    let ape = image::open(dataset().join("test/000002/mask_visib/000003_000000.png")).unwrap().to_luma8();
+    let (w, h) = ape.dimensions();
+    let grow = 25i64;
+    let loose = image::GrayImage::from_fn(w, h, |x, y| {
+        let near = (-grow..=grow).step_by(5).any(|dy| {
+            (-grow..=grow).step_by(5).any(|dx| {
+                let (u, v) = (x as i64 + dx, y as i64 + dy);
+                u >= 0 && v >= 0 && u < w as i64 && v < h as i64 && ape.get_pixel(u as u32, v as u32)[0] > 0
+            })
+        });
+        image::Luma([if near { 255 } else { 0 }])
+    });
+    std::fs::create_dir_all(d.path().join("masks/000002")).unwrap();
+    loose.save(d.path().join("masks/000002/000003_000001.png")).unwrap();
+    let targets = d.path().join("targets.json");
+    std::fs::write(&targets, r#"[{"scene_id": 2, "im_id": 3, "obj_id": 1, "inst_count": 1}]"#).unwrap();
+    let out = d.path().join("e.csv");
+    let text = run(plausible().arg("estimate").arg("--dataset").arg(dataset()).arg("--targets").arg(&targets).arg("--masks").arg(d.path().join("masks")).arg("--out").arg(&out).args(["--steps", "0", "--top", "1", "--yaw-steps", "4", "--quiet", "--device", "cpu"]));
+    assert!(text.contains("estimated 1 instances"), "{text}");
+    assert_eq!(rows(&out).len(), 1);
 }
 
 fn copy_dir(from: &Path, to: &Path) {

@@ -127,9 +127,9 @@ def _opt_float(name: str, value: Any) -> Optional[float]:
 
 #: Largest text files read (bytes), as the native side caps them: a scene
 #: JSON, a plane JSON, a stable-pose export.
-MAX_SCENE_BYTES = 64 << 20
-MAX_PLANE_BYTES = 1 << 20
-MAX_EXPORT_BYTES = 256 << 20
+_MAX_SCENE_BYTES = 64 << 20
+_MAX_PLANE_BYTES = 1 << 20
+_MAX_EXPORT_BYTES = 256 << 20
 
 
 def _read_text(path: Union[str, os.PathLike], what: str, cap: int) -> str:
@@ -377,7 +377,7 @@ def _plane(plane: PlaneLike, scale: float) -> Tuple[np.ndarray, np.ndarray]:
     path to a plane JSON, or a (point, normal) pair in the caller's units."""
     if isinstance(plane, (str, os.PathLike)):
         path = os.fspath(plane)
-        plane = _json_file(path, "plane", MAX_PLANE_BYTES)
+        plane = _json_file(path, "plane", _MAX_PLANE_BYTES)
         if not isinstance(plane, Mapping):
             raise ValueError(f'plane {path!r}: expected a plane JSON {{"point": [x, y, z], "normal": [nx, ny, nz], "units": "mm"|"m"}}')
     if isinstance(plane, Mapping):
@@ -427,7 +427,9 @@ class Scorer:
         margin: growth of the mask's box on each side (fraction).
         device: "auto" (a hardware GPU, else the faster CPU twin), "gpu"
             (any adapter, lavapipe included) or "cpu".
-        adapter: pick the first adapter whose name contains this.
+        adapter: pick the first adapter whose name contains this (with
+            "auto", used even when it is a software one, and an error when
+            missing; with "cpu", refused).
         mesh_units: units of a mesh file: "m", "cm", "mm" or "auto".
         lod: level of detail of the mesh the visual score renders: "auto"
             (the coarsest simplification within a quarter of a pixel at the
@@ -592,7 +594,7 @@ def check(scene: Union[Mapping[str, Any], str, os.PathLike], *, simulate: bool =
     simulate = _bool("simulate", simulate)
     if isinstance(scene, (str, os.PathLike)):
         path = Path(scene)
-        text = _read_text(path, "scene", MAX_SCENE_BYTES)
+        text = _read_text(path, "scene", _MAX_SCENE_BYTES)
         return _native.check(text, str(path.parent), str(path), simulate=simulate, **opts)
     if not isinstance(scene, Mapping):
         raise ValueError("scene: give a dict in the plausible check format or a path to its JSON")
@@ -654,7 +656,7 @@ def _export_text(stable: Any, mesh: Mesh, what: str = "stable") -> Optional[str]
     if stable is None:
         return None
     if isinstance(stable, (str, os.PathLike)):
-        return _read_text(stable, what, MAX_EXPORT_BYTES)
+        return _read_text(stable, what, _MAX_EXPORT_BYTES)
     if isinstance(stable, Mapping):
         return _to_json(stable, what)
     if isinstance(stable, bytes) or not hasattr(stable, "__iter__"):

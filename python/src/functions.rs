@@ -240,7 +240,9 @@ pub fn device_info(py: Python<'_>, adapter: Option<&str>) -> PyResult<(String, S
             Ok(o) => o.device.describe(),
             Err(e) => e.to_string(),
         };
-        let auto = Device::open(DeviceChoice::Auto, adapter, true).map(|o| o.device.describe()).unwrap_or_else(|e| e.to_string());
+        // As a Scorer(device="auto") would open it: a named adapter that is
+        // missing is an error there, not the CPU twin.
+        let auto = Device::open(DeviceChoice::Auto, adapter, false).map(|o| o.device.describe()).unwrap_or_else(|e| e.to_string());
         Ok((gpu, auto))
     })
 }

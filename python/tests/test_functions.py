@@ -305,6 +305,10 @@ def test_refine_objects_name_what_is_wrong(demo):
     T[:, :3, :3], T[:, :3, 3] = R, t
     with pytest.raises(ValueError, match='object 0: give its hypotheses as "R" and "t" or as "poses" .*not both'):
         pl.refine(K, depth, [{"mesh": mesh, "mask": mask, "poses": T, "R": R, "t": t}], device="cpu")
+    # physics=False means something to sir and rir only (as the CLI's --no-physics).
+    for method in ("ref", "pir"):
+        with pytest.raises(ValueError, match="without physics is for sir and rir"):
+            pl.refine(K, depth, [{"mesh": mesh, "mask": mask, "R": R, "t": t}], method=method, physics=False, device="cpu")
 
 
 def test_options_name_themselves(demo):

@@ -92,11 +92,11 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;
     params.refine = RefineParams { method: Method::parse(&a.method).context("--method")?, steps: a.steps.max(1), physics: !a.no_physics, lod: a.lod, ..Default::default() };
-    params.refine.validate().context("check --steps")?;
-    params.refine.steps = a.steps;
     if a.no_physics && matches!(params.refine.method, Method::Ref | Method::Pir) {
         bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
     }
+    params.refine.validate().context("check --steps")?;
+    params.refine.steps = a.steps;
     if a.top == 0 || a.top > 100 {
         bail!("--top {}: between 1 and 100 hypotheses are refined", a.top);
     }
@@ -138,7 +138,11 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         "lod": a.lod.to_string(),
         "masks": a.run.masks_setting(),
     });
-    check_settings(&a.out, &settings)?;
+    let legacy_targets = match &source {
+        plausible::bop::dataset::TargetSource::File(p) => super::refine::legacy_file_digest(p),
+        plausible::bop::dataset::TargetSource::AllInstances => None,
+    };
+    check_settings(&a.out, &settings, &[("targets", legacy_targets)])?;
     skip_done(&mut jobs, &a.out, |(k, _)| *k, |(_, ts)| ts.iter().map(|t| t.inst_count as usize).sum())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();

@@ -163,8 +163,9 @@ pub struct AutoDeviceArgs {
 }
 
 impl AutoDeviceArgs {
-    /// Opens the device: `auto` falls back to the CPU twin (saying why),
-    /// `gpu` and `cpu` force (no adapter for `gpu` is an error).
+    /// Opens the device: `auto` falls back to the CPU twin (saying why)
+    /// unless `--adapter` names one, `gpu` and `cpu` force (no adapter for
+    /// `gpu` is an error; see `Device::open`).
     pub fn open(&self, verbose: u8) -> Result<Device> {
         open_device(&self.device, self.adapter.as_deref(), verbose, false)
     }

@@ -150,6 +150,13 @@ impl ImageRunArgs {
     /// (scene, image, object) masks is there (another naming, the wrong
     /// folder) and warns when some are missing, whose objects are left out.
     pub fn check_masks(&self, masks: &Masks, wanted: &[(u32, u32, u32)], consequence: &str) -> Result<()> {
+        // A mask that is there but no file (a FIFO, a folder) would fail
+        // its image after the work on every image before it.
+        if let Masks::Dir(d) = masks {
+            if let Some(p) = wanted.iter().map(|&(s, i, o)| Masks::dir_file(d, s, i, o)).find(|p| p.exists() && !p.is_file()) {
+                bail!("--masks {}: {} is not a regular file", d.display(), p.display());
+            }
+        }
         let missing = masks.missing(wanted);
         if missing.is_empty() {
             return Ok(());
@@ -388,6 +395,16 @@ pub fn read_digest(lines: impl Iterator<Item = String>) -> String {
     hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// SHA-256 of a regular file's bytes: what earlier versions recorded for
+/// --init and --targets (see [`check_settings`]).
+/// `None` for anything else (a pipe cannot be read twice).
+pub fn legacy_file_digest(path: &std::path::Path) -> Option<String> {
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return None;
+    }
+    std::fs::File::open(path).ok().and_then(|f| plausible::stable::db::sha256_hex_reader(f).ok())
+}
+
 /// A path as recorded in the settings: absolute where it resolves.
 pub fn path_setting(path: &std::path::Path) -> String {
     std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string()
@@ -398,7 +415,11 @@ pub fn path_setting(path: &std::path::Path) -> String {
 /// rest made differently, a silently mixed result. The settings are kept in
 /// `OUT.settings.json`, written when the output starts. A non-empty output
 /// without one was not started by this command and is refused.
-pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Result<()> {
+///
+/// `legacy` gives, per key, the value an earlier version recorded for the
+/// same input (a digest of the file rather than of what was read), so
+/// outputs it started still resume.
+pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value, legacy: &[(&str, Option<String>)]) -> Result<()> {
     let meta = std::fs::metadata(out).ok();
     let resumable = meta.as_ref().is_some_and(|m| m.is_file());
     let started = resumable && meta.as_ref().is_some_and(|m| m.len() > 0);
@@ -412,6 +433,7 @@ pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value) -> Re
                     .into_iter()
                     .flatten()
                     .filter(|(k, v)| before.get(k.as_str()) != Some(*v))
+                    .filter(|(k, _)| !legacy.iter().any(|(l, old)| l == k && old.is_some() && before.get(k.as_str()).and_then(|b| b.as_str()) == old.as_deref()))
                     .map(|(k, _)| k.as_str())
                     .collect();
                 if !differ.is_empty() {
@@ -466,7 +488,6 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         lod: a.lod,
         ..Default::default()
     };
-    params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;
     if a.budget.is_some() && params.method != Method::Rir {
         bail!("--budget is for --method rir (the other methods take --steps per hypothesis)");
     }
@@ -477,6 +498,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if a.no_physics && matches!(params.method, Method::Ref | Method::Pir) {
         bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
     }
+    params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;
     let (shard, masks) = a.run.shard_and_masks()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
     let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--init", Some(&a.init))])?;
@@ -498,7 +520,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         "discount": a.discount,
         "masks": a.run.masks_setting(),
     });
-    check_settings(&a.out, &settings)?;
+    check_settings(&a.out, &settings, &[("init", legacy_file_digest(&a.init))])?;
     skip_done(&mut jobs, &a.out, |j| (j.scene_id, j.im_id), |j| j.estimates.len())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id)).collect();
     objs.sort_unstable();

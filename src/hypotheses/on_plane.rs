@@ -275,6 +275,8 @@ fn no_resting_poses(entry: &MeshIn) -> String {
         )
     } else if !entry.families.is_empty() {
         "its drops settled only in ball-like (scattered) families, which have no resting orientation".to_string()
+    } else if stored == 0 {
+        "no resting poses: it lists no clusters and no drops (an empty list?)".to_string()
     } else {
         format!("no clusters: none of its {stored} drops settled")
     }
@@ -409,7 +411,7 @@ fn mesh_size_verdict(diagonal: f64, points: &[DVec3]) -> Result<Option<String>> 
     );
     if diagonal < MIN_MESH_TO_OBSERVED * seen {
         return Err(Error::InvalidInput(format!(
-            "{sizes}, but the visible part cannot be larger than the object: is the mesh in other units (a mesh in metres or centimetres read as millimetres?), or does the mask cover other surfaces?"
+            "{sizes}, but the visible part cannot be larger than the object: is the mesh in other units (a mesh in metres or centimetres read as millimetres?), or does the mask cover other surfaces (a loose mask, or one of several objects)?"
         )));
     }
     Ok((diagonal > MAX_MESH_TO_OBSERVED * seen).then(|| {
@@ -417,10 +419,13 @@ fn mesh_size_verdict(diagonal: f64, points: &[DVec3]) -> Result<Option<String>> 
     }))
 }
 
-/// Checks the size of `mesh` against the object the mask sees, as
-/// [`on_plane_hypotheses`] does (see `mesh_size_verdict`): an error for a
-/// mesh smaller than its visible part, and a warning to show the user for
-/// one far larger (which `on_plane_hypotheses` itself cannot print).
+/// Checks the size of `mesh` against the object the mask sees (see
+/// `mesh_size_verdict`): an error for a mesh smaller than its visible
+/// part, and a warning to show the user for one far larger. For callers
+/// whose mesh units come from the user (`hypotheses`); not made by
+/// [`on_plane_hypotheses`] itself, since `estimate` knows its models'
+/// units and a loose detector mask, or one shared by two instances, must
+/// not end a dataset run.
 pub fn check_mesh_size(mesh: &Mesh, obs: &DepthImage, mask: &[bool]) -> Result<Option<String>> {
     if mask.len() != obs.depth.len() {
         return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())));
@@ -511,7 +516,6 @@ pub fn on_plane_hypotheses(
             points.len()
         )));
     }
-    mesh_size_verdict(mesh.diagonal(), &points)?;
     let to_plane = camera_to_plane_frame(plane);
     let from_plane = to_plane.inverse();
     let centroid = |pts: &[DVec3]| pts.iter().map(|&x| to_plane.transform_point(x)).sum::<DVec3>().truncate() / pts.len() as f64;

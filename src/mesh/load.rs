@@ -330,7 +330,7 @@ fn read_vec3<'s, T: gltf::accessor::Item + Copy>(
     get: impl Clone + Fn(gltf::Buffer) -> Option<&'s [u8]>,
     f: impl Fn(T) -> f64,
 ) -> std::result::Result<Vec<DVec3>, String> {
-    check_readable(a)?;
+    check_readable(a, std::mem::size_of::<[T; 3]>())?;
     let iter = gltf::accessor::Iter::<[T; 3]>::new(a.clone(), get).ok_or("reaches past its buffer")?;
     Ok(iter.map(|[x, y, z]| DVec3::new(f(x), f(y), f(z))).collect())
 }
@@ -342,7 +342,7 @@ fn read_indices<'s>(a: &gltf::Accessor, get: impl Clone + Fn(gltf::Buffer) -> Op
     if a.dimensions() != Dimensions::Scalar {
         return Err(format!("are {:?}, not SCALAR", a.dimensions()));
     }
-    check_readable(a)?;
+    check_readable(a, a.data_type().size())?;
     let past = || "reach past their buffer".to_string();
     Ok(match a.data_type() {
         DataType::U8 => Iter::<u8>::new(a.clone(), get).ok_or_else(past)?.map(u64::from).collect(),
@@ -352,11 +352,26 @@ fn read_indices<'s>(a: &gltf::Accessor, get: impl Clone + Fn(gltf::Buffer) -> Op
     })
 }
 
-/// Refuses an empty accessor (the spec requires count >= 1, and the gltf
-/// crate's reader computes `count - 1`).
-fn check_readable(a: &gltf::Accessor) -> std::result::Result<(), String> {
+/// Refuses what the gltf crate's reader would panic on rather than
+/// report: an empty accessor or sparse part (the spec requires counts of
+/// at least 1; the reader computes `count - 1`), and a buffer view whose
+/// byteStride is shorter than the `element` bytes it holds (validation
+/// allows any stride of 4 to 252; the reader asserts each element fits).
+fn check_readable(a: &gltf::Accessor, element: usize) -> std::result::Result<(), String> {
     if a.count() == 0 {
         return Err("has count 0".into());
+    }
+    let stride_ok = |view: Option<gltf::buffer::View>, size: usize| match view.and_then(|v| v.stride()) {
+        Some(stride) if stride < size => Err(format!("has a byteStride of {stride}, shorter than its {size}-byte elements")),
+        _ => Ok(()),
+    };
+    stride_ok(a.view(), element)?;
+    if let Some(sparse) = a.sparse() {
+        if sparse.count() == 0 {
+            return Err("has a sparse part of count 0".into());
+        }
+        stride_ok(Some(sparse.indices().view()), sparse.indices().index_type().size())?;
+        stride_ok(Some(sparse.values().view()), element)?;
     }
     Ok(())
 }
@@ -595,6 +610,9 @@ mod tests {
         let text = std::fs::read_to_string(&p).unwrap().replace(r#""componentType":5123"#, r#""componentType":5126"#);
         let e = err(load_gltf(&write(d.path(), "fi.gltf", &text)));
         assert!(e.contains("indices are F32"), "{e}");
+        // A byteStride shorter than a position: the crate's reader asserts.
+        let e = err(load_gltf(&tetra_gltf(d.path(), &floats, 4, 5126, false, node, None, "")));
+        assert!(e.contains("byteStride of 4, shorter than its 12-byte elements"), "{e}");
         // A URI that percent-decodes to invalid UTF-8 (its importer unwraps).
         let e = err(load_gltf(&tetra_gltf(d.path(), &floats, 12, 5126, false, node, Some("%FF.bin"), "")));
         assert!(e.contains("percent-decode"), "{e}");

@@ -155,6 +155,10 @@ impl RefineParams {
         if !(16..=512).contains(&self.res) {
             return bad(format!("the scoring resolution must lie in 16..=512 pixels, got {}", self.res));
         }
+        // Refused rather than ignored: ref never simulates, pir always does.
+        if !self.physics && matches!(self.method, Method::Ref | Method::Pir) {
+            return bad(format!("refinement without physics is for sir and rir; {} never simulates or always does", self.method.name()));
+        }
         Ok(())
     }
 }
