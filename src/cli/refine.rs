@@ -241,8 +241,8 @@ pub fn load_scenes(ds: &Dataset, images: impl Iterator<Item = (u32, u32)>) -> Re
     let mut scenes: HashMap<u32, Scene> = HashMap::new();
     let mut warned = std::collections::HashSet::new();
     for (scene_id, im_id) in images {
-        if !scenes.contains_key(&scene_id) {
-            scenes.insert(scene_id, ds.scene(scene_id).with_context(|| format!("scene {scene_id}"))?);
+        if let std::collections::hash_map::Entry::Vacant(e) = scenes.entry(scene_id) {
+            e.insert(ds.scene(scene_id).with_context(|| format!("scene {scene_id}"))?);
         }
         let scene = &scenes[&scene_id];
         let at = || format!("scene {scene_id} image {im_id}");
