@@ -158,12 +158,7 @@ fn oriented(point: DVec3, n: DVec3) -> Option<Plane> {
 /// smallest eigenvector (power iteration on `tr(C) I - C`, started from the
 /// RANSAC normal, which is already close).
 fn least_squares(points: &[DVec3], start: DVec3) -> Option<Plane> {
-    let c = points.iter().copied().sum::<DVec3>() / points.len() as f64;
-    let mut cov = DMat3::ZERO;
-    for &x in points {
-        let d = x - c;
-        cov += DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-    }
+    let (c, cov) = crate::mesh::mass::scatter_about_mean(points);
     let shifted = DMat3::from_diagonal(DVec3::splat(cov.x_axis.x + cov.y_axis.y + cov.z_axis.z)) - cov;
     let mut n = start.normalize();
     for _ in 0..200 {

@@ -65,23 +65,23 @@ def test_stable_poses_of_a_cube_are_its_six_faces():
         pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=8, threads=100_000)
 
 
-def _interrupt_after(seconds: float) -> threading.Timer:
-    """Ctrl-C as the interpreter sees it (the SIGINT flag set from another
-    thread), `seconds` from now."""
-    timer = threading.Timer(seconds, _thread.interrupt_main)
+def _ends_on_ctrl_c(call, within: float) -> None:
+    """Runs ``call`` with Ctrl-C as the interpreter sees it (the SIGINT flag
+    set from another thread) 0.5 s in: it must raise KeyboardInterrupt, and
+    within ``within`` seconds of its start."""
+    start = time.monotonic()
+    timer = threading.Timer(0.5, _thread.interrupt_main)
     timer.start()
-    return timer
+    with pytest.raises(KeyboardInterrupt):
+        call()
+    timer.join()
+    assert time.monotonic() - start < within
 
 
 def test_long_calls_end_on_ctrl_c(demo):
     # Ten million drops take more than an hour; Ctrl-C ends the call within
     # a world of drops, not after all of them.
-    start = time.monotonic()
-    timer = _interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
-        pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=10_000_000)
-    timer.join()
-    assert time.monotonic() - start < 30
+    _ends_on_ctrl_c(lambda: pl.stable_poses(ASSETS / "physics" / "cube.obj", drops=10_000_000), within=30)
     # The demo's hypotheses 256 times (a million poses) take minutes on the
     # CPU twin; Ctrl-C ends the call after the chunk of 4096 in flight. The
     # scorer stays usable.
@@ -90,42 +90,22 @@ def test_long_calls_end_on_ctrl_c(demo):
     p = json.loads((demo / "poses.json").read_text())
     R = np.tile(np.array([q["cam_R_m2c"] for q in p], dtype=float).reshape(-1, 3, 3), (256, 1, 1))
     t = np.tile(np.array([q["cam_t_m2c"] for q in p], dtype=float) * 1e-3, (256, 1))
-    start = time.monotonic()
-    timer = _interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
-        scorer.score(R, t)
-    timer.join()
-    assert time.monotonic() - start < 30
+    _ends_on_ctrl_c(lambda: scorer.score(R, t), within=30)
     assert len(scorer.score(R[:8], t[:8])) == 8
     # 2000 hypotheses x 100 ICP steps take many minutes; Ctrl-C ends the
     # refinement at its next step.
     R0, t0 = R[0], t[0]
-    start = time.monotonic()
-    timer = _interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
-        pl.refine(K, depth, [{"mesh": demo / "duck_0.15m.obj", "mask": mask, "R": np.tile(R0, (2000, 1, 1)), "t": np.tile(t0, (2000, 1))}],
-                  method="ref", steps=100, device="cpu")
-    timer.join()
-    assert time.monotonic() - start < 30
+    _ends_on_ctrl_c(lambda: pl.refine(K, depth, [{"mesh": demo / "duck_0.15m.obj", "mask": mask, "R": np.tile(R0, (2000, 1, 1)), "t": np.tile(t0, (2000, 1))}],
+                  method="ref", steps=100, device="cpu"), within=30)
     # A million RANSAC hypotheses on 20,000 points take many seconds;
     # Ctrl-C ends the fit at the next one.
-    start = time.monotonic()
-    timer = _interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
-        pl.fit_plane(K, depth, mask, iterations=1_000_000)
-    timer.join()
-    assert time.monotonic() - start < 5
+    _ends_on_ctrl_c(lambda: pl.fit_plane(K, depth, mask, iterations=1_000_000), within=5)
     # 200 cubes at 20,000 samples each take about half a minute; Ctrl-C
     # ends the check at the next object.
     cube = str(ASSETS / "physics" / "cube.obj")
     objects = [{"name": f"c{i}", "mesh": cube, "units": "m", "R": [1, 0, 0, 0, 1, 0, 0, 0, 1], "t": [0.1 * (i % 20), 0.1 * (i // 20), 0.035]} for i in range(200)]
     scene = {"gravity": [0, 0, -9.81], "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1]}], "objects": objects}
-    start = time.monotonic()
-    timer = _interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
-        pl.check(scene, simulate=True, samples=20_000)
-    timer.join()
-    assert time.monotonic() - start < 5
+    _ends_on_ctrl_c(lambda: pl.check(scene, simulate=True, samples=20_000), within=5)
 
 
 def test_hypotheses_on_the_plane_contain_a_good_one(demo):
@@ -353,10 +333,5 @@ def test_ctrl_c_ends_a_high_res_score_promptly(demo):
     scorer = pl.Scorer(demo / "duck_0.15m.obj", K, depth, mask, device="cpu", res=1024)
     R0, t0 = demo_truth(demo)
     R, t = np.tile(R0, (1000, 1, 1)), np.tile(t0, (1000, 1))
-    start = time.monotonic()
-    timer = _interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
-        scorer.score(R, t)
-    timer.join()
-    assert time.monotonic() - start < 5
+    _ends_on_ctrl_c(lambda: scorer.score(R, t), within=5)
     assert len(scorer.score(R[:2], t[:2])) == 2

@@ -92,9 +92,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut params = EstimateParams { top: a.top, ..Default::default() };
     params.hypotheses.yaw_steps = a.yaw_steps;
     params.refine = RefineParams { method: Method::parse(&a.method).context("--method")?, steps: a.steps.max(1), physics: !a.no_physics, lod: a.lod, ..Default::default() };
-    if a.no_physics && matches!(params.refine.method, Method::Ref | Method::Pir) {
-        bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
-    }
+    super::refine::check_no_physics(a.no_physics, params.refine.method)?;
     params.refine.validate().context("check --steps")?;
     params.refine.steps = a.steps;
     if a.top == 0 || a.top > 100 {
@@ -110,9 +108,13 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
     // Which instances an image's estimates are for: the targets file by
     // content (a resumed run with other targets would mix two sets).
-    let targets_setting = match &source {
-        plausible::bop::dataset::TargetSource::File(_) => Some(read_digest(targets.iter().map(|t| format!("{} {} {} {}", t.scene_id, t.im_id, t.obj_id, t.inst_count)))),
-        plausible::bop::dataset::TargetSource::AllInstances => None,
+    // (And the file's digest, which earlier versions recorded instead.)
+    let (targets_setting, legacy_targets) = match &source {
+        plausible::bop::dataset::TargetSource::File(p) => (
+            Some(read_digest(targets.iter().map(|t| format!("{} {} {} {}", t.scene_id, t.im_id, t.obj_id, t.inst_count)))),
+            super::refine::legacy_file_digest(p),
+        ),
+        plausible::bop::dataset::TargetSource::AllInstances => (None, None),
     };
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
     for t in targets {
@@ -138,10 +140,6 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         "lod": a.lod.to_string(),
         "masks": a.run.masks_setting(),
     });
-    let legacy_targets = match &source {
-        plausible::bop::dataset::TargetSource::File(p) => super::refine::legacy_file_digest(p),
-        plausible::bop::dataset::TargetSource::AllInstances => None,
-    };
     check_settings(&a.out, &settings, &[("targets", legacy_targets)])?;
     skip_done(&mut jobs, &a.out, |(k, _)| *k, |(_, ts)| ts.iter().map(|t| t.inst_count as usize).sum())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();

@@ -259,6 +259,16 @@ pub fn load_scenes(ds: &Dataset, images: impl Iterator<Item = (u32, u32)>) -> Re
     Ok(scenes)
 }
 
+/// Refuses `--no-physics` where it would be ignored (refine and estimate):
+/// ref never simulates, pir always does. `RefineParams::validate` refuses
+/// it too, in library words; this names the flag.
+pub fn check_no_physics(no_physics: bool, method: Method) -> Result<()> {
+    if no_physics && matches!(method, Method::Ref | Method::Pir) {
+        bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
+    }
+    Ok(())
+}
+
 /// `oracle` or a folder of masks.
 pub fn parse_masks(s: &str) -> Result<Masks> {
     if s == "oracle" {
@@ -495,9 +505,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     if params.method != Method::Rir && (a.exploration != DEFAULT_EXPLORATION || a.discount != DEFAULT_DISCOUNT) {
         bail!("--exploration and --discount are for --method rir (its UCB over the hypotheses)");
     }
-    if a.no_physics && matches!(params.method, Method::Ref | Method::Pir) {
-        bail!("--no-physics is for --method sir and rir: ref never simulates, pir always does (it is ICP after a simulation)");
-    }
+    check_no_physics(a.no_physics, params.method)?;
     params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;
     let (shard, masks) = a.run.shard_and_masks()?;
     let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;

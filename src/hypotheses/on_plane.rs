@@ -378,13 +378,8 @@ pub const MAX_MESH_TO_OBSERVED: f64 = 10.0;
 /// the points' principal axes, from the 5th to the 95th percentile (mask
 /// edges that catch the background and depth noise fall outside it).
 fn observed_extent(points: &[DVec3]) -> f64 {
-    let n = points.len() as f64;
-    let mean = points.iter().sum::<DVec3>() / n;
-    let cov = points.iter().fold(DMat3::ZERO, |c, &x| {
-        let d = x - mean;
-        c + DMat3::from_cols(d * d.x, d * d.y, d * d.z)
-    }) * (1.0 / n);
-    let (_, axes) = crate::mesh::mass::principal_axes(&cov);
+    let (mean, scatter) = crate::mesh::mass::scatter_about_mean(points);
+    let (_, axes) = crate::mesh::mass::principal_axes(&scatter);
     let axes = DMat3::from_quat(axes);
     let span = |axis: DVec3| {
         let mut s: Vec<f64> = points.iter().map(|&x| (x - mean).dot(axis)).collect();

@@ -485,6 +485,19 @@ pub fn convex_hull(points: &[DVec3]) -> std::result::Result<(Vec<DVec3>, Vec<[u3
     Ok((hv, ht))
 }
 
+/// The mean of `points` and their scatter matrix about it, Σ (x − m)(x − m)ᵀ
+/// (the covariance times the count): the plane fit's normal and the
+/// observed object's principal axes are its eigenvectors.
+pub fn scatter_about_mean(points: &[DVec3]) -> (DVec3, DMat3) {
+    let mean = points.iter().copied().sum::<DVec3>() / points.len() as f64;
+    let mut scatter = DMat3::ZERO;
+    for &x in points {
+        let d = x - mean;
+        scatter += DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+    }
+    (mean, scatter)
+}
+
 /// Principal moments and axes of a symmetric inertia tensor: `inertia =
 /// R diag(moments) Rᵀ` with `R` the returned rotation (its columns are the
 /// axes). The tensor is scaled to unit size first, so the result does not

@@ -157,7 +157,8 @@ impl RefineParams {
         }
         // Refused rather than ignored: ref never simulates, pir always does.
         if !self.physics && matches!(self.method, Method::Ref | Method::Pir) {
-            return bad(format!("refinement without physics is for sir and rir; {} never simulates or always does", self.method.name()));
+            let why = if self.method == Method::Ref { "ref never simulates" } else { "pir always simulates" };
+            return bad(format!("refinement without physics is for sir and rir; {why}"));
         }
         Ok(())
     }
