@@ -364,6 +364,30 @@ fn large_duck_rests_on_its_facets_like_a_small_one() {
 }
 
 #[test]
+fn objects_of_any_size_settle_on_their_facets() {
+    // The rock at 10 nm and at 30 km (units gone wrong, or a model kept in
+    // another scale): rapier at their own size left every drop of a 1.7 nm
+    // tetrahedron and of a 17 km one unsettled (f32 inertia below its normal
+    // range, absolute tolerances); outside drop::SIMULATED_DIAG the body is
+    // a copy scaled to 0.15 m, so they rest as the 3 cm rock does, with
+    // heights in the model's metres.
+    let (mesh, _) = Mesh::load(asset("pybullet/random_000.obj"), MeshUnits::Metres).unwrap();
+    for diag in [1e-8, 3e4] {
+        let scaled = mesh.clone().normalized(diag);
+        let (carried, settled) = check_against_analytic(scaled.clone(), "rock", 200, 0.05, 5.0);
+        assert!(settled >= 0.99, "{diag} m: settled {settled}");
+        assert!(carried > 0.5, "{diag} m: matched analytic facets carry only {carried}");
+        let scratch = Scratch::new();
+        let db = run_db(&scratch.file("rock.sqlite"), scaled.clone(), "rock", &RunParams { drops: 64, ..Default::default() }, None, 2);
+        for d in db.drops(db.runs().unwrap()[0].id).unwrap() {
+            let row = d.rotation.inverse() * DVec3::Z;
+            let low = scaled.vertices.iter().map(|v| row.dot(*v) + d.height).fold(f64::INFINITY, f64::min);
+            assert!(low.abs() < 1e-2 * diag, "{diag} m: drop {} rests {low} m off the plane", d.index);
+        }
+    }
+}
+
+#[test]
 fn light_rods_settle_on_their_faces() {
     // A 7 mm hexagonal pencil 15 cm long (5 g) and a 2 cm square pin: parry's
     // eigensolver gave such light bodies the x axis as their long axis, and

@@ -429,7 +429,8 @@ fn validate_and_clean(
         let d = diag * report.scale_to_metres;
         if !(MIN_DIAGONAL_M..=MAX_DIAGONAL_M).contains(&d) {
             report.warnings.push(format!(
-                "with the stated units the object's bounding-box diagonal is {d:.4} m: is that its real size? (the units may be wrong)"
+                "with the stated units the object's bounding-box diagonal is {} m: is that its real size? (the units may be wrong)",
+                crate::error::compact(d, 4)
             ));
         }
     }

@@ -120,6 +120,11 @@ pub const DROP_REVISION: u32 = 7;
 #[derive(serde::Serialize)]
 struct KeyedParams<'a> {
     drop_revision: u32,
+    /// The drop body's scale when it is not 1 ([`drop::simulation_scale`]):
+    /// revision 7 simulated such objects at their own size, most drops
+    /// unsettled, and those runs are not resumed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    simulation_scale: Option<f64>,
     #[serde(flatten)]
     params: &'a RunParams,
 }
@@ -229,7 +234,9 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
     let analytic = analytic::stable_poses(&full, mass.com, AnalyticParams::default())
         .map_err(|e| Error::InvalidInput(format!("{name}: {e}")))?;
     // The collider and the body are built about the centre of mass (see
-    // `DropBody`): the offset is taken off in f64, before rapier's f32.
+    // `DropBody`): the offset is taken off in f64, before rapier's f32; and
+    // scaled there when the object is outside the sizes rapier is run at.
+    let scale = drop::simulation_scale(diagonal);
     let origin = mass.com;
     let parts: Vec<Hull> = match params.collider {
         ColliderKind::Hull => {
@@ -240,13 +247,22 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
             decomposition(&mesh, name, origin, params.hull_max_points, tol, &mut warnings)?
         }
     };
+    let parts: Vec<Hull> = parts
+        .into_iter()
+        .map(|h| Hull { vertices: h.vertices.iter().map(|v| *v * scale).collect(), triangles: h.triangles })
+        .collect();
     let mut support = Vec::new();
     for p in &parts {
         support.extend(p.vertices.iter().copied());
     }
     let (shapes, is_piece): (Vec<SharedShape>, Vec<bool>) = collider_shapes(name, &parts)?.into_iter().unzip();
     let collider_points = support.len();
-    let body_mass = MassProperties { com: DVec3::ZERO, ..mass.clone() };
+    let body_mass = MassProperties {
+        com: DVec3::ZERO,
+        volume: mass.volume * scale.powi(3),
+        inertia_unit_density: mass.inertia_unit_density * scale.powi(5),
+        ..mass.clone()
+    };
     Ok(PreparedMesh {
         name: name.to_string(),
         sha256,
@@ -256,8 +272,9 @@ pub fn prepare(mesh: Mesh, name: &str, params: &RunParams) -> Result<PreparedMes
             is_piece,
             support,
             mass: body_mass,
-            diagonal,
-            origin,
+            diagonal: diagonal * scale,
+            origin: origin * scale,
+            scale,
         },
         mass,
         collider_parts: parts.len(),
@@ -585,7 +602,8 @@ pub fn run_into_db(
             .unwrap_or_default(),
         warnings: prepared.warnings.clone(),
     })?;
-    let keyed = KeyedParams { drop_revision: DROP_REVISION, params };
+    let scale = prepared.body.scale;
+    let keyed = KeyedParams { drop_revision: DROP_REVISION, simulation_scale: (scale != 1.0).then_some(scale), params };
     let params_json = serde_json::to_string(&keyed)
         .map_err(|e| Error::InvalidInput(format!("cannot serialise run parameters: {e}")))?;
     let run_id = db.run_id(
