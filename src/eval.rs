@@ -329,7 +329,7 @@ fn load_models(ds: &Dataset, obj_ids: &[u32], opts: &EvalOptions, need_render: b
             let path = ds.model_path(id);
             let (pts, tris) = crate::mesh::load_positions(&path).map_err(|e| match e {
                 Error::NotFound { .. } => Error::InvalidInput(format!(
-                    "object {id} is a target but its model {} was not found (without a targets file every annotated object is one)",
+                    "object {id} is a target (in the targets file, or annotated in the ground truth when there is none) but its model {} was not found",
                     path.display()
                 )),
                 e => e,

@@ -491,6 +491,9 @@ fn a_run_asked_for_more_drops_goes_on_from_the_stored_ones() {
     assert_eq!(summary.reused, 40);
     let runs = db.runs().unwrap();
     assert_eq!((runs.len(), runs[0].drops), (1, 90));
+    // The stored parameters (the export's `params`) say 90 too.
+    let stored: serde_json::Value = serde_json::from_str(&runs[0].params).unwrap();
+    assert_eq!(stored["drops"], 90, "{stored}");
     let single = run_db(&scratch.file("single90.sqlite"), mesh, "box", &big, None, 2);
     assert_eq!(db.drops(runs[0].id).unwrap(), single.drops(single.runs().unwrap()[0].id).unwrap());
 }

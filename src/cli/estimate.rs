@@ -149,8 +149,15 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     a.run.check_masks(&masks, &mask_keys, "those objects are not estimated")?;
     let scenes = load_scenes(&ds, jobs.iter().map(|(k, _)| *k))?;
     let device = a.run.dev.open(verbose)?;
-    let source = if a.stable.is_some() { "the stable-pose export" } else { "the quasi-static analysis of each hull" };
-    eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} refined by {}; {}", jobs.len(), a.yaw_steps, a.top, params.refine.method.name().to_uppercase(), masks.describe());
+    let source = match &a.stable {
+        Some(p) => format!("{} (--stable)", p.display()),
+        None => "the quasi-static analysis of each hull".to_string(),
+    };
+    let refined = match a.steps {
+        0 => "not refined (--steps 0)".to_string(),
+        n => format!("refined by {} ({n} steps)", params.refine.method.name().to_uppercase()),
+    };
+    eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} {refined}; {}", jobs.len(), a.yaw_steps, a.top, masks.describe());
     let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;
     let mut out = ResultsAppender::open(&a.out)?;
     let pb = a.run.progress(jobs.len());

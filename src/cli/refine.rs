@@ -448,9 +448,11 @@ pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value, legac
                     .collect();
                 if !differ.is_empty() {
                     bail!(
-                        "{} was written with other settings ({}; recorded in {}): resuming would mix two kinds of results. Give another --out, or delete both files to start again",
+                        "{} was written with other settings ({}; recorded in {}): resuming would mix two kinds of results. Give another --out, or delete {} and {} to start again",
                         out.display(),
                         differ.join(", "),
+                        stamp.display(),
+                        out.display(),
                         stamp.display()
                     );
                 }

@@ -94,6 +94,7 @@ pub struct RunArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct ShowArgs {
+    /// SQLite database written by `stable-poses run` (read only).
     #[arg(long)]
     pub db: PathBuf,
     /// Only meshes whose path contains this text (or whose hash starts with it).
@@ -112,8 +113,10 @@ pub struct MergeArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct ExportArgs {
+    /// SQLite database written by `stable-poses run` (read only).
     #[arg(long)]
     pub db: PathBuf,
+    /// JSON file to write (what `hypotheses --stable`, `estimate --stable` and `report` read).
     #[arg(long)]
     pub json: PathBuf,
     /// Only meshes whose path contains this text (or whose hash starts with it).

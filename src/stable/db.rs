@@ -286,11 +286,14 @@ impl Db {
             )
             .map_err(|e| self.e(e))?;
         // More drops asked of a run it already holds extend it: drop i is
-        // the same whatever the count, so the stored ones are kept.
+        // the same whatever the count, so the stored ones are kept, and the
+        // stored parameters say the new count (SET reads the old row).
         self.conn
             .execute(
-                "UPDATE runs SET cluster_params = ?1, drops = MAX(drops, ?4) WHERE mesh_sha256 = ?2 AND params_key = ?3",
-                params![json(&cluster_params), mesh_sha256, key, drops as i64],
+                "UPDATE runs SET cluster_params = ?1, drops = MAX(drops, ?4),
+                     params = CASE WHEN ?4 > drops THEN ?5 ELSE params END
+                 WHERE mesh_sha256 = ?2 AND params_key = ?3",
+                params![json(&cluster_params), mesh_sha256, key, drops as i64, params_json],
             )
             .map_err(|e| self.e(e))?;
         self.conn
