@@ -181,6 +181,16 @@ pub fn estimate<'py>(
     ep.hypotheses.yaw_steps = yaw_steps;
     let obs = convert::depth_image(k, depth)?;
     let masks = masks(masks_in, &obs)?;
+    // A mesh whose size does not fit what its mask sees (mesh units?) is
+    // warned about, never refused: a loose mask, or one shared by two
+    // instances, must not end the call (`hypotheses` refuses the smaller).
+    for (i, (m, mask)) in meshes.iter().zip(&masks).enumerate() {
+        match plausible::hypotheses::on_plane::check_mesh_size(&m.inner, &obs, mask) {
+            Ok(None) => {}
+            Ok(Some(w)) => crate::user_warning(py, &format!("object {i}: {w}"))?,
+            Err(e) => crate::user_warning(py, &format!("object {i}: {e}"))?,
+        }
+    }
     let plane = plane_for(plane, true, &obs, &masks)?.expect("fitted when not given");
     let rests: Vec<_> = meshes.iter().zip(&stable).map(|(m, s)| convert::resting_poses(py, &m.inner, s.as_deref())).collect::<PyResult<_>>()?;
     let mesh_data: Vec<plausible::mesh::Mesh> = meshes.iter().map(|m| m.inner.clone()).collect();

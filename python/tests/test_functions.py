@@ -186,6 +186,20 @@ def test_estimate_finds_the_duck_on_the_table(demo):
     assert best["score"] > 0.8
 
 
+def test_estimate_warns_of_a_mesh_in_other_units(demo, tmp_path):
+    # The duck in centimetres read as metres: 15 m across where the mask
+    # sees about 0.1 m of it. Warned about per object (a mesh smaller than
+    # what its mask sees is not refused here: a loose mask must not end the
+    # call), and the call goes on.
+    K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
+    lines = (demo / "duck_0.15m.obj").read_text().splitlines()
+    big = tmp_path / "duck_cm.obj"
+    big.write_text("\n".join("v " + " ".join(str(float(c) * 100) for c in l.split()[1:4]) if l.startswith("v ") else l for l in lines))
+    with pytest.warns(UserWarning, match="object 0: the mesh is 15"):
+        out = pl.estimate(K, depth, [{"mesh": big, "mask": mask}], mesh_units="m", top=1, steps=1, yaw_steps=4, device="cpu")
+    assert len(out["best"]) == 1
+
+
 def test_refine_and_estimate_refuse_bad_input(demo):
     K, depth, mask = pl.read_frame(demo / "camera.json", demo / "depth.png", demo / "mask.png")
     R0, t0 = demo_truth(demo)

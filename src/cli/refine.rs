@@ -402,7 +402,7 @@ pub fn read_digest(lines: impl Iterator<Item = String>) -> String {
         hash.update(line.as_bytes());
         hash.update(b"\n");
     }
-    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    plausible::stable::db::hex(&hash.finalize())
 }
 
 /// SHA-256 of a regular file's bytes: what earlier versions recorded for

@@ -417,7 +417,8 @@ fn mesh_size_verdict(diagonal: f64, points: &[DVec3]) -> Result<Option<String>> 
 /// Checks the size of `mesh` against the object the mask sees (see
 /// `mesh_size_verdict`): an error for a mesh smaller than its visible
 /// part, and a warning to show the user for one far larger. For callers
-/// whose mesh units come from the user (`hypotheses`); not made by
+/// whose mesh units come from the user (`hypotheses`; Python's `estimate`
+/// shows both outcomes as warnings); not made by
 /// [`on_plane_hypotheses`] itself, since `estimate` knows its models'
 /// units and a loose detector mask, or one shared by two instances, must
 /// not end a dataset run.

@@ -707,7 +707,8 @@ pub fn sha256_hex_reader(mut reader: impl std::io::Read) -> std::io::Result<Stri
     Ok(hex(&hash.finalize()))
 }
 
-fn hex(digest: &[u8]) -> String {
+/// Lower-case hex of a digest's bytes.
+pub fn hex(digest: &[u8]) -> String {
     digest.iter().map(|b| format!("{b:02x}")).collect()
 }
 
