@@ -34,6 +34,7 @@ fn depth_main(
     let tile = tiles[h];
     let t = vec4<i32>(tile.x0, tile.y0, tile.x1, tile.y1);
     let n = rect_pixels(t);
+    let du = dual(p);
     for (var w = rect_walk(t, lid); w.j < n; walk_step(&w, t)) {
         var key = EMPTY;
         if (in_rect(drawn, i32(w.x), i32(w.y))) {
@@ -41,7 +42,7 @@ fn depth_main(
         }
         // -1 in a tile's first pixel: over budget, the host renders the
         // tile on the CPU.
-        depths[tile.offset + w.j] = select(resolve(p, key, f32(w.x), f32(w.y)).w, -1.0, w.j == 0u && d.over);
+        depths[tile.offset + w.j] = select(resolve(p, du, key, f32(w.x), f32(w.y)).w, -1.0, w.j == 0u && d.over);
     }
     // The host's tile and the kernel's own rectangle are the same f32
     // formula, but may round apart by a pixel: empty whatever was drawn

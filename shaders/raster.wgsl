@@ -91,6 +91,47 @@ fn transform(p: GpuPose, v: vec3<f32>) -> vec3<f32> {
     return rotate(p, v) + vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
 }
 
+// The pose's linear part A is a rotation wherever the library makes poses,
+// but a results file under evaluation may hold a slightly sheared or scaled
+// one, which the BOP toolkit renders as given. Vertices then move by A,
+// planes (normals) by A⁻ᵀ and camera rays into the model by A⁻¹, and the
+// bounding sphere grows by A's largest stretch. q0..q2 are the rows of A⁻ᵀ
+// (the columns of A⁻¹); for a rotation they are A's rows and the stretch
+// is 1, exactly (CPU twin: kernels/mod.rs GpuPose::dual).
+struct Dual { q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, stretch: f32 }
+
+// Largest |A Aᵀ - I| entry still taken for a rotation (f32 rows of an f64
+// rotation are off by about 1e-7).
+const RIGID_TOL: f32 = 1e-5;
+
+fn dual(p: GpuPose) -> Dual {
+    let a = p.r0.xyz;
+    let b = p.r1.xyz;
+    let c = p.r2.xyz;
+    // Rows of the Gram matrix A Aᵀ.
+    let g0 = vec3<f32>(dot(a, a), dot(a, b), dot(a, c));
+    let g1 = vec3<f32>(g0.y, dot(b, b), dot(b, c));
+    let g2 = vec3<f32>(g0.z, g1.z, dot(c, c));
+    let off = max(max(abs(g0 - vec3<f32>(1.0, 0.0, 0.0)), abs(g1 - vec3<f32>(0.0, 1.0, 0.0))), abs(g2 - vec3<f32>(0.0, 0.0, 1.0)));
+    if (max(off.x, max(off.y, off.z)) <= RIGID_TOL) {
+        return Dual(a, b, c, 1.0);
+    }
+    let det = dot(a, cross(b, c));
+    // Gershgorin: A Aᵀ's largest eigenvalue is at most its largest absolute row sum.
+    let rows = vec3<f32>(dot(abs(g0), vec3<f32>(1.0)), dot(abs(g1), vec3<f32>(1.0)), dot(abs(g2), vec3<f32>(1.0)));
+    return Dual(cross(b, c) / det, cross(c, a) / det, cross(a, b) / det, sqrt(max(rows.x, max(rows.y, rows.z))));
+}
+
+// Camera centre in model coordinates, -A⁻¹t.
+fn camera_in_model(p: GpuPose, d: Dual) -> vec3<f32> {
+    return -(d.q0 * p.r0.w + d.q1 * p.r1.w + d.q2 * p.r2.w);
+}
+
+// Radius of the hypothesis' bounding sphere (about the model origin).
+fn pose_radius(p: GpuPose) -> f32 {
+    return params.radius * dual(p).stretch;
+}
+
 fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
     return a.x * b.y - a.y * b.x;
 }
@@ -101,7 +142,8 @@ fn project(v: vec3<f32>) -> vec2<f32> {
 
 // Depth range of the hypothesis: its bounding sphere, clipped at near.
 fn depth_range(p: GpuPose) -> vec2<f32> {
-    return vec2<f32>(max(p.r2.w - params.radius, params.near), p.r2.w + params.radius);
+    let r = pose_radius(p);
+    return vec2<f32>(max(p.r2.w - r, params.near), p.r2.w + r);
 }
 
 // Projection (xlo, ylo, xhi, yhi), in pixels, of the box around a sphere at
@@ -121,7 +163,7 @@ fn sphere_bounds(c: vec3<f32>, r: f32) -> vec4<f32> {
 // to the image. x0 > x1 when it misses the image.
 fn screen_rect(p: GpuPose) -> vec4<i32> {
     let c = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
-    let r = params.radius;
+    let r = pose_radius(p);
     let full = vec4<i32>(0, 0, i32(params.width) - 1, i32(params.height) - 1);
     if (c.z - r <= params.near) {
         return full;
@@ -167,9 +209,9 @@ fn walk_step(w: ptr<function, RectWalk>, rect: vec4<i32>) {
 // camera centre in model coordinates), lies behind the near plane, or
 // projects outside the rectangle (with half a pixel to spare). Every
 // triangle of a rejected meshlet would be rejected on its own.
-fn meshlet_visible(m: GpuMeshlet, p: GpuPose, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> bool {
+fn meshlet_visible(m: GpuMeshlet, p: GpuPose, cam: vec3<f32>, stretch: f32, first: vec2<f32>, last: vec2<f32>) -> bool {
     let centre = m.sphere.xyz;
-    let r = m.sphere.w;
+    let r = m.sphere.w * stretch;
     if (params.cull != 0u) {
         let v = centre - cam;
         if (dot(v, m.cone.xyz) >= m.cone.w * length(v) + r) {
@@ -329,10 +371,10 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
     var lo_all = vec2<i32>(BIG);
     var hi_all = vec2<i32>(-1);
     var spent = 0u;
-    // Camera centre in model coordinates, -Rᵀt: back faces are culled with
+    // Camera centre in model coordinates, -A⁻¹t: back faces are culled with
     // one dot product, before any vertex is transformed.
-    let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
-    let cam = -(p.r0.xyz * tr.x + p.r1.xyz * tr.y + p.r2.xyz * tr.z);
+    let du = dual(p);
+    let cam = camera_in_model(p, du);
     for (var round = 0u; round < params.n_meshlets; round += PER_ROUND) {
         if (lid == 0u) {
             atomicStore(&big_count, 0u);
@@ -341,7 +383,7 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
         }
         workgroupBarrier();
         let mine = round + lid;
-        if (lid < PER_ROUND && mine < params.n_meshlets && meshlet_visible(meshlet(mine), p, cam, first, last)) {
+        if (lid < PER_ROUND && mine < params.n_meshlets && meshlet_visible(meshlet(mine), p, cam, du.stretch, first, last)) {
             atomicOr(&keep[lid / 32u], 1u << (lid % 32u));
         }
         workgroupBarrier();
@@ -434,24 +476,30 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
 // triangle's plane; vec4(0) where nothing was drawn. The pixel centre lies
 // inside the triangle, so the plane gives its depth; edge-on faces are
 // clamped to the hypothesis' depth range.
-fn resolve(p: GpuPose, key: u32, x: f32, y: f32) -> vec4<f32> {
+fn resolve(p: GpuPose, du: Dual, key: u32, x: f32, y: f32) -> vec4<f32> {
     if (key == EMPTY) {
         return vec4<f32>(0.0);
     }
     let id_mask = (1u << params.id_bits) - 1u;
     let plane = tri_texel(key & id_mask, 3u);
-    let n = rotate(p, plane.xyz);
+    // The plane n·x = w moves to (A⁻ᵀn)·x = w + (A⁻ᵀn)·t (du = dual(p),
+    // made once per hypothesis by the caller).
+    let n = vec3<f32>(dot(du.q0, plane.xyz), dot(du.q1, plane.xyz), dot(du.q2, plane.xyz));
     let d = plane.w + dot(n, vec3<f32>(p.r0.w, p.r1.w, p.r2.w));
     let ray = vec3<f32>((x - params.cx) / params.fx, (y - params.cy) / params.fy, 1.0);
     let den = dot(n, ray);
-    let zr = depth_range(p);
+    let r = params.radius * du.stretch;
+    let zr = vec2<f32>(max(p.r2.w - r, params.near), p.r2.w + r);
     var z = zr.y;
     if (abs(den) > 1e-12) {
         z = clamp(d / den, zr.x, zr.y);
     }
     var nn = n;
+    if (du.stretch != 1.0) {
+        nn = normalize(n);
+    }
     if (den > 0.0) {
-        nn = -n;
+        nn = -nn;
     }
     return vec4<f32>(nn, z);
 }

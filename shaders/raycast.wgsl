@@ -111,11 +111,13 @@ fn raycast_main(
     if (x < rect.x || x > rect.z || y < rect.y || y > rect.w) {
         return;
     }
-    let tr = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
-    let o = -(p.r0.xyz * tr.x + p.r1.xyz * tr.y + p.r2.xyz * tr.z);
+    // The camera ray in model space: origin -A⁻¹t, direction A⁻¹(dx, dy, 1)
+    // (A⁻¹ = Aᵀ for a rotation), so the hit's parameter is its depth.
+    let du = dual(p);
+    let o = camera_in_model(p, du);
     let dx = (f32(x) - params.cx) / params.fx;
     let dy = (f32(y) - params.cy) / params.fy;
-    let d = p.r0.xyz * dx + p.r1.xyz * dy + p.r2.xyz;
+    let d = du.q0 * dx + du.q1 * dy + du.q2;
     let inv = vec3<f32>(safe_inverse(d.x), safe_inverse(d.y), safe_inverse(d.z));
     // Children are laid out so that visiting slot k ^ oct, k = 7 down to
     // 0, goes near to far for this ray's octant.

@@ -20,6 +20,7 @@ fn render_main(
     let p = poses[h];
     let drawn = raster_slot(p, base, lid);
     let rect = drawn.rect;
+    let du = dual(p);
     for (var i = lid; i < npix; i += WG) {
         let x = i32(i % params.width);
         let y = i32(i / params.width);
@@ -27,7 +28,7 @@ fn render_main(
         if (x >= rect.x && x <= rect.z && y >= rect.y && y <= rect.w) {
             key = take_key(base + i);
         }
-        var out = resolve(p, key, f32(x), f32(y));
+        var out = resolve(p, du, key, f32(x), f32(y));
         if (i == 0u && drawn.over) {
             out = vec4<f32>(-1.0); // over budget: the host renders it on the CPU
         }

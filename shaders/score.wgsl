@@ -80,6 +80,7 @@ fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: 
         var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
         var behind = 0u;
         let n = rect_pixels(rect);
+        let du = dual(p);
         for (var w = rect_walk(rect, lid); w.j < n; walk_step(&w, rect)) {
             let key = take_key(base + w.y * params.width + w.x);
             if (key == EMPTY) {
@@ -90,7 +91,7 @@ fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: 
             let y = f32(w.y);
             if (obs.w <= 0.0) {
                 // Only where another object is: hidden behind it?
-                if (obs.w < 0.0 && resolve(p, key, x, y).w > -obs.w) {
+                if (obs.w < 0.0 && resolve(p, du, key, x, y).w > -obs.w) {
                     continue;
                 }
                 cnt.y += 1u;
@@ -98,7 +99,7 @@ fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: 
                 continue;
             }
             cnt.y += 1u;
-            let r = resolve(p, key, x, y);
+            let r = resolve(p, du, key, x, y);
             let diff = r.w - obs.w;
             sum.x += 1.0 - min(1.0, abs(diff) / params.tau);
             if (dot(obs.xyz, obs.xyz) > 0.0) {

@@ -96,6 +96,46 @@ fn score_gpu_matches_cpu_twin() {
 }
 
 #[test]
+fn gpu_sheared_poses_score_as_the_deformed_mesh() {
+    // A pose whose linear part A = R·M is not a rotation (a scaled or
+    // sheared matrix, as results files may hold) scores as the mesh
+    // deformed by M at R, on the rasterizer and the ray caster, GPU and
+    // CPU alike: normals and rays go through A⁻ᵀ and A⁻¹ (kernels/mod.rs
+    // Dual), the bounding sphere grows with A's stretch.
+    let ctx = test_context();
+    let raw = duck();
+    let mesh = RenderMesh::new(&raw).unwrap();
+    let target = demo_target(&mesh, SensorNoise::default());
+    let params = ScoreParams::default();
+    let truth = true_pose();
+    let shears = [
+        glam::DMat3::from_diagonal(DVec3::splat(1.03)),
+        glam::DMat3::from_cols(DVec3::X, DVec3::new(0.04, 1.0, 0.0), DVec3::new(0.0, -0.03, 1.0)),
+    ];
+    for renderer in [plausible::kernels::RendererChoice::Raster, plausible::kernels::RendererChoice::RayCast] {
+        for m in shears {
+            let mut sheared = mesh.clone();
+            sheared.renderer = renderer;
+            let mut deformed = RenderMesh::new(&Mesh { vertices: raw.vertices.iter().map(|v| m * *v).collect(), ..raw.clone() }).unwrap();
+            deformed.renderer = renderer;
+            let poses: Vec<Pose> = around_and_random(&truth, 24, 3).iter().map(|p| Pose::new(p.r * m, p.t)).collect();
+            let rigid: Vec<Pose> = around_and_random(&truth, 24, 3);
+            let want = score_cpu(&deformed, &target, &rigid, &params);
+            let cpu = score_cpu(&sheared, &target, &poses, &params);
+            let (gpu, _) = GpuScorer::new(&ctx, &sheared, &target, params, poses.len()).unwrap().score(&poses).unwrap();
+            for (i, ((w, c), g)) in want.iter().zip(&cpu).zip(&gpu).enumerate() {
+                for (what, x) in [("cpu", c), ("gpu", g)] {
+                    assert!(
+                        (w.score - x.score).abs() < 2e-3 && (w.mean_ad - x.mean_ad).abs() < 2e-3 && (w.mean_an - x.mean_an).abs() < 2e-3,
+                        "{renderer:?} {m} hypothesis {i}: {what} {x:?}, deformed mesh {w:?}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn gpu_forced_small_limits_split_batches_with_same_results() {
     let ctx = test_context();
     // 16 KiB bindings: 341 poses per chunk, 4 visibility slots of a 32x32
@@ -534,7 +574,7 @@ fn meshlet_culling_changes_no_pixel() {
         let rejected = culled
             .meshlets
             .iter()
-            .filter(|m| !plausible::kernels::raster::meshlet_visible(m, &gp, gp.inverse_translation(), culled.cull_back_faces, &k, (0.0, 0.0), (159.0, 119.0)))
+            .filter(|m| !plausible::kernels::raster::meshlet_visible(m, &gp, gp.inverse_translation(), 1.0, culled.cull_back_faces, &k, (0.0, 0.0), (159.0, 119.0)))
             .count();
         assert!(rejected > 0 || !culled.cull_back_faces, "no meshlet culled");
         let with_gpu = render_gpu(&ctx, &culled, &poses, &k).unwrap();

@@ -324,13 +324,14 @@ fn observed_points(obs: &DepthImage, mask: &[bool]) -> Vec<DVec3> {
 fn visible_centroid(mesh: &RenderMesh, pose: &Pose, k: &crate::camera::Intrinsics, to_plane: &Pose, zbuf: &mut [f32], ids: &mut [u32]) -> Option<DVec2> {
     let gp = GpuPose::from(pose);
     let [x0, y0, x1, y1] = render_ids(mesh, &gp, k, zbuf, ids)?;
+    let du = gp.dual();
     let w = k.width as usize;
     let (mut sum, mut count) = (DVec3::ZERO, 0usize);
     for y in y0..=y1 {
         for x in x0..=x1 {
             let id = ids[y * w + x];
             if id != u32::MAX {
-                let (z, _) = resolve(&mesh.triangles[id as usize], &gp, mesh.radius, k, x as f32, y as f32);
+                let (z, _) = resolve(&mesh.triangles[id as usize], &gp, &du, mesh.radius, k, x as f32, y as f32);
                 if z > 0.0 {
                     sum += to_plane.transform_point(k.pixel_point(y * w + x, z as f64));
                     count += 1;

@@ -75,14 +75,14 @@ impl RayCaster {
         let w = k.width as usize;
         let rect = screen_rect(pose, mesh.radius, k)?;
         let origin = Vec3A::from(pose.inverse_translation());
-        let rows = pose.rows.map(|r| Vec3A::new(r[0], r[1], r[2]));
+        // A⁻¹ (dx, dy, 1), A⁻¹ = Aᵀ for a rotation: the camera ray in model space.
+        let rows = pose.dual().q.map(Vec3A::from);
         let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
         let mut drawn: Option<[usize; 4]> = None;
         for y in rect[1]..=rect[3] {
             let dy = (y as f32 - cy) / fy;
             for x in rect[0]..=rect[2] {
                 let dx = (x as f32 - cx) / fx;
-                // Rᵀ (dx, dy, 1): the camera ray in model space.
                 let dir = rows[0] * dx + rows[1] * dy + rows[2];
                 let i = y * w + x;
                 match self.nearest(origin, dir) {

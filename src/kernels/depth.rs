@@ -100,13 +100,14 @@ pub fn depth_tile_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics, zbuf: &mut
     let gp = GpuPose::from(pose);
     let rect = screen_rect(&gp, mesh.radius, k)?;
     let drawn = render_ids(mesh, &gp, k, zbuf, ids);
+    let du = gp.dual();
     let w = k.width as usize;
     let mut depth = Vec::with_capacity((rect[2] - rect[0] + 1) * (rect[3] - rect[1] + 1));
     for y in rect[1]..=rect[3] {
         for x in rect[0]..=rect[2] {
             let inside = drawn.is_some_and(|d| x >= d[0] && x <= d[2] && y >= d[1] && y <= d[3]);
             let id = if inside { ids[y * w + x] } else { u32::MAX };
-            depth.push(if id == u32::MAX { 0.0 } else { resolve(&mesh.triangles[id as usize], &gp, mesh.radius, k, x as f32, y as f32).0 });
+            depth.push(if id == u32::MAX { 0.0 } else { resolve(&mesh.triangles[id as usize], &gp, &du, mesh.radius, k, x as f32, y as f32).0 });
         }
     }
     Some(DepthTile { rect, depth })

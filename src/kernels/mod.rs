@@ -104,6 +104,24 @@ pub struct GpuTriangle {
 }
 const _: () = assert!(std::mem::size_of::<GpuTriangle>() == 64);
 
+/// Largest `|A Aᵀ - I|` entry of a pose's linear part still taken for a
+/// rotation (the `f32` rows of an `f64` rotation are off by about 1e-7).
+pub const RIGID_TOL: f32 = 1e-5;
+
+/// What a pose's linear part `A` does to planes and rays. `A` is a rotation
+/// wherever the library makes poses, but a results file under evaluation
+/// may hold a slightly sheared or scaled one, which the BOP toolkit renders
+/// as given: vertices move by `A`, plane normals by `A⁻ᵀ` (rows `q`), camera
+/// rays into the model by `A⁻¹` (columns `q`), and the bounding sphere
+/// grows by `stretch`, a bound on `A`'s largest singular value (Gershgorin
+/// on `A Aᵀ`). With `A⁻ᵀ` taken as `A`, the depth of such a pose came from
+/// tilted planes and its VSD differed from the toolkit's by up to 0.15.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Dual {
+    pub q: [Vec3; 3],
+    pub stretch: f32,
+}
+
 /// A pose as three rows of `[R | t]` (metres).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -137,16 +155,32 @@ impl GpuPose {
     pub fn transform(&self, v: Vec3) -> Vec3 {
         self.rotate(v) + self.translation()
     }
-    /// `-Rᵀt`: the camera centre in model coordinates.
+    /// `-A⁻¹t` (`-Rᵀt` for a rotation): the camera centre in model
+    /// coordinates.
     #[inline]
     pub fn inverse_translation(&self) -> Vec3 {
         let t = self.translation();
-        let r = &self.rows;
-        -Vec3::new(
-            r[0][0] * t.x + r[1][0] * t.y + r[2][0] * t.z,
-            r[0][1] * t.x + r[1][1] * t.y + r[2][1] * t.z,
-            r[0][2] * t.x + r[1][2] * t.y + r[2][2] * t.z,
-        )
+        let d = self.dual();
+        -(d.q[0] * t.x + d.q[1] * t.y + d.q[2] * t.z)
+    }
+
+    /// The rows of `A⁻ᵀ` for the linear part `A` and its largest stretch
+    /// (see [`Dual`]); `A`'s own rows and 1 for a rotation. The twin of
+    /// `dual` in raster.wgsl, operation for operation.
+    pub fn dual(&self) -> Dual {
+        let [a, b, c] = self.rows.map(|r| Vec3::new(r[0], r[1], r[2]));
+        let g = [
+            Vec3::new(a.dot(a), a.dot(b), a.dot(c)),
+            Vec3::new(a.dot(b), b.dot(b), b.dot(c)),
+            Vec3::new(a.dot(c), b.dot(c), c.dot(c)),
+        ];
+        let off = (g[0] - Vec3::X).abs().max((g[1] - Vec3::Y).abs()).max((g[2] - Vec3::Z).abs());
+        if off.max_element() <= RIGID_TOL {
+            return Dual { q: [a, b, c], stretch: 1.0 };
+        }
+        let det = a.dot(b.cross(c));
+        let rows = g.map(|r| r.abs().dot(Vec3::ONE));
+        Dual { q: [b.cross(c) / det, c.cross(a) / det, a.cross(b) / det], stretch: rows[0].max(rows[1]).max(rows[2]).sqrt() }
     }
     #[inline]
     pub fn translation(&self) -> Vec3 {
@@ -551,6 +585,22 @@ mod tests {
             let stem = file.trim_end_matches(".wgsl");
             assert!(stem == "raster" || covered.contains(stem), "shaders/{file} is not validated");
         }
+    }
+
+    /// Constants the rasterizer's WGSL and its twin must agree on.
+    #[test]
+    fn raster_constants_match_the_host() {
+        let module = wgsl_layout::module("score", &score::SCORE_WGSL);
+        let value = |name: &str| -> naga::Literal {
+            let (_, c) = module.constants.iter().find(|(_, c)| c.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no const {name}"));
+            match module.global_expressions[c.init] {
+                naga::Expression::Literal(l) => l,
+                ref e => panic!("{name}: {e:?}"),
+            }
+        };
+        assert_eq!(value("RIGID_TOL"), naga::Literal::F32(RIGID_TOL));
+        assert_eq!(value("TRI_ROW"), naga::Literal::U32(raster::TRI_ROW as u32));
+        assert_eq!(value("MESHLET_ROW"), naga::Literal::U32(raster::MESHLET_ROW as u32));
     }
 
     /// Sizes and field offsets of every struct the visual kernels share

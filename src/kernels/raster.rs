@@ -10,7 +10,7 @@
 
 use glam::{Vec2, Vec3, Vec3A, Vec4};
 
-use super::{GpuMeshlet, GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M};
+use super::{Dual, GpuMeshlet, GpuPose, GpuTriangle, RasterParams, RenderMesh, NEAR_M};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -36,6 +36,8 @@ fn sphere_bounds(c: Vec3, r: f32, k: &Intrinsics) -> [f32; 4] {
 /// clipped to the image (`None` when it misses the image). Nothing outside
 /// it is drawn or scored (the twin of `screen_rect` in raster.wgsl).
 pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize; 4]> {
+    // `radius` is the mesh's about its origin; the pose may stretch it.
+    let radius = radius * pose.dual().stretch;
     let c = pose.translation();
     let (w, h) = (k.width as i64, k.height as i64);
     if c.z - radius <= NEAR_M {
@@ -57,9 +59,10 @@ pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize
 /// sphere's box, with half a pixel to spare). Every triangle of a rejected
 /// meshlet would have been rejected on its own.
 #[inline]
-pub fn meshlet_visible(m: &GpuMeshlet, pose: &GpuPose, cam: Vec3, cull: bool, k: &Intrinsics, first: (f32, f32), last: (f32, f32)) -> bool {
+#[allow(clippy::too_many_arguments)]
+pub fn meshlet_visible(m: &GpuMeshlet, pose: &GpuPose, cam: Vec3, stretch: f32, cull: bool, k: &Intrinsics, first: (f32, f32), last: (f32, f32)) -> bool {
     let centre = Vec3::from_slice(&m.sphere[..3]);
-    let r = m.sphere[3];
+    let r = m.sphere[3] * stretch;
     if cull {
         let v = centre - cam;
         if v.dot(Vec3::from_slice(&m.cone[..3])) >= m.cone[3] * v.length() + r {
@@ -180,6 +183,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     // Camera centre in model coordinates: a face is a back face when the
     // camera lies on the inner side of its plane.
     let cam = pose.inverse_translation();
+    let stretch = pose.dual().stretch;
     let mut proj = [(Vec3::ZERO, Vec2::ZERO); 256];
     // Per meshlet vertex, its pixel coordinates rounded both ways as
     // (ceil x, ceil y, -floor x, -floor y): rounding is monotonic, so a
@@ -190,7 +194,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     let mut snap = [Vec4::ZERO; 256];
     let clip = Vec4::new(first.0, first.1, -last.0, -last.1);
     for m in &mesh.meshlets {
-        if !meshlet_visible(m, pose, cam, mesh.cull_back_faces, k, first, last) {
+        if !meshlet_visible(m, pose, cam, stretch, mesh.cull_back_faces, k, first, last) {
             continue;
         }
         // The meshlet's vertices transformed and projected once (the same
@@ -308,15 +312,20 @@ pub fn render_ids(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut 
 /// pixel centre lies inside the triangle, so the plane gives its depth;
 /// edge-on faces are clamped to the hypothesis' depth range.
 #[inline]
-pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, radius: f32, k: &Intrinsics, x: f32, y: f32) -> (f32, Vec3) {
-    let n = pose.rotate(Vec3::from_slice(&tri.plane[..3]));
+pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, du: &Dual, radius: f32, k: &Intrinsics, x: f32, y: f32) -> (f32, Vec3) {
+    // The plane n·x = w moves to (A⁻ᵀn)·x = w + (A⁻ᵀn)·t (du = pose.dual(),
+    // made once per pose by the caller).
+    let m = Vec3::from_slice(&tri.plane[..3]);
+    let n = Vec3::new(du.q[0].dot(m), du.q[1].dot(m), du.q[2].dot(m));
     let t = pose.translation();
     let d = tri.plane[3] + n.dot(t);
     let ray = Vec3::new((x - k.cx as f32) / k.fx as f32, (y - k.cy as f32) / k.fy as f32, 1.0);
     let den = n.dot(ray);
+    let radius = radius * du.stretch;
     let (zlo, zhi) = ((t.z - radius).max(NEAR_M), t.z + radius);
     let z = if den.abs() > 1e-12 { (d / den).clamp(zlo, zhi) } else { zhi };
-    (z, if den > 0.0 { -n } else { n })
+    let nn = if du.stretch != 1.0 { n.normalize() } else { n };
+    (z, if den > 0.0 { -nn } else { nn })
 }
 
 pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: f32, alpha: f32, n_obs: u32) -> RasterParams {

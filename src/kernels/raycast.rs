@@ -174,7 +174,8 @@ pub fn cast_ids(mesh: &RenderMesh, bvh: &GpuBvh, pose: &GpuPose, k: &Intrinsics,
     };
     let w = k.width as usize;
     let o = pose.inverse_translation();
-    let rows = pose.rows.map(|r| Vec3::new(r[0], r[1], r[2]));
+    // A⁻¹ (dx, dy, 1), A⁻¹ = Aᵀ for a rotation: the camera ray in model space.
+    let rows = pose.dual().q;
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     for y in rect[1]..=rect[3] {
         for x in rect[0]..=rect[2] {

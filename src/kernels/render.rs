@@ -33,13 +33,14 @@ pub fn render_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> RenderImage
     let mut zbuf = vec![f32::INFINITY; n];
     let mut ids = vec![u32::MAX; n];
     render_ids(mesh, &gp, k, &mut zbuf, &mut ids);
+    let du = gp.dual();
     let mut depth = vec![0.0; n];
     let mut normals = vec![Vec3::ZERO; n];
     for i in 0..n {
         if ids[i] != u32::MAX {
             let x = (i % k.width as usize) as f32;
             let y = (i / k.width as usize) as f32;
-            let (z, nn) = resolve(&mesh.triangles[ids[i] as usize], &gp, mesh.radius, k, x, y);
+            let (z, nn) = resolve(&mesh.triangles[ids[i] as usize], &gp, &du, mesh.radius, k, x, y);
             depth[i] = z;
             normals[i] = nn;
         }

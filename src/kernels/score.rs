@@ -138,6 +138,7 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
             || (vec![0.0f32; n], vec![0u32; n]),
             |(zbuf, ids), pose| {
                 let gp = GpuPose::from(pose);
+                let du = gp.dual();
                 let mut acc = Acc::default();
                 if let Some([x0, y0, x1, y1]) = render_ids(mesh, &gp, k, zbuf, ids) {
                     for y in y0..=y1 {
@@ -146,7 +147,7 @@ pub fn score_cpu(mesh: &RenderMesh, target: &ScoreTarget, poses: &[Pose], p: &Sc
                             if ids[i] == u32::MAX {
                                 continue;
                             }
-                            let ren = resolve(&mesh.triangles[ids[i] as usize], &gp, mesh.radius, k, x as f32, y as f32);
+                            let ren = resolve(&mesh.triangles[ids[i] as usize], &gp, &du, mesh.radius, k, x as f32, y as f32);
                             if target.hidden(i, ren.0) {
                                 continue; // behind another object of the scene
                             }
