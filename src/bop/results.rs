@@ -49,13 +49,19 @@ pub fn parse_line(line: &str) -> std::result::Result<Estimate, String> {
         Ok(v) if v.is_finite() => Ok(v),
         _ => Err(format!("{what} '{}' is not a finite number", s.trim())),
     };
+    // A score only orders estimates: ±inf orders (the toolkit takes it),
+    // NaN does not.
+    let score = match f[3].trim().parse::<f64>() {
+        Ok(v) if !v.is_nan() => v,
+        _ => return Err(format!("score '{}' is not a number (NaN orders nothing)", f[3].trim())),
+    };
     let r = numbers(f[4], 9, "R")?;
     let t = numbers(f[5], 3, "t")?;
     Ok(Estimate {
         scene_id: id(f[0], "scene_id")?,
         im_id: id(f[1], "im_id")?,
         obj_id: id(f[2], "obj_id")?,
-        score: scalar(f[3], "score")?,
+        score,
         pose: PoseMm::from_row_major(&r, &t)?,
         time: scalar(f[6], "time")?,
         line: 0,
@@ -194,4 +200,19 @@ pub fn write_results(path: &Path, estimates: &[Estimate]) -> Result<()> {
         }
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_line;
+
+    const POSE: &str = "1 0 0 0 1 0 0 0 1,0 0 500";
+
+    #[test]
+    fn scores_order_so_infinities_are_taken_and_nan_is_not() {
+        assert_eq!(parse_line(&format!("2,3,1,inf,{POSE},-1")).unwrap().score, f64::INFINITY);
+        assert_eq!(parse_line(&format!("2,3,1,-inf,{POSE},-1")).unwrap().score, f64::NEG_INFINITY);
+        assert!(parse_line(&format!("2,3,1,nan,{POSE},-1")).unwrap_err().contains("score 'nan'"));
+        assert!(parse_line(&format!("2,3,1,1,{POSE},inf")).unwrap_err().contains("time 'inf'"));
+    }
 }
