@@ -590,7 +590,7 @@ mod tests {
     /// Constants the rasterizer's WGSL and its twin must agree on.
     #[test]
     fn raster_constants_match_the_host() {
-        let module = wgsl_layout::module("score", &score::SCORE_WGSL);
+        let module = wgsl_layout::module("score", score::SCORE_WGSL);
         let value = |name: &str| -> naga::Literal {
             let (_, c) = module.constants.iter().find(|(_, c)| c.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no const {name}"));
             match module.global_expressions[c.init] {
