@@ -98,7 +98,7 @@ fn transform(p: GpuPose, v: vec3<f32>) -> vec3<f32> {
 // bounding sphere grows by A's largest stretch. q0..q2 are the rows of A⁻ᵀ
 // (the columns of A⁻¹); for a rotation they are A's rows and the stretch
 // is 1, exactly (CPU twin: kernels/mod.rs GpuPose::dual).
-struct Dual { q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, stretch: f32 }
+struct Dual { q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, stretch: f32, rigid: bool }
 
 // Largest |A Aᵀ - I| entry still taken for a rotation (f32 rows of an f64
 // rotation are off by about 1e-7).
@@ -114,12 +114,12 @@ fn dual(p: GpuPose) -> Dual {
     let g2 = vec3<f32>(g0.z, g1.z, dot(c, c));
     let off = max(max(abs(g0 - vec3<f32>(1.0, 0.0, 0.0)), abs(g1 - vec3<f32>(0.0, 1.0, 0.0))), abs(g2 - vec3<f32>(0.0, 0.0, 1.0)));
     if (max(off.x, max(off.y, off.z)) <= RIGID_TOL) {
-        return Dual(a, b, c, 1.0);
+        return Dual(a, b, c, 1.0, true);
     }
     let det = dot(a, cross(b, c));
     // Gershgorin: A Aᵀ's largest eigenvalue is at most its largest absolute row sum.
     let rows = vec3<f32>(dot(abs(g0), vec3<f32>(1.0)), dot(abs(g1), vec3<f32>(1.0)), dot(abs(g2), vec3<f32>(1.0)));
-    return Dual(cross(b, c) / det, cross(c, a) / det, cross(a, b) / det, sqrt(max(rows.x, max(rows.y, rows.z))));
+    return Dual(cross(b, c) / det, cross(c, a) / det, cross(a, b) / det, sqrt(max(rows.x, max(rows.y, rows.z))), false);
 }
 
 // Camera centre in model coordinates, -A⁻¹t.
@@ -211,13 +211,16 @@ fn walk_step(w: ptr<function, RectWalk>, rect: vec4<i32>) {
 // triangle of a rejected meshlet would be rejected on its own.
 fn meshlet_visible(m: GpuMeshlet, p: GpuPose, cam: vec3<f32>, stretch: f32, first: vec2<f32>, last: vec2<f32>) -> bool {
     let centre = m.sphere.xyz;
-    let r = m.sphere.w * stretch;
+    // The cone test is in model space (which side of a face the camera
+    // lies on does not change under any invertible A), with the model's
+    // radius; the camera-space tests below take the stretched one.
     if (params.cull != 0u) {
         let v = centre - cam;
-        if (dot(v, m.cone.xyz) >= m.cone.w * length(v) + r) {
+        if (dot(v, m.cone.xyz) >= m.cone.w * length(v) + m.sphere.w) {
             return false;
         }
     }
+    let r = m.sphere.w * stretch;
     let c = transform(p, centre);
     if (c.z + r < params.near) {
         return false;
@@ -495,7 +498,7 @@ fn resolve(p: GpuPose, du: Dual, key: u32, x: f32, y: f32) -> vec4<f32> {
         z = clamp(d / den, zr.x, zr.y);
     }
     var nn = n;
-    if (du.stretch != 1.0) {
+    if (!du.rigid) {
         nn = normalize(n);
     }
     if (den > 0.0) {

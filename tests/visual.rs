@@ -111,6 +111,10 @@ fn gpu_sheared_poses_score_as_the_deformed_mesh() {
     let shears = [
         glam::DMat3::from_diagonal(DVec3::splat(1.03)),
         glam::DMat3::from_cols(DVec3::X, DVec3::new(0.04, 1.0, 0.0), DVec3::new(0.0, -0.03, 1.0)),
+        // Not a rotation, yet its stretch bound is exactly 1: the normals
+        // are normalized all the same.
+        glam::DMat3::from_diagonal(DVec3::new(1.0, 0.98, 0.98)),
+        glam::DMat3::from_diagonal(DVec3::splat(0.97)),
     ];
     for renderer in [plausible::kernels::RendererChoice::Raster, plausible::kernels::RendererChoice::RayCast] {
         for m in shears {

@@ -828,8 +828,8 @@ def refine(
             raise ValueError(f"object {i}: no hypotheses to refine")
         if scores is not None:
             sc = _array(scores, np.float64, f"object {i} scores", (len(r),))
-            if not np.all(np.isfinite(sc)):
-                raise ValueError(f"object {i} scores: not all finite (NaN or infinity)")
+            if np.any(np.isnan(sc)):
+                raise ValueError(f"object {i} scores: NaN orders nothing (±inf is taken)")
             lead = int(np.argmax(sc))
         else:
             lead = 0

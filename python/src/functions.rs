@@ -107,6 +107,7 @@ pub fn stable_poses<'py>(py: Python<'py>, mesh: &Mesh, drops: u64, seed: u64, co
     let (prepared, results) = crate::interruptible(py, |stop| {
         let name = m.source.as_ref().map(|p| p.display().to_string()).unwrap_or_else(|| "<arrays>".into());
         let prepared = stable::prepare(m, &name, &params)?;
+        stop.check()?;
         let indices: Vec<u64> = (0..drops).collect();
         let mut results = Vec::with_capacity(drops as usize);
         stable::run_drops(&prepared, &params, &indices, threads, |r| {

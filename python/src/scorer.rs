@@ -88,16 +88,20 @@ impl Scorer {
         let lod: LodChoice = lod.parse().map_err(value_error)?;
         let mesh = mesh.inner.clone();
         let params = ScoreParams { tau, alpha };
-        py.detach(move || {
+        // Ctrl-C ends the construction between its stages (a mesh of
+        // millions of triangles spends seconds in each).
+        crate::interruptible(py, move |stop| {
             let opened = Device::open(choice, adapter.as_deref(), false)?;
+            stop.check()?;
             let scoring = scoring_mesh(&mesh, lod, &target)?;
+            stop.check()?;
             let rmesh = RenderMesh::new(&scoring.mesh)?;
+            stop.check()?;
             let (device, too_big) = opened.device.for_mesh(choice, &rmesh, target.intrinsics.pixels());
             let note = too_big.or(opened.note);
             let scorer = plausible::visual::Scorer::new(&device, &rmesh, &target, params, BATCH_HINT)?;
             Ok(Scorer { scorer, device, mesh, rmesh, target, params, physics: None, note, lod: scoring.describe() })
         })
-        .map_err(to_py)
     }
 
     /// Scores poses R (N, 3, 3), t (N, 3) in metres. Returns columns:

@@ -120,6 +120,8 @@ pub const RIGID_TOL: f32 = 1e-5;
 pub struct Dual {
     pub q: [Vec3; 3],
     pub stretch: f32,
+    /// Whether `A` is taken for a rotation (`q` are its rows, `stretch` 1).
+    pub rigid: bool,
 }
 
 /// A pose as three rows of `[R | t]` (metres).
@@ -176,11 +178,11 @@ impl GpuPose {
         ];
         let off = (g[0] - Vec3::X).abs().max((g[1] - Vec3::Y).abs()).max((g[2] - Vec3::Z).abs());
         if off.max_element() <= RIGID_TOL {
-            return Dual { q: [a, b, c], stretch: 1.0 };
+            return Dual { q: [a, b, c], stretch: 1.0, rigid: true };
         }
         let det = a.dot(b.cross(c));
         let rows = g.map(|r| r.abs().dot(Vec3::ONE));
-        Dual { q: [b.cross(c) / det, c.cross(a) / det, a.cross(b) / det], stretch: rows[0].max(rows[1]).max(rows[2]).sqrt() }
+        Dual { q: [b.cross(c) / det, c.cross(a) / det, a.cross(b) / det], stretch: rows[0].max(rows[1]).max(rows[2]).sqrt(), rigid: false }
     }
     #[inline]
     pub fn translation(&self) -> Vec3 {

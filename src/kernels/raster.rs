@@ -62,13 +62,16 @@ pub fn screen_rect(pose: &GpuPose, radius: f32, k: &Intrinsics) -> Option<[usize
 #[allow(clippy::too_many_arguments)]
 pub fn meshlet_visible(m: &GpuMeshlet, pose: &GpuPose, cam: Vec3, stretch: f32, cull: bool, k: &Intrinsics, first: (f32, f32), last: (f32, f32)) -> bool {
     let centre = Vec3::from_slice(&m.sphere[..3]);
-    let r = m.sphere[3] * stretch;
+    // The cone test in model space with the model's radius (facing does
+    // not change under any invertible A); the camera-space tests below
+    // take the stretched one.
     if cull {
         let v = centre - cam;
-        if v.dot(Vec3::from_slice(&m.cone[..3])) >= m.cone[3] * v.length() + r {
+        if v.dot(Vec3::from_slice(&m.cone[..3])) >= m.cone[3] * v.length() + m.sphere[3] {
             return false;
         }
     }
+    let r = m.sphere[3] * stretch;
     let c = pose.transform(centre);
     if c.z + r < NEAR_M {
         return false;
@@ -324,7 +327,7 @@ pub fn resolve(tri: &GpuTriangle, pose: &GpuPose, du: &Dual, radius: f32, k: &In
     let radius = radius * du.stretch;
     let (zlo, zhi) = ((t.z - radius).max(NEAR_M), t.z + radius);
     let z = if den.abs() > 1e-12 { (d / den).clamp(zlo, zhi) } else { zhi };
-    let nn = if du.stretch != 1.0 { n.normalize() } else { n };
+    let nn = if du.rigid { n } else { n.normalize() };
     (z, if den > 0.0 { -nn } else { nn })
 }
 
