@@ -395,9 +395,10 @@ fn check_volume(name: &str, props: &MassProperties, diagonal: f64) -> Result<()>
     let scale = diagonal.powi(3).max(f64::MIN_POSITIVE);
     if !props.volume.is_finite() || props.volume <= 1e-9 * scale || !props.com.is_finite() {
         return Err(Error::InvalidInput(format!(
-            "{name}: the mesh encloses (almost) zero volume ({:.3e} m³ for a {:.3} m bounding-box diagonal); \
+            "{name}: the mesh encloses (almost) zero volume ({:.3e} m³ for a {} m bounding-box diagonal); \
              mass, centre of mass and stable poses need a solid object",
-            props.volume, diagonal
+            props.volume,
+            crate::error::compact(diagonal, 3)
         )));
     }
     Ok(())

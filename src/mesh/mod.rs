@@ -372,6 +372,9 @@ impl Mesh {
     }
 }
 
+/// Largest bounding-box diagonal a mesh file may have, in its own units.
+pub const MAX_FILE_DIAGONAL: f64 = 1e30;
+
 /// Refuses the first vertex that is not finite, naming it.
 pub(crate) fn check_finite(path: &Path, vertices: &[DVec3]) -> Result<()> {
     match vertices.iter().enumerate().find(|(_, v)| !v.is_finite()) {
@@ -400,6 +403,19 @@ fn validate_and_clean(
     let mut report = MeshReport { scale_to_metres: 1.0, ..Default::default() };
     let mut mesh = Mesh { vertices, triangles, source: Some(path.clone()) };
     let diag = mesh.diagonal();
+    // Far past any object in any unit, and past what the kernels' f32
+    // (3.4e38) and the mass properties' f64 (volumes and inertias overflow
+    // near 1e61) hold: a 1e150 tetrahedron had reached the drop tests with
+    // a NaN volume.
+    if !(diag <= MAX_FILE_DIAGONAL) {
+        return Err(Error::MalformedMesh {
+            path,
+            reason: format!(
+                "its bounding-box diagonal is {} in the file's units: above {MAX_FILE_DIAGONAL:.0e} no unit makes it an object",
+                crate::error::compact(diag, 1)
+            ),
+        });
+    }
     match units {
         MeshUnits::Metres => {}
         MeshUnits::Millimetres => report.scale_to_metres = 1e-3,
@@ -408,8 +424,9 @@ fn validate_and_clean(
             if diag > MAX_DIAGONAL_M {
                 report.scale_to_metres = 1e-3;
                 report.warnings.push(format!(
-                    "bounding-box diagonal is {diag:.1} units; above {MAX_DIAGONAL_M} m, so the mesh is \
-                     taken to be in millimetres (state the units if it is in metres or centimetres)"
+                    "bounding-box diagonal is {} units; above {MAX_DIAGONAL_M} m, so the mesh is \
+                     taken to be in millimetres (state the units if it is in metres or centimetres)",
+                    crate::error::compact(diag, 1)
                 ));
             } else if diag < MIN_DIAGONAL_M {
                 report.warnings.push(format!(
@@ -475,6 +492,15 @@ fn edge_key(a: u32, b: u32) -> u64 {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_mesh_past_any_unit_is_refused_by_its_size() {
+        let tet = |s: f64| vec![DVec3::ZERO, DVec3::X * s, DVec3::Y * s, DVec3::Z * s];
+        let faces = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        let err = Mesh::from_raw("huge", tet(1e150), faces.clone()).unwrap_err().to_string();
+        assert!(err.contains("1.732e150 in the file's units"), "{err}");
+        assert!(Mesh::from_raw("large", tet(1e20), faces).is_ok());
+    }
+
     #[test]
     fn bounds_solid_allows_touching_sheets_and_rejects_holes_flips_and_flaps() {
         let v = |p: &[[f64; 3]]| p.iter().map(|&a| glam::DVec3::from(a)).collect::<Vec<_>>();
