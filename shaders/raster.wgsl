@@ -127,9 +127,10 @@ fn camera_in_model(p: GpuPose, d: Dual) -> vec3<f32> {
     return -(d.q0 * p.r0.w + d.q1 * p.r1.w + d.q2 * p.r2.w);
 }
 
-// Radius of the hypothesis' bounding sphere (about the model origin).
-fn pose_radius(p: GpuPose) -> f32 {
-    return params.radius * dual(p).stretch;
+// Radius of the hypothesis' bounding sphere (about the model origin), du
+// = dual(p).
+fn pose_radius(du: Dual) -> f32 {
+    return params.radius * du.stretch;
 }
 
 fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
@@ -141,8 +142,8 @@ fn project(v: vec3<f32>) -> vec2<f32> {
 }
 
 // Depth range of the hypothesis: its bounding sphere, clipped at near.
-fn depth_range(p: GpuPose) -> vec2<f32> {
-    let r = pose_radius(p);
+fn depth_range(p: GpuPose, du: Dual) -> vec2<f32> {
+    let r = pose_radius(du);
     return vec2<f32>(max(p.r2.w - r, params.near), p.r2.w + r);
 }
 
@@ -161,9 +162,9 @@ fn sphere_bounds(c: vec3<f32>, r: f32) -> vec4<f32> {
 // Pixel rectangle (x0, y0, x1, y1), inclusive, that can hold the
 // hypothesis: the projection of the box around its bounding sphere, clipped
 // to the image. x0 > x1 when it misses the image.
-fn screen_rect(p: GpuPose) -> vec4<i32> {
+fn screen_rect(p: GpuPose, du: Dual) -> vec4<i32> {
     let c = vec3<f32>(p.r0.w, p.r1.w, p.r2.w);
-    let r = pose_radius(p);
+    let r = pose_radius(du);
     let full = vec4<i32>(0, 0, i32(params.width) - 1, i32(params.height) - 1);
     if (c.z - r <= params.near) {
         return full;
@@ -297,8 +298,8 @@ fn setup_triangle(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: ve
 // inverse depth of the far end, the scale to codes, the number of codes.
 struct KeyScale { izfar: f32, izscale: f32, max_code: f32 }
 
-fn key_scale(p: GpuPose) -> KeyScale {
-    let zr = depth_range(p);
+fn key_scale(p: GpuPose, du: Dual) -> KeyScale {
+    let zr = depth_range(p, du);
     let max_code = f32((1u << (32u - params.id_bits)) - 1u);
     let izfar = 1.0 / zr.y;
     return KeyScale(izfar, (max_code - 1.0) / max(1.0 / zr.x - izfar, 1e-9), max_code);
@@ -367,8 +368,9 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
         atomicStore(&drawn[2], -1);
         atomicStore(&drawn[3], -1);
     }
-    let rect = screen_rect(p);
-    let ks = key_scale(p);
+    let du = dual(p);
+    let rect = screen_rect(p, du);
+    let ks = key_scale(p, du);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
     var lo_all = vec2<i32>(BIG);
@@ -376,7 +378,6 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
     var spent = 0u;
     // Camera centre in model coordinates, -A⁻¹t: back faces are culled with
     // one dot product, before any vertex is transformed.
-    let du = dual(p);
     let cam = camera_in_model(p, du);
     for (var round = 0u; round < params.n_meshlets; round += PER_ROUND) {
         if (lid == 0u) {
@@ -491,8 +492,7 @@ fn resolve(p: GpuPose, du: Dual, key: u32, x: f32, y: f32) -> vec4<f32> {
     let d = plane.w + dot(n, vec3<f32>(p.r0.w, p.r1.w, p.r2.w));
     let ray = vec3<f32>((x - params.cx) / params.fx, (y - params.cy) / params.fy, 1.0);
     let den = dot(n, ray);
-    let r = params.radius * du.stretch;
-    let zr = vec2<f32>(max(p.r2.w - r, params.near), p.r2.w + r);
+    let zr = depth_range(p, du);
     var z = zr.y;
     if (abs(den) > 1e-12) {
         z = clamp(d / den, zr.x, zr.y);

@@ -103,7 +103,8 @@ fn raycast_main(
         return;
     }
     let p = poses[h];
-    let rect = screen_rect(p);
+    let du = dual(p);
+    let rect = screen_rect(p, du);
     let tiles_x = (params.width + TILE - 1u) / TILE;
     let tile = wid.x + wid.z * nwg.x;
     let x = i32((tile % tiles_x) * TILE + lid % TILE);
@@ -113,7 +114,6 @@ fn raycast_main(
     }
     // The camera ray in model space: origin -A⁻¹t, direction A⁻¹(dx, dy, 1)
     // (A⁻¹ = Aᵀ for a rotation), so the hit's parameter is its depth.
-    let du = dual(p);
     let o = camera_in_model(p, du);
     let dx = (f32(x) - params.cx) / params.fx;
     let dy = (f32(y) - params.cy) / params.fy;
@@ -205,5 +205,5 @@ fn raycast_main(
         return;
     }
     let base = wid.y * params.width * params.height;
-    atomicStore(&vis[base + u32(y) * params.width + u32(x)], depth_key(key_scale(p), 1.0 / best, best_id));
+    atomicStore(&vis[base + u32(y) * params.width + u32(x)], depth_key(key_scale(p, du), 1.0 / best, best_id));
 }

@@ -68,7 +68,7 @@ fn score_traced_main(
         return;
     }
     let p = poses[h];
-    reduce_slot(h, p, wid.x * params.width * params.height, screen_rect(p), false, lid);
+    reduce_slot(h, p, wid.x * params.width * params.height, screen_rect(p, dual(p)), false, lid);
 }
 
 // Scores hypothesis h from its slot at `base` (keys inside `rect` only),

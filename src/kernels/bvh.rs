@@ -74,9 +74,11 @@ impl RayCaster {
     pub fn cast_ids(&self, mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
         let w = k.width as usize;
         let rect = screen_rect(pose, mesh.radius, k)?;
-        let origin = Vec3A::from(pose.inverse_translation());
-        // A⁻¹ (dx, dy, 1), A⁻¹ = Aᵀ for a rotation: the camera ray in model space.
-        let rows = pose.dual().q.map(Vec3A::from);
+        // The camera ray in model space: from -A⁻¹t along A⁻¹ (dx, dy, 1)
+        // (A⁻¹ = Aᵀ for a rotation).
+        let du = pose.dual();
+        let origin = Vec3A::from(du.camera(pose.translation()));
+        let rows = du.q.map(Vec3A::from);
         let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
         let mut drawn: Option<[usize; 4]> = None;
         for y in rect[1]..=rect[3] {

@@ -124,6 +124,15 @@ pub struct Dual {
     pub rigid: bool,
 }
 
+impl Dual {
+    /// The camera centre in model coordinates, `-A⁻¹t`, for the pose's
+    /// translation `t` (the twin of `camera_in_model` in raster.wgsl).
+    #[inline]
+    pub fn camera(&self, t: Vec3) -> Vec3 {
+        -(self.q[0] * t.x + self.q[1] * t.y + self.q[2] * t.z)
+    }
+}
+
 /// A pose as three rows of `[R | t]` (metres).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -161,9 +170,7 @@ impl GpuPose {
     /// coordinates.
     #[inline]
     pub fn inverse_translation(&self) -> Vec3 {
-        let t = self.translation();
-        let d = self.dual();
-        -(d.q[0] * t.x + d.q[1] * t.y + d.q[2] * t.z)
+        self.dual().camera(self.translation())
     }
 
     /// The rows of `A⁻ᵀ` for the linear part `A` and its largest stretch

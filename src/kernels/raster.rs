@@ -185,8 +185,8 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     let (first, last) = ((rect[0] as f32, rect[1] as f32), (rect[2] as f32, rect[3] as f32));
     // Camera centre in model coordinates: a face is a back face when the
     // camera lies on the inner side of its plane.
-    let cam = pose.inverse_translation();
-    let stretch = pose.dual().stretch;
+    let du = pose.dual();
+    let cam = du.camera(pose.translation());
     let mut proj = [(Vec3::ZERO, Vec2::ZERO); 256];
     // Per meshlet vertex, its pixel coordinates rounded both ways as
     // (ceil x, ceil y, -floor x, -floor y): rounding is monotonic, so a
@@ -197,7 +197,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     let mut snap = [Vec4::ZERO; 256];
     let clip = Vec4::new(first.0, first.1, -last.0, -last.1);
     for m in &mesh.meshlets {
-        if !meshlet_visible(m, pose, cam, stretch, mesh.cull_back_faces, k, first, last) {
+        if !meshlet_visible(m, pose, cam, du.stretch, mesh.cull_back_faces, k, first, last) {
             continue;
         }
         // The meshlet's vertices transformed and projected once (the same

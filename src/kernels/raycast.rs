@@ -173,9 +173,11 @@ pub fn cast_ids(mesh: &RenderMesh, bvh: &GpuBvh, pose: &GpuPose, k: &Intrinsics,
         return cast;
     };
     let w = k.width as usize;
-    let o = pose.inverse_translation();
-    // A⁻¹ (dx, dy, 1), A⁻¹ = Aᵀ for a rotation: the camera ray in model space.
-    let rows = pose.dual().q;
+    // The camera ray in model space: from -A⁻¹t along A⁻¹ (dx, dy, 1)
+    // (A⁻¹ = Aᵀ for a rotation).
+    let du = pose.dual();
+    let o = du.camera(pose.translation());
+    let rows = du.q;
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     for y in rect[1]..=rect[3] {
         for x in rect[0]..=rect[2] {
