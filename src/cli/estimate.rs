@@ -108,12 +108,11 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
     // Which instances an image's estimates are for: the targets file by
     // content (a resumed run with other targets would mix two sets).
-    // (And the file's digest, which earlier versions recorded instead.)
-    let (targets_setting, legacy_targets) = match &source {
-        plausible::bop::dataset::TargetSource::File(p) => (
-            Some(read_digest(targets.iter().map(|t| format!("{} {} {} {}", t.scene_id, t.im_id, t.obj_id, t.inst_count)))),
-            super::refine::legacy_file_digest(p),
-        ),
+    // (And the file, whose digest earlier versions recorded instead.)
+    let (targets_setting, targets_file) = match &source {
+        plausible::bop::dataset::TargetSource::File(p) => {
+            (Some(read_digest(targets.iter().map(|t| format!("{} {} {} {}", t.scene_id, t.im_id, t.obj_id, t.inst_count)))), Some(p.clone()))
+        }
         plausible::bop::dataset::TargetSource::AllInstances => (None, None),
     };
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
@@ -140,7 +139,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         "lod": a.lod.to_string(),
         "masks": a.run.masks_setting(),
     });
-    check_settings(&a.out, &settings, &[("targets", legacy_targets)])?;
+    check_settings(&a.out, &settings, &[("targets", &|| targets_file.as_deref().and_then(super::refine::legacy_file_digest))])?;
     skip_done(&mut jobs, &a.out, |(k, _)| *k, |(_, ts)| ts.iter().map(|t| t.inst_count as usize).sum())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();
     objs.sort_unstable();

@@ -426,10 +426,11 @@ pub fn path_setting(path: &std::path::Path) -> String {
 /// `OUT.settings.json`, written when the output starts. A non-empty output
 /// without one was not started by this command and is refused.
 ///
-/// `legacy` gives, per key, the value an earlier version recorded for the
-/// same input (a digest of the file rather than of what was read), so
-/// outputs it started still resume.
-pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value, legacy: &[(&str, Option<String>)]) -> Result<()> {
+/// `legacy` gives, per key, how to get the value an earlier version
+/// recorded for the same input (a digest of the file rather than of what
+/// was read), so outputs it started still resume; it is asked only for a
+/// key whose recorded value differs (it reads the whole file).
+pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value, legacy: &[(&str, &dyn Fn() -> Option<String>)]) -> Result<()> {
     let meta = std::fs::metadata(out).ok();
     let resumable = meta.as_ref().is_some_and(|m| m.is_file());
     let started = resumable && meta.as_ref().is_some_and(|m| m.len() > 0);
@@ -443,7 +444,10 @@ pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value, legac
                     .into_iter()
                     .flatten()
                     .filter(|(k, v)| before.get(k.as_str()) != Some(*v))
-                    .filter(|(k, _)| !legacy.iter().any(|(l, old)| l == k && old.is_some() && before.get(k.as_str()).and_then(|b| b.as_str()) == old.as_deref()))
+                    .filter(|(k, _)| {
+                        let recorded = before.get(k.as_str()).and_then(|b| b.as_str());
+                        !legacy.iter().any(|(l, old)| l == k && recorded.is_some() && old().as_deref() == recorded)
+                    })
                     .map(|(k, _)| k.as_str())
                     .collect();
                 if !differ.is_empty() {
@@ -530,7 +534,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         "discount": a.discount,
         "masks": a.run.masks_setting(),
     });
-    check_settings(&a.out, &settings, &[("init", legacy_file_digest(&a.init))])?;
+    check_settings(&a.out, &settings, &[("init", &|| legacy_file_digest(&a.init))])?;
     skip_done(&mut jobs, &a.out, |j| (j.scene_id, j.im_id), |j| j.estimates.len())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id)).collect();
     objs.sort_unstable();
