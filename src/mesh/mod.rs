@@ -407,7 +407,7 @@ fn validate_and_clean(
     // (3.4e38) and the mass properties' f64 (volumes and inertias overflow
     // near 1e61) hold: a 1e150 tetrahedron had reached the drop tests with
     // a NaN volume.
-    if !(diag <= MAX_FILE_DIAGONAL) {
+    if diag.is_nan() || diag > MAX_FILE_DIAGONAL {
         return Err(Error::MalformedMesh {
             path,
             reason: format!(
