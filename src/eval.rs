@@ -1,6 +1,8 @@
 //! Evaluation of a BOP results file against a dataset, exactly as the BOP
 //! toolkit's `eval_bop19_pose.py` does it (errors, then BOP'19 scoring),
-//! with the renders for VSD on any wgpu adapter or the CPU twin.
+//! with the renders for VSD on any wgpu adapter or the CPU twin; or, for
+//! [`Task::Detection`], as its `eval_bop24_pose.py` does (MSSD and MSPD,
+//! then BOP'24 average precision).
 //!
 //! Data flows one way: targets and estimates are indexed, models loaded
 //! once, then images are taken in batches: depth read (in parallel), GT
@@ -21,6 +23,7 @@ use crate::error::{Error, Result};
 use crate::kernels::depth::{depth_tiles_cpu, DepthTile, GpuDepth};
 use crate::kernels::RenderMesh;
 use crate::mesh::Mesh;
+use crate::metrics::detection::{self, DetectionTarget};
 use crate::metrics::pose_error::{self, PointTree, Symmetry};
 use crate::metrics::recall::{self, EstimateErrors, TargetErrors};
 use crate::metrics::vsd::{self, VsdImage};
@@ -67,9 +70,34 @@ impl std::str::FromStr for ErrorType {
     }
 }
 
+/// The BOP task whose scoring `evaluate` applies.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Task {
+    /// BOP'19 6D localization: the top `inst_count` estimates per target,
+    /// recall per threshold, AR.
+    #[default]
+    Localization,
+    /// BOP'24 6D detection: every estimate (up to a cap per image), average
+    /// precision per object over the MSSD and MSPD thresholds, mAP.
+    Detection,
+}
+
+impl std::str::FromStr for Task {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "localization" | "localisation" | "bop19" => Ok(Task::Localization),
+            "detection" | "bop24" => Ok(Task::Detection),
+            _ => Err(format!("unknown task '{s}' (expected localization or detection)")),
+        }
+    }
+}
+
 /// What to compute and with which protocol constants (BOP'19 defaults).
 #[derive(Clone, Debug)]
 pub struct EvalOptions {
+    pub task: Task,
     pub errors: Vec<ErrorType>,
     /// VSD visibility tolerance δ, mm.
     pub vsd_delta_mm: f32,
@@ -79,6 +107,12 @@ pub struct EvalOptions {
     pub thresholds: Vec<f64>,
     /// MSPD thresholds in pixels (at 640 px image width).
     pub mspd_px: Vec<f64>,
+    /// Detection: MSSD thresholds in millimetres (BOP'25's `mssd_mm`).
+    pub mssd_mm: Vec<f64>,
+    /// Detection: estimates kept per image, the highest-scored.
+    pub max_estimates_per_image: usize,
+    /// Detection: instances visible less than this fraction are ignored.
+    pub visib_gt_min: f64,
     /// ADD/ADI/AD correctness threshold, fraction of the diameter.
     pub add_threshold: f64,
     pub max_sym_disc_step: f64,
@@ -127,11 +161,15 @@ pub fn bop_vsd_delta_mm(dataset: &str) -> f32 {
 impl Default for EvalOptions {
     fn default() -> Self {
         EvalOptions {
+            task: Task::Localization,
             errors: ErrorType::BOP19.to_vec(),
             vsd_delta_mm: vsd::DELTA_MM,
             vsd_taus: recall::bop19_fractions(),
             thresholds: recall::bop19_fractions(),
             mspd_px: recall::bop19_mspd_px(),
+            mssd_mm: detection::bop25_mssd_mm(),
+            max_estimates_per_image: detection::MAX_ESTIMATES_PER_IMAGE,
+            visib_gt_min: detection::VISIB_GT_MIN,
             add_threshold: 0.1,
             max_sym_disc_step: pose_error::MAX_SYM_DISC_STEP,
             batch_images: 100,
@@ -169,6 +207,18 @@ impl EvalOptions {
         }
     }
 
+    /// The BOP'24 6D detection protocol for the toolkit's dataset `name`:
+    /// MSSD and MSPD, at most 100 estimates per image (200 for XYZ-IBD),
+    /// instances visible less than 10 % ignored.
+    pub fn detection(name: Option<&str>) -> EvalOptions {
+        EvalOptions {
+            task: Task::Detection,
+            errors: vec![ErrorType::Mssd, ErrorType::Mspd],
+            max_estimates_per_image: detection::max_estimates_per_image(name),
+            ..EvalOptions::for_dataset(name)
+        }
+    }
+
     fn has(&self, e: ErrorType) -> bool {
         self.errors.contains(&e)
     }
@@ -195,6 +245,20 @@ impl EvalOptions {
         if !(self.max_sym_disc_step.is_finite() && self.max_sym_disc_step >= 1e-4 && self.max_sym_disc_step <= 1.0) {
             return bad("max_sym_disc_step", format!("must lie in [1e-4, 1], got {}", self.max_sym_disc_step));
         }
+        if self.task == Task::Detection {
+            if let Some(e) = self.errors.iter().find(|e| !matches!(e, ErrorType::Mssd | ErrorType::Mspd)) {
+                return bad("error types", format!("the detection task scores mssd and mspd (BOP'24), not {}", e.name()));
+            }
+            if self.mssd_mm.is_empty() || self.mssd_mm.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+                return bad("MSSD mm threshold", "needs one or more positive numbers".into());
+            }
+            if self.max_estimates_per_image == 0 {
+                return bad("estimates per image", "must be at least 1".into());
+            }
+            if !(0.0..=1.0).contains(&self.visib_gt_min) {
+                return bad("minimum visible fraction", format!("must lie in [0, 1], got {}", self.visib_gt_min));
+            }
+        }
         if self.batch_images == 0 || self.batch_images > MAX_BATCH_IMAGES {
             return bad("batch size", format!("must be 1 to {MAX_BATCH_IMAGES} images (a batch's depth images are held in memory), got {}", self.batch_images));
         }
@@ -215,7 +279,9 @@ const MSPD: usize = 1;
 const AD: usize = 2;
 const ADD: usize = 3;
 const ADI: usize = 4;
-const VSD0: usize = 5;
+/// MSSD in millimetres (detection's `mssd_mm` thresholds).
+const MSSD_MM: usize = 5;
+const VSD0: usize = 6;
 
 /// The errors of one estimate against one instance, for inspection.
 #[derive(Clone, Debug, Serialize)]
@@ -256,14 +322,28 @@ pub struct ThresholdRecall {
     pub tp: usize,
 }
 
+/// Detection: AP at one threshold.
+#[derive(Clone, Debug, Serialize)]
+pub struct ThresholdAp {
+    pub threshold: f64,
+    /// Mean over the objects.
+    pub ap: f64,
+    pub per_object: BTreeMap<u32, f64>,
+}
+
 /// Scores of one object.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct ObjectScores {
+    /// Instances that count (localization: valid; detection: visible enough).
     pub targets: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ar: Option<f64>,
-    /// AR (mean recall over the thresholds) per error type, and for
-    /// ad/add/adi the recall at the ADD threshold.
+    /// Detection: mean of the object's AP over MSSD and MSPD.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ap: Option<f64>,
+    /// Localization: AR (mean recall over the thresholds) per error type,
+    /// and for ad/add/adi the recall at the ADD threshold. Detection: AP
+    /// (mean over the thresholds) for mssd, mssd_mm and mspd.
     pub by_error: BTreeMap<String, f64>,
 }
 
@@ -281,6 +361,7 @@ pub struct Timings {
 /// The result of an evaluation.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct EvalReport {
+    pub task: Task,
     /// Mean of AR_VSD, AR_MSSD and AR_MSPD (when all three were computed).
     pub ar: Option<f64>,
     pub ar_vsd: Option<f64>,
@@ -291,15 +372,31 @@ pub struct EvalReport {
     pub recall_add: Option<f64>,
     pub recall_adi: Option<f64>,
     pub add_threshold: f64,
+    /// Detection: BOP'24's mAP (mean of the MSSD and MSPD mAPs), each the
+    /// mean over objects of the AP averaged over thresholds; `ap_mssd` is
+    /// also BOP'25's mAP and `ap_mssd_mm` BOP'25's mAP in mm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ap: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ap_mssd: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ap_mspd: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ap_mssd_mm: Option<f64>,
     pub per_object: BTreeMap<u32, ObjectScores>,
     pub per_threshold: BTreeMap<String, Vec<ThresholdRecall>>,
-    /// Estimates evaluated (the kept top-`inst_count` of each target).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub per_threshold_ap: BTreeMap<String, Vec<ThresholdAp>>,
+    /// Estimates evaluated (localization: the kept top-`inst_count` of each
+    /// target; detection: those of the images' annotated objects).
     pub n_estimates: usize,
     /// Estimates of the file that are not for a target (ignored), and
-    /// those dropped by the top-`inst_count` rule.
+    /// those dropped by the top-`inst_count` rule (localization) or beyond
+    /// the cap per image (detection).
     pub n_ignored: usize,
     pub n_not_top: usize,
-    /// Valid ground-truth instances (the recall denominator).
+    /// Ground-truth instances that count (localization: the valid ones, the
+    /// recall denominator; detection: those visible enough).
     pub n_targets: usize,
     pub n_images: usize,
     /// Where visible fractions came from.
@@ -362,13 +459,78 @@ fn check_points(path: &std::path::Path, pts: &[DVec3]) -> Result<()> {
 /// Estimates per (scene, image, object) in file order.
 type EstimateIndex<'a> = HashMap<(u32, u32, u32), Vec<&'a Estimate>>;
 
-/// The kept estimates of a target: the `inst_count` highest-scored, ties in
-/// file order (the toolkit's stable sort, where −0 and 0 are a tie).
-fn kept<'a>(index: &EstimateIndex<'a>, t: &Target) -> Vec<&'a Estimate> {
+/// The kept estimates of a target in falling score order, ties in file
+/// order (the toolkit's stable sort, where −0 and 0 are a tie): the
+/// `inst_count` highest-scored for localization, all for detection.
+fn kept<'a>(index: &EstimateIndex<'a>, t: &Target, task: Task) -> Vec<&'a Estimate> {
     let mut v = index.get(&(t.scene_id, t.im_id, t.obj_id)).cloned().unwrap_or_default();
     v.sort_by(|a, b| b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal));
-    v.truncate(t.inst_count as usize);
+    if task == Task::Localization {
+        v.truncate(t.inst_count as usize);
+    }
     v
+}
+
+/// The estimates detection looks at: the `cap` highest-scored of each
+/// image, in the toolkit's order (`load_bop_results` with
+/// `max_num_estimates_per_image`): images as they first appear in the file,
+/// each image's estimates by falling score, ties in file order.
+fn top_per_image(results: &[Estimate], cap: usize) -> Vec<&Estimate> {
+    let mut order: Vec<(u32, u32)> = Vec::new();
+    let mut per_image: HashMap<(u32, u32), Vec<&Estimate>> = HashMap::new();
+    for e in results {
+        let v = per_image.entry((e.scene_id, e.im_id)).or_insert_with(|| {
+            order.push((e.scene_id, e.im_id));
+            Vec::new()
+        });
+        v.push(e);
+    }
+    let mut out = Vec::with_capacity(results.len().min(order.len().saturating_mul(cap)));
+    for key in order {
+        let mut v = per_image.remove(&key).expect("every image has its list");
+        v.sort_by(|a, b| b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal));
+        out.extend(v.into_iter().take(cap));
+    }
+    out
+}
+
+/// The targets of detection: every annotated object of the images of
+/// `targets`, with its instance count, in the toolkit's order (scenes as
+/// they first appear, then their images as they first appear, then each
+/// image's objects as they are first annotated). Which objects were listed
+/// does not matter: BOP'24 targets name images only, and the toolkit
+/// rebuilds the objects from the annotations (`inout.get_im_targets`).
+pub fn detection_targets(ds: &Dataset, targets: &[Target]) -> Result<Vec<Target>> {
+    let mut scenes: Vec<(u32, Vec<u32>)> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for t in targets {
+        if !seen.insert((t.scene_id, t.im_id)) {
+            continue;
+        }
+        match scenes.iter_mut().find(|(s, _)| *s == t.scene_id) {
+            Some((_, ims)) => ims.push(t.im_id),
+            None => scenes.push((t.scene_id, vec![t.im_id])),
+        }
+    }
+    let mut out = Vec::new();
+    for (scene_id, ims) in scenes {
+        let scene = ds.scene(scene_id)?;
+        for im_id in ims {
+            let gt = scene.gt.get(&im_id).ok_or_else(|| Error::BadJson {
+                path: scene.dir.join("scene_gt.json"),
+                reason: format!("target image {im_id} is not annotated"),
+            })?;
+            let mut objs: Vec<(u32, u32)> = Vec::new();
+            for g in gt {
+                match objs.iter_mut().find(|(o, _)| *o == g.obj_id) {
+                    Some((_, n)) => *n += 1,
+                    None => objs.push((g.obj_id, 1)),
+                }
+            }
+            out.extend(objs.into_iter().map(|(obj_id, inst_count)| Target { scene_id, im_id, obj_id, inst_count }));
+        }
+    }
+    Ok(out)
 }
 
 /// One (estimate, instance) pair to compute errors for.
@@ -412,13 +574,23 @@ pub fn evaluate(
 ) -> Result<(EvalReport, Vec<ErrorRecord>)> {
     opts.validate()?;
     let t_start = Instant::now();
-    let mut report = EvalReport { add_threshold: opts.add_threshold, device: device.describe(), ..Default::default() };
+    let mut report = EvalReport { task: opts.task, add_threshold: opts.add_threshold, device: device.describe(), ..Default::default() };
+    let detection_targets_;
+    let (targets, results): (&[Target], Vec<&Estimate>) = match opts.task {
+        Task::Localization => (targets, results.iter().collect()),
+        Task::Detection => {
+            detection_targets_ = detection_targets(ds, targets)?;
+            let capped = top_per_image(results, opts.max_estimates_per_image);
+            report.n_not_top = results.len() - capped.len();
+            (&detection_targets_, capped)
+        }
+    };
     let target_keys: std::collections::HashSet<(u32, u32, u32)> = targets.iter().map(|t| (t.scene_id, t.im_id, t.obj_id)).collect();
     let mut index: EstimateIndex = HashMap::new();
     // Rows of objects the dataset does not have are ignored, as the
     // toolkit does (it never looks at them), and said; a file none of whose
     // objects is there is for another dataset, an error.
-    let unknown: Vec<&Estimate> = results.iter().filter(|e| !ds.models_info.contains_key(&e.obj_id)).collect();
+    let unknown: Vec<&Estimate> = results.iter().copied().filter(|e| !ds.models_info.contains_key(&e.obj_id)).collect();
     if let Some(first) = unknown.first() {
         let where_ = format!("results line {}: object {}", first.line, first.obj_id);
         if unknown.len() == results.len() {
@@ -426,7 +598,7 @@ pub fn evaluate(
         }
         tracing::warn!("{} results lines name objects not in the dataset's models_info.json (the first: {where_}); they are ignored, as the BOP toolkit does", unknown.len());
     }
-    for e in results {
+    for &e in &results {
         if target_keys.contains(&(e.scene_id, e.im_id, e.obj_id)) {
             index.entry((e.scene_id, e.im_id, e.obj_id)).or_default().push(e);
         } else {
@@ -439,13 +611,14 @@ pub fn evaluate(
             results.len()
         );
     }
-    report.average_time_per_image = average_time_per_image(results);
+    report.average_time_per_image = average_time_per_image(results.iter().copied());
     let mut obj_ids: Vec<u32> = targets.iter().map(|t| t.obj_id).collect();
     obj_ids.sort_unstable();
     obj_ids.dedup();
-    let mut by_scene: BTreeMap<u32, BTreeMap<u32, Vec<Target>>> = BTreeMap::new();
-    for t in targets {
-        by_scene.entry(t.scene_id).or_default().entry(t.im_id).or_default().push(*t);
+    // Each target with its position in `targets` (detection's tie order).
+    let mut by_scene: BTreeMap<u32, BTreeMap<u32, Vec<(usize, Target)>>> = BTreeMap::new();
+    for (rank, t) in targets.iter().enumerate() {
+        by_scene.entry(t.scene_id).or_default().entry(t.im_id).or_default().push((rank, *t));
     }
     report.n_images = by_scene.values().map(|m| m.len()).sum();
     // Open every scene before the long work, so a bad file fails at once.
@@ -460,11 +633,11 @@ pub fn evaluate(
     } else {
         "scene_gt_info.json".into()
     };
-    let mut all_targets: Vec<TargetErrors> = Vec::new();
+    let mut all_targets: Vec<DetectionTarget> = Vec::new();
     let mut records = Vec::new();
     let mut done = 0;
     for scene in &scenes {
-        let images: Vec<(&u32, &Vec<Target>)> = by_scene[&scene.id].iter().collect();
+        let images: Vec<(&u32, &Vec<(usize, Target)>)> = by_scene[&scene.id].iter().collect();
         for batch in images.chunks(opts.batch_images) {
             let ctx = BatchCtx { scene, models: &models, opts, device, need_depth };
             let _span = tracing::trace_span!("batch", scene = scene.id, images = batch.len()).entered();
@@ -475,11 +648,17 @@ pub fn evaluate(
             progress(done)?;
         }
     }
-    report.n_estimates = all_targets.iter().map(|t| t.estimates.len()).sum();
-    report.n_not_top = index.values().map(|v| v.len()).sum::<usize>() - report.n_estimates;
-    report.n_targets = all_targets.iter().map(|t| t.valid.len()).sum();
+    report.n_estimates = all_targets.iter().map(|t| t.errors.estimates.len()).sum();
+    report.n_not_top += index.values().map(|v| v.len()).sum::<usize>() - report.n_estimates;
+    report.n_targets = all_targets.iter().map(|t| t.counted.len()).sum();
     let t0 = Instant::now();
-    tracing::trace_span!("recall").in_scope(|| score(&all_targets, opts, &mut report));
+    match opts.task {
+        Task::Localization => {
+            let targets: Vec<TargetErrors> = all_targets.into_iter().map(|t| t.errors).collect();
+            tracing::trace_span!("recall").in_scope(|| score(&targets, opts, &mut report));
+        }
+        Task::Detection => tracing::trace_span!("average_precision").in_scope(|| score_detection(&all_targets, opts, &mut report)),
+    }
     report.time_s.scoring_s = t0.elapsed().as_secs_f64();
     report.time_s.total_s = t_start.elapsed().as_secs_f64();
     Ok((report, records))
@@ -488,8 +667,11 @@ pub fn evaluate(
 /// The toolkit's `average_time_per_image`: −1 unless every estimate has a
 /// time ≥ 0 and all estimates of an image agree within 1 ms (its
 /// `check_consistent_timings`), the first of them standing for the image.
-fn average_time_per_image(results: &[Estimate]) -> f64 {
+fn average_time_per_image<'a>(results: impl IntoIterator<Item = &'a Estimate>) -> f64 {
     let mut per_image: HashMap<(u32, u32), f64> = HashMap::new();
+    // The images in file order: the toolkit's numpy mean sums them pairwise
+    // in that order.
+    let mut times = Vec::new();
     for e in results {
         if e.time < 0.0 {
             return -1.0;
@@ -504,12 +686,15 @@ fn average_time_per_image(results: &[Estimate]) -> f64 {
                 return -1.0;
             }
         }
-        per_image.entry((e.scene_id, e.im_id)).or_insert(e.time);
+        per_image.entry((e.scene_id, e.im_id)).or_insert_with(|| {
+            times.push(e.time);
+            e.time
+        });
     }
-    if per_image.is_empty() {
+    if times.is_empty() {
         return -1.0;
     }
-    per_image.values().sum::<f64>() / per_image.len() as f64
+    detection::np_mean(&times)
 }
 
 /// What a batch of images needs from the caller.
@@ -524,10 +709,10 @@ struct BatchCtx<'a> {
 impl BatchCtx<'_> {
     fn run(
         &self,
-        batch: &[(&u32, &Vec<Target>)],
+        batch: &[(&u32, &Vec<(usize, Target)>)],
         index: &EstimateIndex,
         report: &mut EvalReport,
-    ) -> Result<(Vec<TargetErrors>, Vec<ErrorRecord>)> {
+    ) -> Result<(Vec<DetectionTarget>, Vec<ErrorRecord>)> {
         let t0 = Instant::now();
         let frames = tracing::trace_span!("read_frames").in_scope(|| self.read_frames(batch))?;
         report.time_s.load_s += t0.elapsed().as_secs_f64();
@@ -537,19 +722,21 @@ impl BatchCtx<'_> {
         for (fi, (im_id, tlist)) in batch.iter().enumerate() {
             let gt = &self.scene.gt[im_id];
             let objs: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
-            for t in tlist.iter() {
-                let ests = kept(index, t);
+            for (rank, t) in tlist.iter() {
+                let ests = kept(index, t, self.opts.task);
                 let ti = targets.len();
                 for (rank, est) in ests.iter().enumerate() {
                     for (gt_id, g) in gt.iter().enumerate().filter(|(_, g)| g.obj_id == t.obj_id) {
                         pairs.push((fi, Pair { target: ti, est_rank: rank, est, gt_id, gt: *g }));
                     }
                 }
-                targets.push(TargetErrors {
-                    obj_id: t.obj_id,
-                    valid: recall::valid_instances(&objs, &visib[im_id], t.obj_id, t.inst_count),
-                    estimates: ests.iter().map(|e| EstimateErrors { score: e.score, errors: Vec::new() }).collect(),
-                });
+                let valid = recall::valid_instances(&objs, &visib[im_id], t.obj_id, t.inst_count);
+                let counted = match self.opts.task {
+                    Task::Localization => valid.clone(),
+                    Task::Detection => valid.iter().copied().filter(|&g| visib[im_id][g] >= self.opts.visib_gt_min).collect(),
+                };
+                let estimates = ests.iter().map(|e| EstimateErrors { score: e.score, errors: Vec::new() }).collect();
+                targets.push(DetectionTarget { errors: TargetErrors { obj_id: t.obj_id, valid, estimates }, counted, rank: *rank });
             }
         }
         let t0 = Instant::now();
@@ -563,12 +750,12 @@ impl BatchCtx<'_> {
         let mut records = Vec::with_capacity(pairs.len());
         for ((fi, p), errs) in pairs.iter().zip(errors) {
             records.push(self.record(frames[*fi].im_id, p, &errs));
-            targets[p.target].estimates[p.est_rank].errors.push((p.gt_id, errs));
+            targets[p.target].errors.estimates[p.est_rank].errors.push((p.gt_id, errs));
         }
         Ok((targets, records))
     }
 
-    fn read_frames(&self, batch: &[(&u32, &Vec<Target>)]) -> Result<Vec<Frame>> {
+    fn read_frames(&self, batch: &[(&u32, &Vec<(usize, Target)>)]) -> Result<Vec<Frame>> {
         batch
             .par_iter()
             .map(|(&im_id, _)| {
@@ -625,7 +812,8 @@ impl BatchCtx<'_> {
         let overlap = pose_error::spheres_overlap(e.t, g.t, d);
         let far = |f: &dyn Fn() -> f64| if overlap { f() } else { f64::INFINITY };
         if self.opts.has(ErrorType::Mssd) {
-            out[MSSD] = far(&|| pose_error::mssd(e, g, &m.pts, &m.syms)) / d;
+            out[MSSD_MM] = far(&|| pose_error::mssd(e, g, &m.pts, &m.syms));
+            out[MSSD] = out[MSSD_MM] / d;
         }
         if self.opts.has(ErrorType::Mspd) {
             out[MSPD] = pose_error::mspd(e, g, &f.k, &m.pts, &m.syms) * (640.0 / f.width as f64);
@@ -914,7 +1102,63 @@ fn score(targets: &[TargetErrors], opts: &EvalOptions, report: &mut EvalReport) 
             (Some(a), Some(b), Some(c)) => Some((a + b + c) / 3.0),
             _ => None,
         };
-        report.per_object.insert(o, ObjectScores { targets: counts.get(&o).copied().unwrap_or(0), ar, by_error });
+        report.per_object.insert(o, ObjectScores { targets: counts.get(&o).copied().unwrap_or(0), ar, ap: None, by_error });
+    }
+}
+
+/// Detection: AP per object and threshold for MSSD (as a fraction of the
+/// diameter and in mm) and MSPD, their means over thresholds and objects
+/// (`eval_bop24_pose.py`); fills the report's AP fields.
+fn score_detection(targets: &[DetectionTarget], opts: &EvalOptions, report: &mut EvalReport) {
+    let mut sets: Vec<(&str, &[f64], usize)> = Vec::new();
+    if opts.has(ErrorType::Mssd) {
+        sets.push(("mssd", &opts.thresholds, MSSD));
+        sets.push(("mssd_mm", &opts.mssd_mm, MSSD_MM));
+    }
+    if opts.has(ErrorType::Mspd) {
+        sets.push(("mspd", &opts.mspd_px, MSPD));
+    }
+    let mut counted: BTreeMap<u32, usize> = BTreeMap::new();
+    for t in targets {
+        *counted.entry(t.errors.obj_id).or_default() += t.counted.len();
+    }
+    // By id, the order of the toolkit's scores files (`json.dumps(sort_keys)`
+    // sorts the integer ids), which the last bits of its numpy means follow.
+    let objects: Vec<u32> = counted.iter().filter(|(_, n)| **n > 0).map(|(o, _)| *o).collect();
+    for (name, thresholds, column) in sets {
+        let per_threshold: Vec<BTreeMap<u32, f64>> = thresholds.iter().map(|&th| detection::object_ap(targets, th, column)).collect();
+        let mut means = Vec::with_capacity(objects.len());
+        for o in &objects {
+            let aps: Vec<f64> = per_threshold.iter().map(|m| m[o]).collect();
+            let ap = detection::np_mean(&aps);
+            means.push(ap);
+            let scores = report.per_object.entry(*o).or_default();
+            scores.targets = counted[o];
+            scores.by_error.insert(name.to_string(), ap);
+        }
+        let ap = detection::np_mean(&means);
+        let rows = thresholds
+            .iter()
+            .zip(per_threshold)
+            .map(|(&threshold, per_object)| {
+                let ap = detection::np_mean(&objects.iter().map(|o| per_object[o]).collect::<Vec<_>>());
+                ThresholdAp { threshold, ap, per_object }
+            })
+            .collect();
+        report.per_threshold_ap.insert(name.to_string(), rows);
+        match name {
+            "mssd" => report.ap_mssd = Some(ap),
+            "mssd_mm" => report.ap_mssd_mm = Some(ap),
+            _ => report.ap_mspd = Some(ap),
+        }
+    }
+    if let (Some(a), Some(b)) = (report.ap_mssd, report.ap_mspd) {
+        report.ap = Some(detection::np_mean(&[a, b]));
+    }
+    for s in report.per_object.values_mut() {
+        if let (Some(a), Some(b)) = (s.by_error.get("mssd"), s.by_error.get("mspd")) {
+            s.ap = Some(detection::np_mean(&[*a, *b]));
+        }
     }
 }
 

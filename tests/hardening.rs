@@ -140,6 +140,10 @@ fn absurd_flags_are_refused_before_any_work() {
         (vec!["plane", "--camera", "c", "--depth", "d", "--iterations", "100000000", "--out", "p.json"], "100000000"),
         (vec!["check", "assets/physics/stack.json", "--explain", "pic"], ".png"),
         (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--batch-images", "0"], "batch size"),
+        (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--task", "detection", "--errors", "vsd"], "--errors"),
+        (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--task", "detection", "--max-estimates-per-image", "0"], "--max-estimates-per-image"),
+        (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--max-estimates-per-image", "5"], "--task detection"),
+        (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--task", "tracking"], "localization or detection"),
     ] {
         let (code, err) = run(&args);
         assert!(code == 1 || code == 2, "{args:?}: exit {code}");

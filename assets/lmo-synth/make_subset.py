@@ -1,5 +1,7 @@
-"""Makes assets/lmo-synth: a 12-frame, 3-object subset of shared/data/lmo-synth
-(BOP layout), a perturbed results file for it, and the BOP toolkit's numbers for it.
+"""Makes assets/lmo-synth: a 12-frame subset of shared/data/lmo-synth (BOP layout)
+whose BOP'19 targets are 3 objects, with every object's model (BOP'24 detection
+evaluates every annotated object), its BOP'24 image list, a perturbed results
+file for it, and the BOP toolkit's numbers for it.
 
     python3 assets/lmo-synth/make_subset.py ../shared/data/lmo-synth assets/lmo-synth
 
@@ -21,7 +23,7 @@ os.makedirs(os.path.join(dst, "models"), exist_ok=True)
 os.makedirs(os.path.join(dst, scene, "depth"), exist_ok=True)
 for f in ["camera.json", "CC-BY-SA-4.0.txt", "models/models_info.json"]:
     shutil.copyfile(os.path.join(src, f), os.path.join(dst, f))
-for o in OBJS:
+for o in sorted(int(k) for k in json.load(open(os.path.join(src, "models", "models_info.json")))):
     shutil.copyfile(os.path.join(src, "models", "obj_%06d.ply" % o), os.path.join(dst, "models", "obj_%06d.ply" % o))
 for name in ["scene_gt.json", "scene_camera.json", "scene_gt_info.json"]:
     d = json.load(open(os.path.join(src, scene, name)))
@@ -40,6 +42,13 @@ for i in FRAMES:
 sub = [t for t in targets if t["im_id"] in FRAMES and t["obj_id"] in OBJS]
 with open(os.path.join(dst, "test_targets_bop19.json"), "w") as f:
     f.write("[\n" + ",\n".join("  " + json.dumps(t, sort_keys=True) for t in sub) + "\n]\n")
+# BOP'24's targets name images only (scene, image), in the BOP'19 file's order.
+images = []
+for t in sub:
+    if {"scene_id": t["scene_id"], "im_id": t["im_id"]} not in images:
+        images.append({"scene_id": t["scene_id"], "im_id": t["im_id"]})
+with open(os.path.join(dst, "test_targets_bop24.json"), "w") as f:
+    f.write("[\n" + ",\n".join("  " + json.dumps(t, sort_keys=True) for t in images) + "\n]\n")
 keep = {(t["im_id"], t["obj_id"]) for t in sub}
 with open(os.path.join(src, "reference", "perturbed_open.csv")) as f, open(os.path.join(dst, "perturbed.csv"), "w") as g:
     lines = f.read().splitlines()

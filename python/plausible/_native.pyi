@@ -116,6 +116,8 @@ def evaluate(
     device: str = "auto",
     adapter: Optional[str] = None,
     records: bool = False,
+    task: str = "localization",
+    max_estimates_per_image: Optional[int] = None,
 ) -> Dict[str, Any]: ...
 def device_info(adapter: Optional[str] = None) -> Tuple[str, str]: ...
 def read_frame(

@@ -181,9 +181,10 @@ pub fn hypotheses<'py>(
 /// BOP'19 evaluation of a results CSV on a BOP dataset, as the BOP toolkit
 /// computes it: the report (AR, VSD/MSSD/MSPD recalls per object, ...) as
 /// a dict, and with `records=True` also every (estimate, instance) pair's
-/// errors.
+/// errors. `task="detection"`: BOP'24 6D detection (AP over MSSD and MSPD
+/// thresholds; targets default to the dataset's test_targets_bop24.json).
 #[pyfunction]
-#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false))]
+#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false, task = "localization", max_estimates_per_image = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate<'py>(
     py: Python<'py>,
@@ -197,10 +198,20 @@ pub fn evaluate<'py>(
     device: &str,
     adapter: Option<&str>,
     records: bool,
+    task: &str,
+    max_estimates_per_image: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use plausible::eval::{evaluate, toolkit_dataset_name, ErrorType, EvalOptions};
+    use plausible::eval::{detection_targets, evaluate, toolkit_dataset_name, ErrorType, EvalOptions, Task};
     let name = toolkit_dataset_name(&dataset, dataset_name).map_err(to_py)?;
-    let mut opts = EvalOptions { add_threshold, ..EvalOptions::for_dataset(name.as_deref()) };
+    let task: Task = task.parse().map_err(value_error)?;
+    let base = match task {
+        Task::Localization => EvalOptions::for_dataset(name.as_deref()),
+        Task::Detection => EvalOptions::detection(name.as_deref()),
+    };
+    if max_estimates_per_image.is_some() && task != Task::Detection {
+        return Err(value_error("max_estimates_per_image is for task='detection'".to_string()));
+    }
+    let mut opts = EvalOptions { add_threshold, max_estimates_per_image: max_estimates_per_image.unwrap_or(base.max_estimates_per_image), ..base };
     if let Some(errs) = errors {
         opts.errors = errs.iter().map(|e| e.parse::<ErrorType>()).collect::<Result<_, _>>().map_err(value_error)?;
     }
@@ -208,10 +219,13 @@ pub fn evaluate<'py>(
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
     let (report, recs, source) = crate::interruptible(py, |stop| {
         let ds = plausible::bop::Dataset::open(&dataset, split)?;
-        let (targets, source) = ds.targets(targets.as_deref())?;
+        let bop24 = ds.targets_file(true);
+        let file = targets.clone().or_else(|| (task == Task::Detection && bop24.is_file()).then_some(bop24));
+        let (targets, source) = ds.targets(file.as_deref())?;
         if targets.is_empty() {
             return Err(plausible::Error::InvalidInput("no targets to evaluate".into()));
         }
+        let targets = if task == Task::Detection { detection_targets(&ds, &targets)? } else { targets };
         let results = plausible::bop::read_results(&results)?;
         let device = Device::open(choice, adapter, false)?.device;
         let (report, recs) = evaluate(&ds, &results, &targets, &device, &opts, &mut |_| stop.check())?;
@@ -222,7 +236,7 @@ pub fn evaluate<'py>(
     v["dataset"] = serde_json::json!(dataset.display().to_string());
     v["results"] = serde_json::json!(results.display().to_string());
     v["targets"] = serde_json::json!(match source {
-        plausible::bop::TargetSource::File(f) => f.display().to_string(),
+        plausible::bop::TargetSource::File(f) | plausible::bop::TargetSource::ImageList(f) => f.display().to_string(),
         plausible::bop::TargetSource::AllInstances => "all annotated instances".into(),
     });
     if records {

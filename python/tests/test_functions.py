@@ -146,6 +146,21 @@ def test_eval_matches_the_bop_toolkit_on_the_shipped_subset():
         pl.eval(ds, ds / "perturbed.csv", dataset_name="not-a-dataset")
 
 
+def test_eval_detection_matches_the_bop_toolkit_bit_for_bit():
+    ds = ASSETS / "lmo-synth"
+    ref = json.loads((ds / "reference_detection.json").read_text())["detection.csv"]
+    rep = pl.eval(ds, ds / "detection.csv", task="detection", dataset_name="lmo", device="cpu")
+    assert rep["task"] == "detection"
+    for ours, theirs in [("ap", "bop24_mAP"), ("ap_mssd", "bop24_mAP_mssd"), ("ap_mspd", "bop24_mAP_mspd"), ("ap_mssd_mm", "bop24_mAP_mssd_mm")]:
+        assert rep[ours] == ref[theirs], ours
+    with pytest.raises(ValueError, match="localization or detection"):
+        pl.eval(ds, ds / "detection.csv", task="tracking")
+    with pytest.raises(ValueError, match="vsd"):
+        pl.eval(ds, ds / "detection.csv", task="detection", errors=["vsd"])
+    with pytest.raises(ValueError, match="max_estimates_per_image"):
+        pl.eval(ds, ds / "detection.csv", task="detection", max_estimates_per_image=0)
+
+
 def rotation(axis, angle):
     a = np.asarray(axis, float) / np.linalg.norm(axis)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])

@@ -181,7 +181,14 @@ impl Dataset {
 
     /// The targets file read when none is given.
     fn default_targets(&self) -> PathBuf {
-        self.root.join("test_targets_bop19.json")
+        self.targets_file(false)
+    }
+
+    /// The dataset's own targets file: `test_targets_bop19.json`, or with
+    /// `bop24` BOP'24's `test_targets_bop24.json` (images only, for the
+    /// detection task).
+    pub fn targets_file(&self, bop24: bool) -> PathBuf {
+        self.root.join(if bop24 { "test_targets_bop24.json" } else { "test_targets_bop19.json" })
     }
 
     /// The model file of an object (`obj_000001.ply`).
@@ -241,7 +248,10 @@ impl Dataset {
             None => None,
         };
         match path {
-            Some(p) => Ok((read_targets(&p, self)?, TargetSource::File(p))),
+            Some(p) => {
+                let (targets, images_only) = read_targets_file(&p, self)?;
+                Ok((targets, if images_only { TargetSource::ImageList(p) } else { TargetSource::File(p) }))
+            }
             None => {
                 let mut out = Vec::new();
                 for scene_id in self.scene_ids()? {
@@ -260,6 +270,9 @@ impl Dataset {
 #[derive(Clone, Debug, PartialEq)]
 pub enum TargetSource {
     File(PathBuf),
+    /// A file naming images only (BOP'24's `{scene_id, im_id}`): every
+    /// annotated instance of those images is a target.
+    ImageList(PathBuf),
     /// No targets file: every annotated instance is a target.
     AllInstances,
 }
@@ -600,13 +613,14 @@ fn image_targets(path: &Path, ds: &Dataset, raw: &[RawTarget]) -> Result<Vec<Tar
 /// A list of `{scene_id, im_id}` alone (BOP'24's `test_targets_bop24.json`)
 /// makes every annotated instance of those images a target.
 pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
+    Ok(read_targets_file(path, ds)?.0)
+}
+
+/// [`read_targets`], and whether the file names images only.
+fn read_targets_file(path: &Path, ds: &Dataset) -> Result<(Vec<Target>, bool)> {
     let raw: Vec<RawTarget> = read_json_capped(path, MAX_TARGETS_BYTES)?;
     if !raw.is_empty() && raw.iter().all(|t| t.obj_id.is_none()) {
-        tracing::warn!(
-            "{} names images only (BOP'24 targets): every annotated instance of those images is a target, with its instance count (BOP'24's detection AP is not computed; plausible evaluates the BOP'19 recalls)",
-            path.display()
-        );
-        return image_targets(path, ds, &raw);
+        return Ok((image_targets(path, ds, &raw)?, true));
     }
     let mut seen = std::collections::HashMap::new();
     let mut out = Vec::with_capacity(raw.len());
@@ -625,5 +639,5 @@ pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
         }
         out.push(Target { scene_id: t.scene_id, im_id: t.im_id, obj_id, inst_count });
     }
-    Ok(out)
+    Ok((out, false))
 }

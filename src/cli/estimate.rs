@@ -110,7 +110,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     // content (a resumed run with other targets would mix two sets).
     // (And the file, whose digest earlier versions recorded instead.)
     let (targets_setting, targets_file) = match &source {
-        plausible::bop::dataset::TargetSource::File(p) => {
+        plausible::bop::dataset::TargetSource::File(p) | plausible::bop::dataset::TargetSource::ImageList(p) => {
             (Some(read_digest(targets.iter().map(|t| format!("{} {} {} {}", t.scene_id, t.im_id, t.obj_id, t.inst_count)))), Some(p.clone()))
         }
         plausible::bop::dataset::TargetSource::AllInstances => (None, None),

@@ -1,12 +1,13 @@
 //! `plausible eval`: BOP'19 evaluation of a results file (AR from VSD, MSSD,
-//! MSPD; ADD/ADI), as the BOP toolkit computes it, on any GPU or the CPU.
+//! MSPD; ADD/ADI), or BOP'24 6D detection (AP from MSSD, MSPD), as the BOP
+//! toolkit computes them, on any GPU or the CPU.
 
 use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::{read_results, write_results, Dataset, TargetSource};
-use plausible::eval::{evaluate, gt_as_results, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport};
+use plausible::eval::{detection_targets, evaluate, gt_as_results, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport, Task};
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -20,14 +21,27 @@ pub struct EvalArgs {
     /// Results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm).
     #[arg(long, required_unless_present = "gt_as_results")]
     pub results: Option<PathBuf>,
-    /// Targets file (default: test_targets_bop19.json in the dataset; without
-    /// one, every annotated instance is a target).
+    /// Targets file (default: test_targets_bop19.json in the dataset, for
+    /// --task detection test_targets_bop24.json first; without one, every
+    /// annotated instance is a target).
     #[arg(long)]
     pub targets: Option<PathBuf>,
+    /// BOP task: `localization` (BOP'19: the top inst_count estimates per
+    /// target, recall, AR) or `detection` (BOP'24: every estimate up to
+    /// --max-estimates-per-image, average precision per object over MSSD and
+    /// MSPD thresholds, mAP; instances under 10 % visible ignored).
+    #[arg(long, default_value = "localization")]
+    pub task: Task,
     /// Error types, comma-separated: vsd, mssd, mspd (their mean recall is
     /// BOP's AR), ad (ADI for symmetric objects, ADD otherwise), add, adi.
-    #[arg(long, value_delimiter = ',', default_value = "vsd,mssd,mspd")]
+    /// Default: vsd,mssd,mspd; for --task detection mssd,mspd (the only ones
+    /// it takes).
+    #[arg(long, value_delimiter = ',')]
     pub errors: Vec<ErrorType>,
+    /// --task detection: estimates kept per image, the highest-scored
+    /// (default: the toolkit's, 100; 200 for xyzibd).
+    #[arg(long)]
+    pub max_estimates_per_image: Option<usize>,
     /// Correctness threshold of ad/add/adi, as a fraction of the diameter.
     #[arg(long, default_value_t = 0.1)]
     pub add_threshold: f64,
@@ -65,16 +79,24 @@ pub struct EvalArgs {
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     let open = tracing::trace_span!("open").entered();
     let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;
+    let base = match a.task {
+        Task::Localization => EvalOptions::for_dataset(name.as_deref()),
+        Task::Detection => EvalOptions::detection(name.as_deref()),
+    };
+    if a.max_estimates_per_image.is_some() && a.task != Task::Detection {
+        bail!("--max-estimates-per-image is for --task detection (localization keeps the top inst_count of each target)");
+    }
     let opts = EvalOptions {
-        errors: a.errors.clone(),
+        errors: if a.errors.is_empty() { base.errors.clone() } else { a.errors.clone() },
         add_threshold: a.add_threshold,
         batch_images: a.batch_images,
-        ..EvalOptions::for_dataset(name.as_deref())
+        max_estimates_per_image: a.max_estimates_per_image.unwrap_or(base.max_estimates_per_image),
+        ..base
     };
     opts.validate().map_err(|e| {
         // The library names the setting; say which flag gave it.
         let msg = e.to_string();
-        let flag = [("error types", "--errors"), ("ADD threshold", "--add-threshold"), ("batch size", "--batch-images")]
+        let flag = [("error types", "--errors"), ("ADD threshold", "--add-threshold"), ("batch size", "--batch-images"), ("estimates per image", "--max-estimates-per-image")]
             .iter()
             .find(|(what, _)| msg.contains(what))
             .map_or("the dataset's evaluation settings", |(_, f)| f);
@@ -91,17 +113,33 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
-    let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
-    if let TargetSource::File(f) = &source {
+    // Detection reads BOP'24's image list when the dataset has one.
+    let bop24 = ds.targets_file(true);
+    let targets_file = a.targets.clone().or_else(|| (a.task == Task::Detection && bop24.is_file()).then_some(bop24));
+    let (targets, source) = ds.targets(targets_file.as_deref()).context("--targets")?;
+    if let TargetSource::File(f) | TargetSource::ImageList(f) = &source {
         // The dataset's own targets file, found without --targets.
         super::distinct_files(&outputs, &[("the dataset's targets file", Some(f))])?;
     }
     if targets.is_empty() {
         bail!("no targets to evaluate");
     }
-    if source == TargetSource::AllInstances {
-        eprintln!("note: no targets file: every annotated instance is a target");
+    match (&source, a.task) {
+        (TargetSource::AllInstances, _) => eprintln!("note: no targets file: every annotated instance is a target"),
+        (TargetSource::ImageList(f), Task::Localization) => eprintln!(
+            "note: {} names images only (BOP'24 targets): every annotated instance of those images is a localization target (--task detection gives BOP'24's detection AP)",
+            f.display()
+        ),
+        (TargetSource::File(f), Task::Detection) => {
+            eprintln!("note: {} names objects (BOP'19 targets): detection takes its images and every annotated object in them", f.display())
+        }
+        _ => {}
     }
+    // Detection's targets: every annotated object of the listed images.
+    let targets = match a.task {
+        Task::Localization => targets,
+        Task::Detection => detection_targets(&ds, &targets).context("--targets")?,
+    };
     let device = a.dev.open(verbose)?;
     let results = match (&a.results, &a.gt_as_results) {
         (Some(r), _) => read_results(r).context("--results")?,
@@ -142,7 +180,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         v["dataset"] = serde_json::json!(a.dataset.display().to_string());
         v["results"] = serde_json::json!(a.results.as_ref().or(a.gt_as_results.as_ref()).map(|p| p.display().to_string()));
         v["targets"] = serde_json::json!(match &source {
-            TargetSource::File(f) => f.display().to_string(),
+            TargetSource::File(f) | TargetSource::ImageList(f) => f.display().to_string(),
             TargetSource::AllInstances => "all annotated instances".into(),
         });
         plausible::io::write_atomically(p, |w| {
@@ -168,8 +206,12 @@ fn fmt(v: Option<f64>) -> String {
     v.map_or("-".into(), |x| format!("{x:.4}"))
 }
 
-/// The table: recall per object and error type, AR, then the totals.
+/// The table: recall per object and error type, AR, then the totals
+/// (detection: AP per object and error type, mAP).
 pub fn print_report(r: &EvalReport, opts: &EvalOptions) {
+    if r.task == Task::Detection {
+        return print_detection_report(r);
+    }
     println!(
         "evaluated {} estimates against {} targets in {} images in {:.2} s on {} (visibility: {})",
         r.n_estimates, r.n_targets, r.n_images, r.time_s.total_s, r.device, r.visibility
@@ -208,4 +250,42 @@ pub fn print_report(r: &EvalReport, opts: &EvalOptions) {
     }
     println!("{line}");
     println!("(VSD, MSSD, MSPD: average recall over the BOP'19 thresholds; AD/ADD/ADI: recall at {} x diameter)", r.add_threshold);
+}
+
+/// The detection table: AP per object (mean over thresholds) for MSSD,
+/// MSSD in mm and MSPD, their mean, then the mAPs.
+fn print_detection_report(r: &EvalReport) {
+    println!(
+        "evaluated {} estimates against {} instances visible at least 10 % in {} images in {:.2} s on {} (visibility: {})",
+        r.n_estimates, r.n_targets, r.n_images, r.time_s.total_s, r.device, r.visibility
+    );
+    if r.n_ignored > 0 || r.n_not_top > 0 {
+        println!("ignored {} estimates for objects not annotated in their image or for other images, {} beyond the cap per image", r.n_ignored, r.n_not_top);
+    }
+    let cols: Vec<&str> = ["mssd", "mspd", "mssd_mm"].into_iter().filter(|c| r.per_threshold_ap.contains_key(*c)).collect();
+    let mut head = format!("{:>5} {:>9} {:>7}", "obj", "instances", "AP");
+    for c in &cols {
+        head += &format!(" {:>10}", format!("AP_{}", c.to_uppercase().replace("_MM", "_mm")));
+    }
+    println!("{head}");
+    for (o, s) in &r.per_object {
+        let mut line = format!("{o:>5} {:>9} {:>7}", s.targets, fmt(s.ap));
+        for c in &cols {
+            line += &format!(" {:>10}", fmt(s.by_error.get(*c).copied()));
+        }
+        println!("{line}");
+    }
+    let mut line = format!("{:>5} {:>9} {:>7}", "all", r.n_targets, fmt(r.ap));
+    for c in &cols {
+        let v = match *c {
+            "mssd" => r.ap_mssd,
+            "mspd" => r.ap_mspd,
+            _ => r.ap_mssd_mm,
+        };
+        line += &format!(" {:>10}", fmt(v));
+    }
+    println!("{line}");
+    println!(
+        "(BOP'24 6D detection: AP per object averaged over the thresholds, then over the objects; AP = mean of AP_MSSD and AP_MSPD (bop24_mAP); AP_MSSD is also bop25_mAP and AP_MSSD_mm bop25_mAP_mm)"
+    );
 }

@@ -48,7 +48,15 @@ pub fn valid_instances(obj_ids: &[u32], visib_fract: &[f64], obj_id: u32, inst_c
 /// Greedy matching of one target at one threshold on error column
 /// `column`; returns how many valid instances were matched.
 pub fn matched(target: &TargetErrors, threshold: f64, column: usize) -> usize {
+    match_estimates(target, threshold, column).iter().flatten().count()
+}
+
+/// Greedy matching of one target at one threshold on error column
+/// `column` (`pose_matching.match_poses`): per estimate, in the target's
+/// order, the valid instance it took, if any.
+pub fn match_estimates(target: &TargetErrors, threshold: f64, column: usize) -> Vec<Option<usize>> {
     let mut taken: Vec<usize> = Vec::new();
+    let mut out = Vec::with_capacity(target.estimates.len());
     for e in &target.estimates {
         let mut best: Option<usize> = None;
         let mut best_err = threshold;
@@ -66,8 +74,9 @@ pub fn matched(target: &TargetErrors, threshold: f64, column: usize) -> usize {
         if let Some(g) = best {
             taken.push(g);
         }
+        out.push(best);
     }
-    taken.len()
+    out
 }
 
 /// Pooled and per-object recall at one threshold.
