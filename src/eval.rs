@@ -149,6 +149,38 @@ pub fn bop_symmetric_obj_ids(dataset: &str) -> Option<Vec<u32>> {
     })
 }
 
+/// The sensor the BOP toolkit evaluates on a dataset annotated per sensor
+/// (its `eval_sensor`): photoneo for IPD, xyz for XYZ-IBD, 3dlong for
+/// ITODD-MV; `None` for the others (HOT3D's sensor changes by scene and
+/// its cameras are not pinhole).
+pub fn bop_eval_sensor(dataset: &str) -> Option<&'static str> {
+    match dataset {
+        "ipd" => Some("photoneo"),
+        "xyzibd" => Some("xyz"),
+        "itoddmv" => Some("3dlong"),
+        _ => None,
+    }
+}
+
+/// Opens a dataset split for evaluation. Where the split is annotated per
+/// sensor: `sensor`, or without one the sensor the BOP toolkit evaluates
+/// for the dataset `name` ([`bop_eval_sensor`]); an error names the
+/// sensors when neither applies.
+pub fn open_dataset(root: &std::path::Path, split: &str, sensor: Option<&str>, name: Option<&str>) -> Result<Dataset> {
+    if sensor.is_some() {
+        return Dataset::open_sensor(root, split, sensor);
+    }
+    let ds = Dataset::open(root, split)?;
+    let sensors = ds.sensors()?;
+    if sensors.is_empty() {
+        return Ok(ds);
+    }
+    match name.and_then(bop_eval_sensor).filter(|s| sensors.iter().any(|x| x == s)) {
+        Some(s) => Dataset::open_sensor(root, split, Some(s)),
+        None => Err(Error::InvalidInput(format!("sensor: the split '{split}' is annotated per sensor ({}): choose one", sensors.join(", ")))),
+    }
+}
+
 /// The BOP toolkit's VSD δ per dataset name (mm): 5 for ITODD, 15 otherwise.
 pub fn bop_vsd_delta_mm(dataset: &str) -> f32 {
     if dataset.starts_with("itodd") {
@@ -517,7 +549,7 @@ pub fn detection_targets(ds: &Dataset, targets: &[Target]) -> Result<Vec<Target>
         let scene = ds.scene(scene_id)?;
         for im_id in ims {
             let gt = scene.gt.get(&im_id).ok_or_else(|| Error::BadJson {
-                path: scene.dir.join("scene_gt.json"),
+                path: scene.file("scene_gt"),
                 reason: format!("target image {im_id} is not annotated"),
             })?;
             let mut objs: Vec<(u32, u32)> = Vec::new();
@@ -761,7 +793,7 @@ impl BatchCtx<'_> {
             .map(|(&im_id, _)| {
                 if !self.scene.gt.contains_key(&im_id) {
                     return Err(Error::BadJson {
-                        path: self.scene.dir.join("scene_gt.json"),
+                        path: self.scene.file("scene_gt"),
                         reason: format!("target image {im_id} is not annotated"),
                     });
                 }
@@ -784,7 +816,7 @@ impl BatchCtx<'_> {
                 .iter()
                 .map(|f| {
                     info.get(&f.im_id).cloned().map(|v| (f.im_id, v)).ok_or_else(|| Error::BadJson {
-                        path: self.scene.dir.join("scene_gt_info.json"),
+                        path: self.scene.file("scene_gt_info"),
                         reason: format!("no entry for image {}", f.im_id),
                     })
                 })
@@ -1177,7 +1209,7 @@ pub fn gt_as_results(ds: &Dataset, targets: &[Target], device: &Device, opts: &E
             std::collections::btree_map::Entry::Vacant(e) => e.insert(ds.scene(t.scene_id)?),
         };
         let gt = scene.gt.get(&t.im_id).ok_or_else(|| Error::BadJson {
-            path: scene.dir.join("scene_gt.json"),
+            path: scene.file("scene_gt"),
             reason: format!("target image {} is not annotated", t.im_id),
         })?;
         let objs: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();

@@ -254,6 +254,41 @@ fn gpu_detection_matches_the_bop_toolkit_bit_for_bit() {
 }
 
 #[test]
+fn a_split_annotated_per_sensor_with_tiff_depth_evaluates_as_the_classic_one() {
+    // The BOP-H3 / industrial layout (scene_gt_{sensor}.json, depth_{sensor}/)
+    // with ITODD's TIFF depth: the shipped subset rewritten so, under sensor "photoneo".
+    let d = tempfile::tempdir().unwrap();
+    copy_dir(&assets(), d.path());
+    let scene = d.path().join("test/000002");
+    for stem in ["scene_gt", "scene_camera", "scene_gt_info"] {
+        std::fs::rename(scene.join(format!("{stem}.json")), scene.join(format!("{stem}_photoneo.json"))).unwrap();
+    }
+    std::fs::create_dir(scene.join("depth_photoneo")).unwrap();
+    for e in std::fs::read_dir(scene.join("depth")).unwrap() {
+        let p = e.unwrap().path();
+        let img = image::open(&p).unwrap();
+        img.save(scene.join("depth_photoneo").join(p.file_stem().unwrap()).with_extension("tif")).unwrap();
+    }
+    std::fs::remove_dir_all(scene.join("depth")).unwrap();
+    let plain = Dataset::open(d.path(), "test").unwrap();
+    assert_eq!(plain.sensors().unwrap(), vec!["photoneo".to_string()]);
+    let e = plain.scene(2).unwrap_err().to_string();
+    assert!(e.contains("per sensor") && e.contains("photoneo"), "{e}");
+    let e = Dataset::open_sensor(d.path(), "test", Some("xyz")).unwrap().scene(2).unwrap_err().to_string();
+    assert!(e.contains("no sensor 'xyz'"), "{e}");
+    assert!(Dataset::open_sensor(d.path(), "test", Some("../x")).is_err());
+    let ds = Dataset::open_sensor(d.path(), "test", Some("photoneo")).unwrap();
+    assert!(ds.scene(2).unwrap().depth_path(3).ends_with("depth_photoneo/000003.tif"));
+    let results = read_results(&assets().join("perturbed.csv")).unwrap();
+    let opts = EvalOptions { errors: vec![ErrorType::Vsd, ErrorType::Mssd, ErrorType::Mspd], ..Default::default() };
+    let want = run(&dataset(), &results, &Device::Cpu, &opts);
+    let got = run(&ds, &results, &Device::Cpu, &opts);
+    assert_eq!((got.ar, got.ar_vsd, got.ar_mspd), (want.ar, want.ar_vsd, want.ar_mspd));
+    let det = |ds: &Dataset| detect(ds, &read_results(&assets().join("detection.csv")).unwrap(), &EvalOptions::detection(Some("lmo"))).ap;
+    assert_eq!(det(&ds), det(&dataset()));
+}
+
+#[test]
 fn detection_keeps_the_best_estimates_of_each_image_up_to_the_cap() {
     let ds = dataset();
     let gt = detection_gt(&ds);

@@ -184,7 +184,7 @@ pub fn hypotheses<'py>(
 /// errors. `task="detection"`: BOP'24 6D detection (AP over MSSD and MSPD
 /// thresholds; targets default to the dataset's test_targets_bop24.json).
 #[pyfunction]
-#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false, task = "localization", max_estimates_per_image = None))]
+#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false, task = "localization", max_estimates_per_image = None, sensor = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate<'py>(
     py: Python<'py>,
@@ -200,8 +200,9 @@ pub fn evaluate<'py>(
     records: bool,
     task: &str,
     max_estimates_per_image: Option<usize>,
+    sensor: Option<String>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use plausible::eval::{detection_targets, evaluate, toolkit_dataset_name, ErrorType, EvalOptions, Task};
+    use plausible::eval::{detection_targets, evaluate, open_dataset, toolkit_dataset_name, ErrorType, EvalOptions, Task};
     let name = toolkit_dataset_name(&dataset, dataset_name).map_err(to_py)?;
     let task: Task = task.parse().map_err(value_error)?;
     let base = match task {
@@ -218,7 +219,7 @@ pub fn evaluate<'py>(
     opts.validate().map_err(to_py)?;
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
     let (report, recs, source) = crate::interruptible(py, |stop| {
-        let ds = plausible::bop::Dataset::open(&dataset, split)?;
+        let ds = open_dataset(&dataset, split, sensor.as_deref(), name.as_deref())?;
         let bop24 = ds.targets_file(true);
         let file = targets.clone().or_else(|| (task == Task::Detection && bop24.is_file()).then_some(bop24));
         let (targets, source) = ds.targets(file.as_deref())?;

@@ -142,13 +142,30 @@ pub struct Dataset {
     /// `models_eval/` when present (what BOP evaluates with), else `models/`.
     pub models_dir: PathBuf,
     pub models_info: BTreeMap<u32, ModelInfo>,
-    /// Image size from the dataset's `camera.json`, when it has one.
+    /// Image size from the dataset's `camera.json` (`camera_{sensor}.json`),
+    /// when it has one.
     pub image_size: Option<(u32, u32)>,
+    /// The sensor of a split annotated per sensor (BOP-H3 and the BOP'24
+    /// industrial datasets: `scene_gt_{sensor}.json`,
+    /// `scene_camera_{sensor}.json`, `scene_gt_info_{sensor}.json`,
+    /// `depth_{sensor}/`); `None` for the classic layout.
+    pub sensor: Option<String>,
 }
 
 impl Dataset {
     /// Opens `root` (the folder holding `models*/` and `<split>/`).
     pub fn open(root: &Path, split: &str) -> Result<Dataset> {
+        Dataset::open_sensor(root, split, None)
+    }
+
+    /// Opens `root` reading the annotations and depth of `sensor` (a split
+    /// annotated per sensor; `None`: the classic one-camera layout).
+    pub fn open_sensor(root: &Path, split: &str, sensor: Option<&str>) -> Result<Dataset> {
+        if let Some(s) = sensor {
+            if s.is_empty() || !s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+                return Err(Error::InvalidInput(format!("sensor '{s}': a name of letters, digits, '_' or '-' (photoneo, xyz, 3dlong, ...)")));
+            }
+        }
         if !root.exists() {
             return Err(Error::NotFound { path: root.to_path_buf() });
         }
@@ -164,8 +181,14 @@ impl Dataset {
         if !split_dir.is_dir() {
             return Err(Error::InvalidInput(format!("{}: no split folder '{split}'", root.display())));
         }
-        let image_size = read_image_size(&root.join("camera.json"))?;
-        Ok(Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size })
+        let sensor_camera = sensor.map(|s| root.join(format!("camera_{s}.json"))).filter(|p| p.is_file());
+        let image_size = read_image_size(&sensor_camera.unwrap_or_else(|| root.join("camera.json")))?;
+        Ok(Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size, sensor: sensor.map(str::to_string) })
+    }
+
+    /// What the annotation files' names end with: `_{sensor}` or nothing.
+    fn suffix(&self) -> String {
+        self.sensor.as_deref().map(|s| format!("_{s}")).unwrap_or_default()
     }
 
     /// Whether `path` (absolute, symlinks resolved) is where this dataset
@@ -220,21 +243,53 @@ impl Dataset {
         if !dir.is_dir() {
             return Err(Error::InvalidInput(format!("{}: scene {scene_id} is not in the dataset", dir.display())));
         }
-        let gt = read_scene_gt(&dir.join("scene_gt.json"))?;
-        let camera = read_scene_camera(&dir.join("scene_camera.json"))?;
-        let info_path = dir.join("scene_gt_info.json");
+        let suffix = self.suffix();
+        let file = |stem: &str| dir.join(format!("{stem}{suffix}.json"));
+        if !file("scene_gt").is_file() {
+            return Err(self.missing_annotations(&dir, &file("scene_gt")));
+        }
+        let gt = read_scene_gt(&file("scene_gt"))?;
+        let camera = read_scene_camera(&file("scene_camera"))?;
+        let info_path = file("scene_gt_info");
         let gt_info = if info_path.is_file() { Some(read_scene_gt_info(&info_path, &gt)?) } else { None };
         for (im, insts) in &gt {
             for g in insts {
                 if !self.models_info.contains_key(&g.obj_id) {
                     return Err(Error::BadJson {
-                        path: dir.join("scene_gt.json"),
+                        path: file("scene_gt"),
                         reason: format!("image {im}: object {} is not in models_info.json", g.obj_id),
                     });
                 }
             }
         }
-        Ok(Scene { id: scene_id, dir, gt, camera, gt_info, image_size: self.image_size, first_size: Default::default() })
+        Ok(Scene { id: scene_id, dir, gt, camera, gt_info, image_size: self.image_size, first_size: Default::default(), suffix })
+    }
+
+    /// The error for a scene without `want`: naming the sensors whose
+    /// annotations the scene does have (a split annotated per sensor).
+    fn missing_annotations(&self, dir: &Path, want: &Path) -> Error {
+        let sensors = sensors_in(dir);
+        if sensors.is_empty() {
+            return Error::NotFound { path: want.to_path_buf() };
+        }
+        let which = match &self.sensor {
+            Some(s) => format!("there is no sensor '{s}'"),
+            None => "choose one".into(),
+        };
+        Error::InvalidInput(format!(
+            "{}: the split is annotated per sensor ({}): {which} (the BOP toolkit evaluates photoneo for ipd, xyz for xyzibd, 3dlong for itoddmv)",
+            dir.display(),
+            sensors.join(", ")
+        ))
+    }
+
+    /// The sensors a split is annotated for, when it is annotated per sensor
+    /// (its first scene has `scene_gt_{sensor}.json` files and no
+    /// `scene_gt.json`); empty for the classic layout.
+    pub fn sensors(&self) -> Result<Vec<String>> {
+        let Some(&first) = self.scene_ids()?.first() else { return Ok(Vec::new()) };
+        let dir = self.scene_dir(first);
+        Ok(if dir.join("scene_gt.json").is_file() { Vec::new() } else { sensors_in(&dir) })
     }
 
     /// The evaluation targets: `file` (or `test_targets_bop19.json` in the
@@ -266,6 +321,19 @@ impl Dataset {
     }
 }
 
+/// The sensors of a scene folder's `scene_gt_{sensor}.json` files, sorted.
+fn sensors_in(dir: &Path) -> Vec<String> {
+    let mut sensors: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e.ok())
+        .filter_map(|e| e.file_name().to_str().and_then(|n| n.strip_prefix("scene_gt_")?.strip_suffix(".json").map(str::to_string)))
+        .filter(|s| !s.starts_with("info") && !s.starts_with("coco"))
+        .collect();
+    sensors.sort();
+    sensors
+}
+
 /// Where the targets came from.
 #[derive(Clone, Debug, PartialEq)]
 pub enum TargetSource {
@@ -294,19 +362,37 @@ pub struct Scene {
     /// id: the others must match it (BOP images of a dataset share one size, and
     /// MSPD is scaled by it).
     first_size: std::sync::OnceLock<(PathBuf, u32, u32)>,
+    /// `_{sensor}` for a split annotated per sensor, else empty.
+    suffix: String,
 }
 
 impl Scene {
-    /// The depth PNG of an image.
+    /// One of the scene's annotation files (`scene_gt`, `scene_camera`,
+    /// `scene_gt_info`), for the dataset's sensor.
+    pub fn file(&self, stem: &str) -> PathBuf {
+        self.dir.join(format!("{stem}{}.json", self.suffix))
+    }
+
+    /// The visible-mask folder (`mask_visib`, `mask_visib_{sensor}`).
+    pub fn mask_visib_dir(&self) -> PathBuf {
+        self.dir.join(format!("mask_visib{}", self.suffix))
+    }
+
+    /// The depth image of an image: `depth/{im_id:06}.png`, or `.tif` where
+    /// the dataset has TIFF depth (ITODD) and no PNG (`depth_{sensor}/` for
+    /// a split annotated per sensor).
     pub fn depth_path(&self, im_id: u32) -> PathBuf {
-        self.dir.join("depth").join(format!("{im_id:06}.png"))
+        let dir = self.dir.join(format!("depth{}", self.suffix));
+        let png = dir.join(format!("{im_id:06}.png"));
+        let tif = dir.join(format!("{im_id:06}.tif"));
+        if !png.exists() && tif.exists() { tif } else { png }
     }
 
     /// An image's camera, or an error naming the scene file.
     pub fn frame_camera(&self, im_id: u32) -> Result<&FrameCamera> {
         self.camera
             .get(&im_id)
-            .ok_or_else(|| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("no entry for image {im_id}") })
+            .ok_or_else(|| Error::BadJson { path: self.file("scene_camera"), reason: format!("no entry for image {im_id}") })
     }
 
     /// Intrinsics of an image of `width × height`, checked against its
@@ -315,7 +401,7 @@ impl Scene {
     /// estimate metres away and every score 0 without a word.
     pub fn intrinsics(&self, im_id: u32, width: u32, height: u32) -> Result<Intrinsics> {
         let cam = self.frame_camera(im_id)?;
-        let bad = |reason: String| Error::BadJson { path: self.dir.join("scene_camera.json"), reason: format!("image {im_id}: {reason}") };
+        let bad = |reason: String| Error::BadJson { path: self.file("scene_camera"), reason: format!("image {im_id}: {reason}") };
         let i = Intrinsics::from_k(&cam.k, width, height).map_err(|e| bad(e.to_string()))?;
         i.check_against_image().map_err(bad)?;
         Ok(i)
@@ -369,10 +455,10 @@ impl Scene {
         self.check_size(&path, w, h)?;
         let img = image::open(&path).map_err(|e| bad(e.to_string()))?;
         let image::DynamicImage::ImageLuma16(img) = img else {
-            return Err(bad(format!("depth must be a 16-bit single-channel PNG (BOP convention), got {:?}", img.color())));
+            return Err(bad(format!("depth must be a 16-bit single-channel image (BOP convention: PNG, TIFF for ITODD), got {:?}", img.color())));
         };
         let s = cam.depth_scale.ok_or_else(|| Error::BadJson {
-            path: self.dir.join("scene_camera.json"),
+            path: self.file("scene_camera"),
             reason: format!("image {im_id} has no depth_scale (PNG value × depth_scale = mm), needed to read its depth"),
         })?;
         let mm: Vec<f32> = img.as_raw().iter().map(|&v| v as f32 * s as f32).collect();

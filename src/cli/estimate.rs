@@ -21,6 +21,11 @@ pub struct EstimateArgs {
     /// Split folder inside the dataset.
     #[arg(long, default_value = "test")]
     pub split: String,
+    /// Sensor of a split annotated per sensor (scene_gt_{sensor}.json,
+    /// depth_{sensor}/, mask_visib_{sensor}/: BOP-H3 and the BOP'24
+    /// industrial datasets, e.g. photoneo for ipd, xyz for xyzibd).
+    #[arg(long)]
+    pub sensor: Option<String>,
     /// Targets file (default: test_targets_bop19.json; without one every
     /// annotated object of every image).
     #[arg(long)]
@@ -102,7 +107,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         bail!("--yaw-steps {}: between 1 and 360", a.yaw_steps);
     }
     let (shard, masks) = a.run.shard_and_masks()?;
-    let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).context(if a.sensor.is_some() { "--sensor" } else { "--dataset" })?;
     let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--stable", a.stable.as_deref()), ("--targets", a.targets.as_deref())])?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let (targets, source) = ds.targets(a.targets.as_deref()).context("--targets")?;
@@ -123,7 +128,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let mut jobs: Vec<((u32, u32), Vec<_>)> = shard_of(by_image, shard);
     // What decides an image's estimates (not which images: those may be
     // added to one output by scene, image or shard).
-    let settings = serde_json::json!({
+    let mut settings = serde_json::json!({
         "command": "estimate",
         "dataset": path_setting(&a.dataset),
         "split": a.split,
@@ -139,6 +144,10 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         "lod": a.lod.to_string(),
         "masks": a.run.masks_setting(),
     });
+    if let Some(s) = &a.sensor {
+        // Only when given: the records of runs without one stay valid.
+        settings["sensor"] = serde_json::json!(s);
+    }
     check_settings(&a.out, &settings, &[("targets", &|| targets_file.as_deref().and_then(super::refine::legacy_file_digest))])?;
     skip_done(&mut jobs, &a.out, |(k, _)| *k, |(_, ts)| ts.iter().map(|t| t.inst_count as usize).sum())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|(_, ts)| ts.iter().map(|t| t.obj_id)).collect();

@@ -6,8 +6,8 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
-use plausible::bop::{read_results, write_results, Dataset, TargetSource};
-use plausible::eval::{detection_targets, evaluate, gt_as_results, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport, Task};
+use plausible::bop::{read_results, write_results, TargetSource};
+use plausible::eval::{detection_targets, evaluate, open_dataset, gt_as_results, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport, Task};
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -18,6 +18,12 @@ pub struct EvalArgs {
     /// Split folder inside the dataset.
     #[arg(long, default_value = "test")]
     pub split: String,
+    /// Sensor of a split annotated per sensor (scene_gt_{sensor}.json,
+    /// depth_{sensor}/, ...: BOP-H3 and the BOP'24 industrial datasets).
+    /// Default: the one the BOP toolkit evaluates (photoneo for ipd, xyz for
+    /// xyzibd, 3dlong for itoddmv).
+    #[arg(long)]
+    pub sensor: Option<String>,
     /// Results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm).
     #[arg(long, required_unless_present = "gt_as_results")]
     pub results: Option<PathBuf>,
@@ -107,7 +113,14 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     for p in [&a.out, &a.errors_out, &a.gt_as_results].into_iter().flatten() {
         plausible::io::check_writable(p)?;
     }
-    let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let ds = open_dataset(&a.dataset, &a.split, a.sensor.as_deref(), name.as_deref()).map_err(|e| {
+        // The library names the setting; say which flag gives it.
+        let flag = if a.sensor.is_some() || e.to_string().starts_with("sensor") { "--sensor" } else { "--dataset" };
+        anyhow::anyhow!(e).context(flag)
+    })?;
+    if let (None, Some(s)) = (&a.sensor, &ds.sensor) {
+        eprintln!("sensor {s}: the one the BOP toolkit evaluates for {} (--sensor picks another)", name.as_deref().unwrap_or_default());
+    }
     super::outside_dataset(&ds, &outputs)?;
     match &name {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),

@@ -24,6 +24,11 @@ pub struct RefineArgs {
     /// Split folder inside the dataset.
     #[arg(long, default_value = "test")]
     pub split: String,
+    /// Sensor of a split annotated per sensor (scene_gt_{sensor}.json,
+    /// depth_{sensor}/, mask_visib_{sensor}/: BOP-H3 and the BOP'24
+    /// industrial datasets, e.g. photoneo for ipd, xyz for xyzibd).
+    #[arg(long)]
+    pub sensor: Option<String>,
     /// Initial estimates: a BOP results CSV (several estimates of an object
     /// in an image are its hypotheses).
     #[arg(long)]
@@ -253,7 +258,7 @@ pub fn load_scenes(ds: &Dataset, images: impl Iterator<Item = (u32, u32)>) -> Re
         let (w, h) = scene.image_size(im_id).with_context(at)?;
         let k = scene.intrinsics(im_id, w, h).with_context(at)?;
         if let Some(note) = k.principal_point_note().filter(|_| warned.insert(scene_id)) {
-            eprintln!("warning: {} (image {im_id}, and maybe others of the scene): {note}", scene.dir.join("scene_camera.json").display());
+            eprintln!("warning: {} (image {im_id}, and maybe others of the scene): {note}", scene.file("scene_camera").display());
         }
     }
     Ok(scenes)
@@ -514,12 +519,12 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     check_no_physics(a.no_physics, params.method)?;
     params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;
     let (shard, masks) = a.run.shard_and_masks()?;
-    let ds = Dataset::open(&a.dataset, &a.split).context("--dataset")?;
+    let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).context(if a.sensor.is_some() { "--sensor" } else { "--dataset" })?;
     let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--init", Some(&a.init))])?;
     let init = read_results(&a.init).context("--init")?;
     let mut jobs = shard_of(a.run.select_images(image_jobs(&init), |j| (j.scene_id, j.im_id), "estimates")?, shard);
     // What decides an image's refined poses (not which images).
-    let settings = serde_json::json!({
+    let mut settings = serde_json::json!({
         "command": "refine",
         "dataset": path_setting(&a.dataset),
         "split": a.split,
@@ -534,6 +539,10 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         "discount": a.discount,
         "masks": a.run.masks_setting(),
     });
+    if let Some(s) = &a.sensor {
+        // Only when given: the records of runs without one stay valid.
+        settings["sensor"] = serde_json::json!(s);
+    }
     check_settings(&a.out, &settings, &[("init", &|| legacy_file_digest(&a.init))])?;
     skip_done(&mut jobs, &a.out, |j| (j.scene_id, j.im_id), |j| j.estimates.len())?;
     let mut objs: Vec<u32> = jobs.iter().flat_map(|j| j.estimates.iter().map(|e| e.obj_id)).collect();

@@ -45,7 +45,7 @@ impl Masks {
                     gt.iter()
                         .enumerate()
                         .filter(|(_, g)| g.obj_id == obj_id)
-                        .map(|(k, _)| scene.dir.join("mask_visib").join(format!("{im_id:06}_{k:06}.png")))
+                        .map(|(k, _)| scene.mask_visib_dir().join(format!("{im_id:06}_{k:06}.png")))
                         .collect()
                 })
                 .unwrap_or_default(),
