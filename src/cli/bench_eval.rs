@@ -1,13 +1,13 @@
 //! `plausible bench eval`: BOP evaluation throughput (estimates/s) for VSD,
-//! MSSD + MSPD and the whole BOP'19 set, GPU and CPU twin side by side in
-//! the same run, on the shipped LM-O frames (or any dataset).
+//! MSSD + MSPD, the whole BOP'19 set and BOP'24 detection, GPU and CPU twin
+//! side by side in the same run, on the shipped LM-O frames (or any dataset).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use plausible::bop::{read_results, Dataset};
-use plausible::eval::{evaluate, ErrorType, EvalOptions};
+use plausible::eval::{evaluate, ErrorType, EvalOptions, Task};
 use plausible::visual::Device;
 use serde::Serialize;
 
@@ -82,23 +82,29 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     let results_path = a.results.clone().unwrap_or_else(|| root.join("perturbed.csv"));
     let ds = Dataset::open(&root, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(None)?;
+    // Detection reads BOP'24's image list where the dataset has one.
+    let bop24 = ds.targets_file(true);
+    let det_targets = if bop24.is_file() { ds.targets(Some(&bop24))?.0 } else { targets.clone() };
     let results = read_results(&results_path).context("--results")?;
     let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;
-    let sets: [(&str, Vec<ErrorType>); 3] = [
-        ("vsd", vec![ErrorType::Vsd]),
-        ("mssd+mspd", vec![ErrorType::Mssd, ErrorType::Mspd]),
-        ("bop19 (vsd+mssd+mspd)", ErrorType::BOP19.to_vec()),
+    let name = plausible::eval::toolkit_dataset_name(&root, None)?;
+    let local = |errors: Vec<ErrorType>| EvalOptions { errors, ..Default::default() };
+    let sets: [(&str, EvalOptions); 4] = [
+        ("vsd", local(vec![ErrorType::Vsd])),
+        ("mssd+mspd", local(vec![ErrorType::Mssd, ErrorType::Mspd])),
+        ("bop19 (vsd+mssd+mspd)", local(ErrorType::BOP19.to_vec())),
+        ("bop24 detection", EvalOptions::detection(name.as_deref())),
     ];
     let mut rows = Vec::new();
-    for (what, errors) in &sets {
+    for (what, opts) in &sets {
+        let targets = if opts.task == Task::Detection { &det_targets } else { &targets };
         for device in &devices {
-            let opts = EvalOptions { errors: errors.clone(), ..Default::default() };
             // Warm-up: pipelines compiled, files in the page cache.
-            evaluate(&ds, &results, &targets, device, &opts, &mut |_| Ok(()))?;
+            evaluate(&ds, &results, targets, device, opts, &mut |_| Ok(()))?;
             let mut runs = Vec::new();
             for _ in 0..a.repeat {
                 let t = Instant::now();
-                let (r, _) = evaluate(&ds, &results, &targets, device, &opts, &mut |_| Ok(()))?;
+                let (r, _) = evaluate(&ds, &results, targets, device, opts, &mut |_| Ok(()))?;
                 runs.push((t.elapsed().as_secs_f64(), r));
             }
             runs.sort_by(|x, y| x.0.total_cmp(&y.0));
@@ -111,7 +117,7 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
                 estimates_per_s: r.n_estimates as f64 / wall,
                 wall_s: wall,
                 render_s: r.time_s.render_s,
-                ar: r.ar.or(r.ar_vsd).or(r.ar_mssd),
+                ar: r.ar.or(r.ar_vsd).or(r.ar_mssd).or(r.ap),
                 machine: super::machine::Machine::detect(Some(device)),
             });
         }
