@@ -51,8 +51,8 @@ pub struct DetectionTarget {
 /// AP per object at one threshold on error column `column`; objects with no
 /// counted instance are left out (the toolkit skips them).
 pub fn object_ap(targets: &[DetectionTarget], threshold: f64, column: usize) -> BTreeMap<u32, f64> {
-    // Per object: (score, rank, estimate index, true positive), and counted instances.
-    let mut per_obj: BTreeMap<u32, (Vec<(f64, usize, usize, bool)>, usize)> = BTreeMap::new();
+    // Per object: its detections and counted instances.
+    let mut per_obj: BTreeMap<u32, (Vec<Detection>, usize)> = BTreeMap::new();
     for t in targets {
         let o = per_obj.entry(t.errors.obj_id).or_default();
         o.1 += t.counted.len();
@@ -73,6 +73,10 @@ pub fn object_ap(targets: &[DetectionTarget], threshold: f64, column: usize) -> 
         })
         .collect()
 }
+
+/// A kept estimate at one threshold: (score, its target's rank, its index
+/// in the target, true positive).
+type Detection = (f64, usize, usize, bool);
 
 /// AP of detections in falling score order (`true` = true positive)
 /// against `n_gt` instances.
@@ -145,7 +149,7 @@ mod tests {
             counted: vec![0],
             rank: 0,
         };
-        let ap = object_ap(&[t.clone()], 0.1, 0);
+        let ap = object_ap(std::slice::from_ref(&t), 0.1, 0);
         assert_eq!(ap[&3], 1.0);
         // An object with no counted instance is left out.
         let hidden = DetectionTarget { counted: vec![], ..t };
