@@ -193,13 +193,17 @@ impl Dataset {
 
     /// Whether `path` (absolute, symlinks resolved) is where this dataset
     /// reads from: under a models folder or the split folder, its
-    /// `camera.json` or its default targets file. Writing an output there
+    /// `camera.json` (`camera_{sensor}.json`) or its targets files. Writing an output there
     /// would change the dataset.
     pub fn reads_at(&self, path: &Path) -> bool {
         let canon = |p: PathBuf| p.canonicalize().unwrap_or(p);
         let folders = [self.models_dir.clone(), self.root.join("models"), self.root.join("models_eval"), self.root.join(&self.split)];
         folders.into_iter().map(canon).any(|d| path.starts_with(d))
-            || [self.root.join("camera.json"), self.default_targets()].into_iter().map(canon).any(|f| path == f)
+            || [self.root.join("camera.json"), self.default_targets(), self.targets_file(true)]
+                .into_iter()
+                .chain(self.sensor.as_deref().map(|s| self.root.join(format!("camera_{s}.json"))))
+                .map(canon)
+                .any(|f| path == f)
     }
 
     /// The targets file read when none is given.

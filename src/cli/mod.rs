@@ -262,7 +262,7 @@ pub fn outside_dataset(ds: &plausible::bop::Dataset, outputs: &[(&str, Option<&s
     for (flag, p) in outputs {
         if let Some(r) = p.and_then(resolved).filter(|r| ds.reads_at(r)) {
             anyhow::bail!(
-                "{flag} {}: this is where --dataset reads from (its models or split folders, camera.json or test_targets_bop19.json); give {flag} a path outside them",
+                "{flag} {}: this is where --dataset reads from (its models or split folders, camera files or targets files); give {flag} a path outside them",
                 r.display()
             );
         }
