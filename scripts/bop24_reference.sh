@@ -5,8 +5,8 @@
 #   scripts/bop24_reference.sh RESULTS.csv OUTDIR
 #
 # OUTDIR gets: datasets/lmo/ (shadow dataset: symlinks to every entry of the lmo-synth folder,
-#   models_eval -> models, and a generated test_targets_bop24.json = distinct (scene_id, im_id) of
-#   test_targets_bop19.json in first-appearance order), results/METHOD_lmo-test.csv (copy of RESULTS.csv;
+#   models_eval -> models, and a copy of its test_targets_bop24.json or, without one, the distinct
+#   (scene_id, im_id) of test_targets_bop19.json in first-appearance order), results/METHOD_lmo-test.csv (copy of RESULTS.csv;
 #   METHOD = file stem with "_" -> "-"), eval/ (toolkit output: errors, matches, scores_*.json,
 #   scores_bop24.json), logs/eval.log, summary.json.
 # Environment: BOP_TOOLKIT (required: a checkout of thodan/bop_toolkit, commit cea62d6), BOP24_VENV
@@ -39,9 +39,17 @@ OUT="$(readlink -f "$OUT")"
 rm -rf "$OUT/datasets" "$OUT/results" "$OUT/eval" "$OUT/logs" "$OUT/summary.json"
 mkdir -p "$OUT/datasets/$DATASET" "$OUT/results" "$OUT/eval" "$OUT/logs"
 
-# Shadow dataset folder.
-for e in "$DATA"/*; do ln -s "$e" "$OUT/datasets/$DATASET/$(basename "$e")"; done
+# Shadow dataset folder (nothing is written into the dataset): symlinks to its entries, models_eval ->
+# models if absent, and test_targets_bop24.json: the dataset's own when it has one, else made from
+# test_targets_bop19.json (its images in first-appearance order).
+for e in "$DATA"/*; do
+  [ "$(basename "$e")" = test_targets_bop24.json ] && continue
+  ln -s "$e" "$OUT/datasets/$DATASET/$(basename "$e")"
+done
 [ -e "$DATA/models_eval" ] || ln -s "$DATA/models" "$OUT/datasets/$DATASET/models_eval"
+if [ -f "$DATA/test_targets_bop24.json" ]; then
+  cp "$DATA/test_targets_bop24.json" "$OUT/datasets/$DATASET/test_targets_bop24.json"
+else
 "$PY" - "$DATA/test_targets_bop19.json" "$OUT/datasets/$DATASET/test_targets_bop24.json" <<'EOF'
 import json, sys
 seen, out = set(), []
@@ -53,6 +61,7 @@ for t in json.load(open(sys.argv[1])):
 json.dump(out, open(sys.argv[2], "w"), indent=1)
 print(f"test_targets_bop24.json: {len(out)} images", file=sys.stderr)
 EOF
+fi
 
 # Result file under a name the toolkit accepts: METHOD_lmo-test.csv.
 base="$(basename "$RESULTS")"

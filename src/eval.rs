@@ -113,6 +113,9 @@ pub struct EvalOptions {
     pub max_estimates_per_image: usize,
     /// Detection: instances visible less than this fraction are ignored.
     pub visib_gt_min: f64,
+    /// Detection: the objects scored (the toolkit's list for the dataset,
+    /// [`bop_obj_ids`]); `None`: every annotated object.
+    pub scored_obj_ids: Option<Vec<u32>>,
     /// ADD/ADI/AD correctness threshold, fraction of the diameter.
     pub add_threshold: f64,
     pub max_sym_disc_step: f64,
@@ -145,6 +148,30 @@ pub fn bop_symmetric_obj_ids(dataset: &str) -> Option<Vec<u32>> {
         "handal" => vec![26, 35, 36, 37, 38, 39, 40],
         "ipd" => vec![8, 14, 18, 19, 20],
         "xyzibd" => vec![1, 2, 5, 8, 9, 11, 12, 16, 17],
+        _ => return None,
+    })
+}
+
+/// The objects the BOP toolkit scores per dataset name (its model `obj_ids`:
+/// detection averages AP over these alone); `None` for an unknown name.
+pub fn bop_obj_ids(dataset: &str) -> Option<Vec<u32>> {
+    let range = |a: u32, b: u32| (a..=b).collect::<Vec<u32>>();
+    Some(match dataset {
+        "lm" => range(1, 15),
+        "lmo" => vec![1, 5, 6, 8, 9, 10, 11, 12],
+        "tless" | "hb" => range(1, if dataset == "tless" { 30 } else { 33 }),
+        "tudl" => range(1, 3),
+        "tyol" => range(1, 21),
+        "ruapc" => range(1, 14),
+        "icmi" => range(1, 6),
+        "icbin" => range(1, 2),
+        "itodd" | "itoddmv" | "hope" | "hopev2" => range(1, 28),
+        "hbs" => vec![1, 3, 4, 8, 9, 10, 12, 15, 17, 18, 19, 22, 23, 29, 32, 33],
+        "ycbv" => range(1, 21),
+        "hot3d" => range(1, 33),
+        "handal" => range(1, 40),
+        "ipd" => vec![0, 1, 4, 8, 10, 11, 14, 18, 19, 20],
+        "xyzibd" => vec![1, 2, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17],
         _ => return None,
     })
 }
@@ -202,6 +229,7 @@ impl Default for EvalOptions {
             mssd_mm: detection::bop25_mssd_mm(),
             max_estimates_per_image: detection::MAX_ESTIMATES_PER_IMAGE,
             visib_gt_min: detection::VISIB_GT_MIN,
+            scored_obj_ids: None,
             add_threshold: 0.1,
             max_sym_disc_step: pose_error::MAX_SYM_DISC_STEP,
             batch_images: 100,
@@ -247,6 +275,7 @@ impl EvalOptions {
             task: Task::Detection,
             errors: vec![ErrorType::Mssd, ErrorType::Mspd],
             max_estimates_per_image: detection::max_estimates_per_image(name),
+            scored_obj_ids: name.and_then(bop_obj_ids),
             ..EvalOptions::for_dataset(name)
         }
     }
@@ -607,11 +636,15 @@ pub fn evaluate(
     opts.validate()?;
     let t_start = Instant::now();
     let mut report = EvalReport { task: opts.task, add_threshold: opts.add_threshold, device: device.describe(), ..Default::default() };
-    let detection_targets_;
+    let mut detection_targets_;
     let (targets, results): (&[Target], Vec<&Estimate>) = match opts.task {
         Task::Localization => (targets, results.iter().collect()),
         Task::Detection => {
             detection_targets_ = detection_targets(ds, targets)?;
+            // Objects outside the toolkit's list for the dataset are not scored.
+            if let Some(ids) = &opts.scored_obj_ids {
+                detection_targets_.retain(|t| ids.contains(&t.obj_id));
+            }
             let capped = top_per_image(results, opts.max_estimates_per_image);
             report.n_not_top = results.len() - capped.len();
             (&detection_targets_, capped)

@@ -194,6 +194,12 @@ fn detection_of_the_ground_truth_is_one_and_hidden_instances_neither_count_nor_p
         assert_eq!(v, Some(1.0), "{r:?}");
     }
     assert_eq!(r.per_object.len(), ds.models_info.len());
+    // Only the objects the toolkit scores for the dataset count (for LM-O
+    // all eight; a narrower list leaves the others out).
+    assert_eq!(opts.scored_obj_ids.as_deref(), Some(&[1, 5, 6, 8, 9, 10, 11, 12][..]));
+    let three = EvalOptions { scored_obj_ids: Some(vec![1, 10, 11]), ..opts.clone() };
+    let r3 = detect(&ds, &gt, &three);
+    assert_eq!((r3.ap, r3.per_object.keys().copied().collect::<Vec<_>>()), (Some(1.0), vec![1, 10, 11]));
     // Without the hidden instances' estimates: still 1 (they do not count).
     let seen: Vec<Estimate> = gt.iter().filter(|e| !hidden(e)).copied().collect();
     assert_eq!(detect(&ds, &seen, &opts).ap, Some(1.0));
@@ -274,8 +280,10 @@ fn a_split_annotated_per_sensor_with_tiff_depth_evaluates_as_the_classic_one() {
     assert_eq!(plain.sensors().unwrap(), vec!["photoneo".to_string()]);
     let e = plain.scene(2).unwrap_err().to_string();
     assert!(e.contains("per sensor") && e.contains("photoneo"), "{e}");
-    let e = Dataset::open_sensor(d.path(), "test", Some("xyz")).unwrap().scene(2).unwrap_err().to_string();
-    assert!(e.contains("no sensor 'xyz'"), "{e}");
+    let e = Dataset::open_sensor(d.path(), "test", Some("xyz")).unwrap_err().to_string();
+    assert!(e.contains("no sensor 'xyz'") && e.contains("photoneo"), "{e}");
+    // Another camera's size in the classic camera.json must not scale MSPD.
+    std::fs::write(d.path().join("camera.json"), r#"{"cx": 640, "cy": 480, "fx": 572.4, "fy": 573.6, "height": 960, "width": 1280}"#).unwrap();
     assert!(Dataset::open_sensor(d.path(), "test", Some("../x")).is_err());
     let ds = Dataset::open_sensor(d.path(), "test", Some("photoneo")).unwrap();
     assert!(ds.scene(2).unwrap().depth_path(3).ends_with("depth_photoneo/000003.tif"));

@@ -181,9 +181,25 @@ impl Dataset {
         if !split_dir.is_dir() {
             return Err(Error::InvalidInput(format!("{}: no split folder '{split}'", root.display())));
         }
-        let sensor_camera = sensor.map(|s| root.join(format!("camera_{s}.json"))).filter(|p| p.is_file());
-        let image_size = read_image_size(&sensor_camera.unwrap_or_else(|| root.join("camera.json")))?;
-        Ok(Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size, sensor: sensor.map(str::to_string) })
+        // A sensor's image size is its own camera file's, else its depth
+        // images' (never the classic camera.json: another camera's width
+        // would scale MSPD).
+        let camera = match sensor {
+            Some(s) => root.join(format!("camera_{s}.json")),
+            None => root.join("camera.json"),
+        };
+        let image_size = read_image_size(&camera)?;
+        let ds = Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size, sensor: sensor.map(str::to_string) };
+        if let Some(s) = sensor {
+            // A sensor the split has no annotations for is said now, by name.
+            if let Some(&first) = ds.scene_ids()?.first() {
+                let dir = ds.scene_dir(first);
+                if !dir.join(format!("scene_gt_{s}.json")).is_file() {
+                    return Err(ds.missing_annotations(&dir, &dir.join(format!("scene_gt_{s}.json"))));
+                }
+            }
+        }
+        Ok(ds)
     }
 
     /// What the annotation files' names end with: `_{sensor}` or nothing.

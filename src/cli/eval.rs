@@ -223,7 +223,7 @@ fn fmt(v: Option<f64>) -> String {
 /// (detection: AP per object and error type, mAP).
 pub fn print_report(r: &EvalReport, opts: &EvalOptions) {
     if r.task == Task::Detection {
-        return print_detection_report(r);
+        return print_detection_report(r, opts);
     }
     println!(
         "evaluated {} estimates against {} targets in {} images in {:.2} s on {} (visibility: {})",
@@ -267,10 +267,16 @@ pub fn print_report(r: &EvalReport, opts: &EvalOptions) {
 
 /// The detection table: AP per object (mean over thresholds) for MSSD,
 /// MSSD in mm and MSPD, their mean, then the mAPs.
-fn print_detection_report(r: &EvalReport) {
+fn print_detection_report(r: &EvalReport, opts: &EvalOptions) {
     println!(
-        "evaluated {} estimates against {} instances visible at least 10 % in {} images in {:.2} s on {} (visibility: {})",
-        r.n_estimates, r.n_targets, r.n_images, r.time_s.total_s, r.device, r.visibility
+        "evaluated {} estimates against {} instances visible at least {} % in {} images in {:.2} s on {} (visibility: {})",
+        r.n_estimates,
+        r.n_targets,
+        opts.visib_gt_min * 100.0,
+        r.n_images,
+        r.time_s.total_s,
+        r.device,
+        r.visibility
     );
     if r.n_ignored > 0 || r.n_not_top > 0 {
         println!("ignored {} estimates for objects not annotated in their image or for other images, {} beyond the cap per image", r.n_ignored, r.n_not_top);
