@@ -132,10 +132,10 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     if rows[0].estimates == 0 {
         eprintln!("warning: {} holds no estimate of the dataset's targets: nothing was evaluated", results_path.display());
     }
-    println!("{} ({} estimates, {} images; wall clock, median of {})", root.display(), rows[0].estimates, rows[0].images, a.repeat);
-    println!("{:<24} {:<44} {:>12} {:>9} {:>9}", "errors", "device", "estimates/s", "wall s", "render s");
+    println!("{} ({} images; wall clock, median of {})", root.display(), rows[0].images, a.repeat);
+    println!("{:<24} {:<44} {:>9} {:>12} {:>9} {:>9}", "errors", "device", "estimates", "estimates/s", "wall s", "render s");
     for r in &rows {
-        println!("{:<24} {:<44} {:>12.0} {:>9.3} {:>9.3}", r.what, r.device, r.estimates_per_s, r.wall_s, r.render_s);
+        println!("{:<24} {:<44} {:>9} {:>12.0} {:>9.3} {:>9.3}", r.what, r.device, r.estimates, r.estimates_per_s, r.wall_s, r.render_s);
     }
     Ok(())
 }
