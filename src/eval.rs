@@ -643,7 +643,13 @@ pub fn evaluate(
             detection_targets_ = detection_targets(ds, targets)?;
             // Objects outside the toolkit's list for the dataset are not scored.
             if let Some(ids) = &opts.scored_obj_ids {
+                let annotated = detection_targets_.len();
                 detection_targets_.retain(|t| ids.contains(&t.obj_id));
+                if annotated > 0 && detection_targets_.is_empty() {
+                    return Err(Error::InvalidInput(format!(
+                        "none of the objects annotated in the target images is one the BOP toolkit scores for this dataset ({ids:?}): is the dataset name right?"
+                    )));
+                }
             }
             let capped = top_per_image(results, opts.max_estimates_per_image);
             report.n_not_top = results.len() - capped.len();
