@@ -765,7 +765,7 @@ fn average_time_per_image<'a>(results: impl IntoIterator<Item = &'a Estimate>) -
     if times.is_empty() {
         return -1.0;
     }
-    detection::np_mean(&times)
+    pose_error::np_mean(&times)
 }
 
 /// What a batch of images needs from the caller.
@@ -1201,18 +1201,18 @@ fn score_detection(targets: &[DetectionTarget], opts: &EvalOptions, report: &mut
         let mut means = Vec::with_capacity(objects.len());
         for o in &objects {
             let aps: Vec<f64> = per_threshold.iter().map(|m| m[o]).collect();
-            let ap = detection::np_mean(&aps);
+            let ap = pose_error::np_mean(&aps);
             means.push(ap);
             let scores = report.per_object.entry(*o).or_default();
             scores.targets = counted[o];
             scores.by_error.insert(name.to_string(), ap);
         }
-        let ap = detection::np_mean(&means);
+        let ap = pose_error::np_mean(&means);
         let rows = thresholds
             .iter()
             .zip(per_threshold)
             .map(|(&threshold, per_object)| {
-                let ap = detection::np_mean(&objects.iter().map(|o| per_object[o]).collect::<Vec<_>>());
+                let ap = pose_error::np_mean(&objects.iter().map(|o| per_object[o]).collect::<Vec<_>>());
                 ThresholdAp { threshold, ap, per_object }
             })
             .collect();
@@ -1224,11 +1224,11 @@ fn score_detection(targets: &[DetectionTarget], opts: &EvalOptions, report: &mut
         }
     }
     if let (Some(a), Some(b)) = (report.ap_mssd, report.ap_mspd) {
-        report.ap = Some(detection::np_mean(&[a, b]));
+        report.ap = Some(pose_error::np_mean(&[a, b]));
     }
     for s in report.per_object.values_mut() {
         if let (Some(a), Some(b)) = (s.by_error.get("mssd"), s.by_error.get("mspd")) {
-            s.ap = Some(detection::np_mean(&[*a, *b]));
+            s.ap = Some(pose_error::np_mean(&[*a, *b]));
         }
     }
 }

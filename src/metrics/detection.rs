@@ -14,7 +14,7 @@
 
 use std::collections::BTreeMap;
 
-use super::pose_error::pairwise_sum;
+use super::pose_error::np_mean;
 use super::recall::{match_estimates, TargetErrors};
 
 /// Instances visible less than this fraction are ignored (the toolkit's
@@ -105,12 +105,7 @@ pub fn average_precision(recalls: &[f64], precisions: &[f64]) -> f64 {
             inner.chain(ends).fold(f64::NEG_INFINITY, f64::max)
         })
         .collect();
-    pairwise_sum(&interpolated) / interpolated.len() as f64
-}
-
-/// `numpy.mean` of `v` (pairwise summation); 0 for none.
-pub fn np_mean(v: &[f64]) -> f64 {
-    if v.is_empty() { 0.0 } else { pairwise_sum(v) / v.len() as f64 }
+    np_mean(&interpolated)
 }
 
 #[cfg(test)]

@@ -166,15 +166,15 @@ pub fn pairwise_sum(v: &[f64]) -> f64 {
     pairwise_sum(&v[..half]) + pairwise_sum(&v[half..])
 }
 
-/// Mean of `v` by [`pairwise_sum`]; 0 for none.
-fn mean(v: &[f64]) -> f64 {
+/// `numpy.mean` of `v`: [`pairwise_sum`] over the count; 0 for none.
+pub fn np_mean(v: &[f64]) -> f64 {
     if v.is_empty() { 0.0 } else { pairwise_sum(v) / v.len() as f64 }
 }
 
 /// Average Distance of model points (Hinterstoisser et al.): mean distance
 /// between corresponding points.
 pub fn add(est: &PoseMm, gt: &PoseMm, pts: &[DVec3]) -> f64 {
-    mean(&pts.iter().map(|&x| (apply(est, x) - apply(gt, x)).length()).collect::<Vec<_>>())
+    np_mean(&pts.iter().map(|&x| (apply(est, x) - apply(gt, x)).length()).collect::<Vec<_>>())
 }
 
 /// ADI: mean distance from each ground-truth point to the nearest
@@ -191,10 +191,10 @@ pub fn adi(est: &PoseMm, gt: &PoseMm, pts: &[DVec3], tree: &PointTree) -> f64 {
     if gram.to_cols_array().iter().any(|e| e.abs() > RIGID_TOLERANCE) {
         let moved: Vec<DVec3> = pts.iter().map(|&x| apply(est, x)).collect();
         let tree = PointTree::new(&moved);
-        return mean(&pts.iter().map(|&x| (moved[tree.nearest(apply(gt, x))] - apply(gt, x)).length()).collect::<Vec<_>>());
+        return np_mean(&pts.iter().map(|&x| (moved[tree.nearest(apply(gt, x))] - apply(gt, x)).length()).collect::<Vec<_>>());
     }
     let inv = est.r.inverse();
-    mean(
+    np_mean(
         &pts.iter()
             .map(|&x| {
                 let q = apply(gt, x);
