@@ -562,20 +562,31 @@ fn top_per_image(results: &[Estimate], cap: usize) -> Vec<&Estimate> {
 /// does not matter: BOP'24 targets name images only, and the toolkit
 /// rebuilds the objects from the annotations (`inout.get_im_targets`).
 pub fn detection_targets(ds: &Dataset, targets: &[Target]) -> Result<Vec<Target>> {
-    let mut scenes: Vec<(u32, Vec<u32>)> = Vec::new();
+    images_objects(&open_scenes(ds, targets)?, targets)
+}
+
+/// The scenes of `targets`, each opened (read and checked) once.
+fn open_scenes(ds: &Dataset, targets: &[Target]) -> Result<BTreeMap<u32, Scene>> {
+    let ids: std::collections::BTreeSet<u32> = targets.iter().map(|t| t.scene_id).collect();
+    ids.into_iter().map(|s| Ok((s, ds.scene(s)?))).collect()
+}
+
+/// [`detection_targets`] over the scenes already opened.
+fn images_objects(scenes: &BTreeMap<u32, Scene>, targets: &[Target]) -> Result<Vec<Target>> {
+    let mut images: Vec<(u32, Vec<u32>)> = Vec::new();
     let mut seen = std::collections::HashSet::new();
     for t in targets {
         if !seen.insert((t.scene_id, t.im_id)) {
             continue;
         }
-        match scenes.iter_mut().find(|(s, _)| *s == t.scene_id) {
+        match images.iter_mut().find(|(s, _)| *s == t.scene_id) {
             Some((_, ims)) => ims.push(t.im_id),
-            None => scenes.push((t.scene_id, vec![t.im_id])),
+            None => images.push((t.scene_id, vec![t.im_id])),
         }
     }
     let mut out = Vec::new();
-    for (scene_id, ims) in scenes {
-        let scene = ds.scene(scene_id)?;
+    for (scene_id, ims) in images {
+        let scene = &scenes[&scene_id];
         for im_id in ims {
             let gt = scene.gt.get(&im_id).ok_or_else(|| Error::BadJson {
                 path: scene.file("scene_gt"),
@@ -592,6 +603,16 @@ pub fn detection_targets(ds: &Dataset, targets: &[Target]) -> Result<Vec<Target>
         }
     }
     Ok(out)
+}
+
+/// The targets `task` evaluates: those of `file`, else of the dataset's own
+/// file (for detection BOP'24's image list first, `test_targets_bop24.json`,
+/// then `test_targets_bop19.json`), else every annotated instance.
+/// Detection takes the images of whichever it reads ([`detection_targets`]).
+pub fn task_targets(ds: &Dataset, file: Option<&std::path::Path>, task: Task) -> Result<(Vec<Target>, crate::bop::TargetSource)> {
+    let bop24 = ds.targets_file(true);
+    let file = file.map(std::path::Path::to_path_buf).or_else(|| (task == Task::Detection && bop24.is_file()).then_some(bop24));
+    ds.targets(file.as_deref())
 }
 
 /// One (estimate, instance) pair to compute errors for.
@@ -636,11 +657,13 @@ pub fn evaluate(
     opts.validate()?;
     let t_start = Instant::now();
     let mut report = EvalReport { task: opts.task, add_threshold: opts.add_threshold, device: device.describe(), ..Default::default() };
+    // Open every scene before the long work, so a bad file fails at once.
+    let scenes = open_scenes(ds, targets)?;
     let mut detection_targets_;
     let (targets, results): (&[Target], Vec<&Estimate>) = match opts.task {
         Task::Localization => (targets, results.iter().collect()),
         Task::Detection => {
-            detection_targets_ = detection_targets(ds, targets)?;
+            detection_targets_ = images_objects(&scenes, targets)?;
             // Objects outside the toolkit's list for the dataset are not scored.
             if let Some(ids) = &opts.scored_obj_ids {
                 let annotated = detection_targets_.len();
@@ -692,9 +715,7 @@ pub fn evaluate(
         by_scene.entry(t.scene_id).or_default().entry(t.im_id).or_default().push((rank, *t));
     }
     report.n_images = by_scene.values().map(|m| m.len()).sum();
-    // Open every scene before the long work, so a bad file fails at once.
-    let scenes: Vec<Scene> = by_scene.keys().map(|&s| ds.scene(s)).collect::<Result<_>>()?;
-    let computed_visibility = scenes.iter().any(|s| s.gt_info.is_none());
+    let computed_visibility = by_scene.keys().any(|s| scenes[s].gt_info.is_none());
     let need_depth = opts.has(ErrorType::Vsd) || computed_visibility;
     let t0 = Instant::now();
     let models = tracing::trace_span!("load_models", objects = obj_ids.len()).in_scope(|| load_models(ds, &obj_ids, opts, need_depth))?;
@@ -707,8 +728,9 @@ pub fn evaluate(
     let mut all_targets: Vec<DetectionTarget> = Vec::new();
     let mut records = Vec::new();
     let mut done = 0;
-    for scene in &scenes {
-        let images: Vec<(&u32, &Vec<(usize, Target)>)> = by_scene[&scene.id].iter().collect();
+    for (scene_id, images) in &by_scene {
+        let scene = &scenes[scene_id];
+        let images: Vec<(&u32, &Vec<(usize, Target)>)> = images.iter().collect();
         for batch in images.chunks(opts.batch_images) {
             let ctx = BatchCtx { scene, models: &models, opts, device, need_depth };
             let _span = tracing::trace_span!("batch", scene = scene.id, images = batch.len()).entered();

@@ -202,7 +202,7 @@ pub fn evaluate<'py>(
     max_estimates_per_image: Option<usize>,
     sensor: Option<String>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    use plausible::eval::{detection_targets, evaluate, open_dataset, toolkit_dataset_name, ErrorType, EvalOptions, Task};
+    use plausible::eval::{evaluate, open_dataset, task_targets, toolkit_dataset_name, ErrorType, EvalOptions, Task};
     let name = toolkit_dataset_name(&dataset, dataset_name).map_err(to_py)?;
     let task: Task = task.parse().map_err(value_error)?;
     let base = match task {
@@ -220,13 +220,10 @@ pub fn evaluate<'py>(
     let choice: DeviceChoice = device.parse().map_err(to_py)?;
     let (report, recs, source) = crate::interruptible(py, |stop| {
         let ds = open_dataset(&dataset, split, sensor.as_deref(), name.as_deref())?;
-        let bop24 = ds.targets_file(true);
-        let file = targets.clone().or_else(|| (task == Task::Detection && bop24.is_file()).then_some(bop24));
-        let (targets, source) = ds.targets(file.as_deref())?;
+        let (targets, source) = task_targets(&ds, targets.as_deref(), task)?;
         if targets.is_empty() {
             return Err(plausible::Error::InvalidInput("no targets to evaluate".into()));
         }
-        let targets = if task == Task::Detection { detection_targets(&ds, &targets)? } else { targets };
         let results = plausible::bop::read_results(&results)?;
         let device = Device::open(choice, adapter, false)?.device;
         let (report, recs) = evaluate(&ds, &results, &targets, &device, &opts, &mut |_| stop.check())?;

@@ -82,9 +82,7 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     let results_path = a.results.clone().unwrap_or_else(|| root.join("perturbed.csv"));
     let ds = Dataset::open(&root, &a.split).context("--dataset")?;
     let (targets, _) = ds.targets(None)?;
-    // Detection reads BOP'24's image list where the dataset has one.
-    let bop24 = ds.targets_file(true);
-    let det_targets = if bop24.is_file() { ds.targets(Some(&bop24))?.0 } else { targets.clone() };
+    let (det_targets, _) = plausible::eval::task_targets(&ds, None, Task::Detection)?;
     let results = read_results(&results_path).context("--results")?;
     let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;
     let name = plausible::eval::toolkit_dataset_name(&root, None)?;

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::{read_results, write_results, TargetSource};
-use plausible::eval::{detection_targets, evaluate, open_dataset, gt_as_results, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport, Task};
+use plausible::eval::{detection_targets, evaluate, open_dataset, gt_as_results, task_targets, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport, Task};
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -126,10 +126,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
-    // Detection reads BOP'24's image list when the dataset has one.
-    let bop24 = ds.targets_file(true);
-    let targets_file = a.targets.clone().or_else(|| (a.task == Task::Detection && bop24.is_file()).then_some(bop24));
-    let (targets, source) = ds.targets(targets_file.as_deref()).context("--targets")?;
+    let (targets, source) = task_targets(&ds, a.targets.as_deref(), a.task).context("--targets")?;
     if let TargetSource::File(f) | TargetSource::ImageList(f) = &source {
         // The dataset's own targets file, found without --targets.
         super::distinct_files(&outputs, &[("the dataset's targets file", Some(f))])?;
@@ -148,16 +145,15 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         }
         _ => {}
     }
-    // Detection's targets: every annotated object of the listed images.
-    let targets = match a.task {
-        Task::Localization => targets,
-        Task::Detection => detection_targets(&ds, &targets).context("--targets")?,
-    };
     let device = a.dev.open(verbose)?;
     let results = match (&a.results, &a.gt_as_results) {
         (Some(r), _) => read_results(r).context("--results")?,
         (None, Some(out)) => {
-            let gt = gt_as_results(&ds, &targets, &device, &opts)?;
+            // Detection's ground truth: every instance of the listed images.
+            let gt = match a.task {
+                Task::Localization => gt_as_results(&ds, &targets, &device, &opts)?,
+                Task::Detection => gt_as_results(&ds, &detection_targets(&ds, &targets)?, &device, &opts)?,
+            };
             write_results(out, &gt)?;
             eprintln!("wrote the ground truth of {} targets as {} estimates to {}", targets.len(), gt.len(), out.display());
             gt
