@@ -159,7 +159,8 @@ pub fn bop_obj_ids(dataset: &str) -> Option<Vec<u32>> {
     Some(match dataset {
         "lm" => range(1, 15),
         "lmo" => vec![1, 5, 6, 8, 9, 10, 11, 12],
-        "tless" | "hb" => range(1, if dataset == "tless" { 30 } else { 33 }),
+        "tless" => range(1, 30),
+        "hb" => range(1, 33),
         "tudl" => range(1, 3),
         "tyol" => range(1, 21),
         "ruapc" => range(1, 14),
@@ -525,11 +526,17 @@ type EstimateIndex<'a> = HashMap<(u32, u32, u32), Vec<&'a Estimate>>;
 /// `inst_count` highest-scored for localization, all for detection.
 fn kept<'a>(index: &EstimateIndex<'a>, t: &Target, task: Task) -> Vec<&'a Estimate> {
     let mut v = index.get(&(t.scene_id, t.im_id, t.obj_id)).cloned().unwrap_or_default();
-    v.sort_by(|a, b| b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal));
+    v.sort_by(falling_score);
     if task == Task::Localization {
         v.truncate(t.inst_count as usize);
     }
     v
+}
+
+/// Falling score for the toolkit's stable sorts (`sorted(key=score,
+/// reverse=True)`): −0 and 0 tie, and so does NaN, which reading refuses.
+fn falling_score(a: &&Estimate, b: &&Estimate) -> std::cmp::Ordering {
+    b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal)
 }
 
 /// The estimates detection looks at: the `cap` highest-scored of each
@@ -549,7 +556,7 @@ fn top_per_image(results: &[Estimate], cap: usize) -> Vec<&Estimate> {
     let mut out = Vec::with_capacity(results.len().min(order.len().saturating_mul(cap)));
     for key in order {
         let mut v = per_image.remove(&key).expect("every image has its list");
-        v.sort_by(|a, b| b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal));
+        v.sort_by(falling_score);
         out.extend(v.into_iter().take(cap));
     }
     out
@@ -761,16 +768,16 @@ pub fn evaluate(
 /// time ≥ 0 and all estimates of an image agree within 1 ms (its
 /// `check_consistent_timings`), the first of them standing for the image.
 fn average_time_per_image<'a>(results: impl IntoIterator<Item = &'a Estimate>) -> f64 {
-    let mut per_image: HashMap<(u32, u32), f64> = HashMap::new();
-    // The images in file order: the toolkit's numpy mean sums them pairwise
-    // in that order.
-    let mut times = Vec::new();
+    // Each image's time in file order (the toolkit's numpy mean sums them
+    // pairwise in that order), and where it is.
+    let mut times: Vec<f64> = Vec::new();
+    let mut slot: HashMap<(u32, u32), usize> = HashMap::new();
     for e in results {
         if e.time < 0.0 {
             return -1.0;
         }
-        if let Some(&t) = per_image.get(&(e.scene_id, e.im_id)) {
-            if (t - e.time).abs() > 0.001 {
+        if let Some(&i) = slot.get(&(e.scene_id, e.im_id)) {
+            if (times[i] - e.time).abs() > 0.001 {
                 tracing::warn!(
                     "estimates of scene {} image {} carry different times; average time per image is unknown",
                     e.scene_id,
@@ -779,9 +786,9 @@ fn average_time_per_image<'a>(results: impl IntoIterator<Item = &'a Estimate>) -
                 return -1.0;
             }
         }
-        per_image.entry((e.scene_id, e.im_id)).or_insert_with(|| {
+        slot.entry((e.scene_id, e.im_id)).or_insert_with(|| {
             times.push(e.time);
-            e.time
+            times.len() - 1
         });
     }
     if times.is_empty() {
