@@ -19,6 +19,7 @@ pub mod stop;
 pub use error::{Error, Result};
 pub mod bop;
 pub mod camera;
+pub mod coco;
 pub mod draw;
 pub mod eval;
 pub mod explain;

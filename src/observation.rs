@@ -296,6 +296,10 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     if img.color().bytes_per_pixel() > img.color().channel_count() {
         return Err(bad(format!("a mask is an 8-bit PNG (0 = background), this one has {} bits a channel: a depth image?", 8 * img.color().bytes_per_pixel() / img.color().channel_count())));
     }
+    // BOP's masks are 8-bit grey: no conversion.
+    if let Some(g) = img.as_luma8().filter(|g| g.dimensions() == (width, height)) {
+        return Ok(g.as_raw().iter().map(|&v| v != 0).collect());
+    }
     // Any colour channel non-zero is the object: the luma of a colour mask
     // rounds dark colours such as (0, 0, 3) to 0. Alpha is not the mask.
     let img = img.to_rgb8();

@@ -393,6 +393,12 @@ impl Scene {
         self.dir.join(format!("{stem}{}.json", self.suffix))
     }
 
+    /// The full-mask folder (`mask`, `mask_{sensor}`): the silhouettes
+    /// including occluded parts.
+    pub fn mask_dir(&self) -> PathBuf {
+        self.dir.join(format!("mask{}", self.suffix))
+    }
+
     /// The visible-mask folder (`mask_visib`, `mask_visib_{sensor}`).
     pub fn mask_visib_dir(&self) -> PathBuf {
         self.dir.join(format!("mask_visib{}", self.suffix))

@@ -1,0 +1,392 @@
+//! BOP's 2D object detection and 2D object segmentation tasks (BOP'22 and
+//! later): COCO-format results scored as the BOP toolkit's
+//! `scripts/eval_bop22_coco.py` scores them, with pycocotools' COCOeval
+//! (the fork the toolkit installs) reimplemented step for step:
+//! AP over IoU 0.5:0.95, AP50, AP75, AP and AR by object size, AR at 1, 10
+//! and 100 detections per image and object, and the average time per image.
+//!
+//! Data flows one way: [`results::read_coco_results`] → per-scene ground
+//! truth ([`gt::scene_gt`]: the dataset's `scene_gt_coco.json` or the masks)
+//! → groups per image and object with their IoUs → [`cocoeval::summarize`]
+//! → [`CocoReport`].
+
+pub mod cocoeval;
+pub mod gt;
+pub mod results;
+pub mod rle;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::bop::{Dataset, TargetSource};
+use crate::error::{Error, Result};
+use crate::metrics::pose_error::np_mean;
+use cocoeval::{DtRegion, Group, GtRegion, Summary, STAT_NAMES};
+use gt::{GtImage, GtSource};
+use results::CocoResult;
+use rle::{bbox_iou, mask_iou, Rle};
+
+/// What is compared: boxes (2D detection) or masks (2D segmentation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CocoTask {
+    Bbox,
+    Segm,
+}
+
+impl CocoTask {
+    /// The toolkit's `ann_type`.
+    pub fn name(self) -> &'static str {
+        match self {
+            CocoTask::Bbox => "bbox",
+            CocoTask::Segm => "segm",
+        }
+    }
+}
+
+/// Ground-truth boxes: of the whole silhouette, occluded parts included
+/// (amodal, BOP's default), or of the visible part (modal).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BoxKind {
+    #[default]
+    Amodal,
+    Modal,
+}
+
+impl std::str::FromStr for BoxKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "amodal" => Ok(BoxKind::Amodal),
+            "modal" => Ok(BoxKind::Modal),
+            _ => Err(format!("unknown box type '{s}' (expected amodal or modal)")),
+        }
+    }
+}
+
+/// What to evaluate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CocoOptions {
+    pub task: CocoTask,
+    /// Only boxes use it (masks are always the visible part).
+    pub boxes: BoxKind,
+}
+
+/// One object's line of the report.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ObjectAp {
+    /// Ground-truth instances in the target images (ignored ones included).
+    pub instances: usize,
+    /// Of them, ignored (visible less than 10 %).
+    pub ignored: usize,
+    pub detections: usize,
+    /// AP over the IoU thresholds (all sizes, 100 detections); `None`
+    /// without counted instances.
+    pub ap: Option<f64>,
+}
+
+/// The scores, as `scores_bop22_coco_{segm,bbox}.json` holds them (−1
+/// where nothing counts), and what went into them.
+#[derive(Clone, Debug, Serialize)]
+pub struct CocoReport {
+    pub task: CocoTask,
+    pub boxes: BoxKind,
+    /// The toolkit's keys: AP, AP50, AP75, AP_small, AP_medium, AP_large,
+    /// AR1, AR10, AR100, AR_small, AR_medium, AR_large,
+    /// average_time_per_image.
+    pub scores: BTreeMap<String, f64>,
+    pub per_object: BTreeMap<u32, ObjectAp>,
+    pub n_results: usize,
+    /// Results evaluated: of a target image and of a scored object, with
+    /// the task's region.
+    pub n_used: usize,
+    /// Results of other images, or of objects the dataset does not score.
+    pub n_ignored: usize,
+    /// Results without the task's region (no bbox / no segmentation).
+    pub n_without_region: usize,
+    pub n_images: usize,
+    pub n_instances: usize,
+    /// Where the ground truth came from: the dataset's files, or the masks.
+    pub ground_truth: String,
+    pub warnings: Vec<String>,
+    pub time_s: f64,
+}
+
+impl CocoReport {
+    pub fn ap(&self) -> f64 {
+        self.scores["AP"]
+    }
+}
+
+#[derive(Deserialize)]
+struct TargetImage {
+    scene_id: u32,
+    im_id: u32,
+}
+
+/// The target images: the distinct `(scene_id, im_id)` of `file`, or of
+/// the dataset's `test_targets_bop19.json`, else `test_targets_bop24.json`
+/// (the toolkit's default is the first; BOP'24's 2D tasks use the second),
+/// else every annotated image; in first-appearance order (the toolkit's
+/// scene order).
+pub fn target_images(ds: &Dataset, file: Option<&Path>) -> Result<(Vec<(u32, u32)>, TargetSource)> {
+    let path = match file {
+        Some(f) => Some(f.to_path_buf()),
+        None => [ds.targets_file(false), ds.targets_file(true)].into_iter().find(|p| p.is_file()),
+    };
+    let Some(path) = path else {
+        let mut all = Vec::new();
+        for s in ds.scene_ids()? {
+            all.extend(ds.scene(s)?.gt.keys().map(|&im| (s, im)));
+        }
+        return Ok((all, TargetSource::AllInstances));
+    };
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+    let list: Vec<TargetImage> = serde_json::from_str(&text)
+        .map_err(|e| Error::BadJson { path: path.clone(), reason: format!("not a BOP targets list ({{\"scene_id\", \"im_id\", ...}}): {e}") })?;
+    let mut seen = BTreeSet::new();
+    let images = list.into_iter().map(|t| (t.scene_id, t.im_id)).filter(|k| seen.insert(*k)).collect();
+    Ok((images, TargetSource::File(path)))
+}
+
+/// Average time per image as the toolkit computes it: over every result of
+/// the file, one time per image in first-appearance order, numpy's mean;
+/// −1 when any result lacks one. Times of one image more than 1 ms apart
+/// stop the toolkit; here they are a warning and the first is kept.
+fn average_time(results: &[CocoResult], warnings: &mut Vec<String>) -> f64 {
+    let mut slot: BTreeMap<(u32, u32), usize> = BTreeMap::new();
+    let mut times: Vec<f64> = Vec::new();
+    let mut inconsistent = 0;
+    for r in results {
+        let Some(t) = r.time else { return -1.0 };
+        match slot.get(&(r.scene_id, r.image_id)) {
+            Some(&i) => inconsistent += usize::from((times[i] - t).abs() > 0.001),
+            None => {
+                slot.insert((r.scene_id, r.image_id), times.len());
+                times.push(t);
+            }
+        }
+    }
+    if inconsistent > 0 {
+        warnings.push(format!("{inconsistent} results give their image another time (more than 1 ms apart) than its first result; the first is used"));
+    }
+    if times.is_empty() { -1.0 } else { np_mean(&times) }
+}
+
+/// A detection's region and area, decoded once.
+struct Detection {
+    image: usize,
+    category: u32,
+    score: f64,
+    area: f64,
+    bbox: [f64; 4],
+    mask: Option<Rle>,
+}
+
+/// Scores `results` on the target `images` (first-appearance order) of
+/// `ds`. `categories` are the objects scored (the toolkit's list for a
+/// named dataset; `None`: every object of models_info.json and of the
+/// ground truth). `progress` gets the number of target images read.
+pub fn evaluate(
+    ds: &Dataset,
+    results: &[CocoResult],
+    images: &[(u32, u32)],
+    categories: Option<&[u32]>,
+    opts: CocoOptions,
+    progress: &mut dyn FnMut(usize) -> Result<()>,
+) -> Result<CocoReport> {
+    let start = std::time::Instant::now();
+    let mut warnings = Vec::new();
+    let avg_time = average_time(results, &mut warnings);
+    // Scenes in first-appearance order, images ascending within each: the
+    // order of the toolkit's merged image ids, which COCOeval sorts.
+    let mut scenes: Vec<(u32, BTreeSet<u32>)> = Vec::new();
+    for &(s, im) in images {
+        match scenes.iter_mut().find(|(id, _)| *id == s) {
+            Some((_, ims)) => {
+                ims.insert(im);
+            }
+            None => scenes.push((s, BTreeSet::from([im]))),
+        }
+    }
+    let masks = opts.task == CocoTask::Segm;
+    let mut gt_images: Vec<GtImage> = Vec::new();
+    let mut position: BTreeMap<(u32, u32), usize> = BTreeMap::new();
+    let mut sources = BTreeSet::new();
+    let mut next_id = 1;
+    for (s, ims) in &scenes {
+        let scene = ds.scene(*s)?;
+        // A scene's file is read at once; masks a few images at a time, for
+        // the progress bar and for stopping.
+        let parts: Vec<BTreeSet<u32>> = if gt::gt_file(&scene, opts.boxes).is_file() {
+            vec![ims.clone()]
+        } else {
+            ims.iter().copied().collect::<Vec<_>>().chunks(16).map(|c| c.iter().copied().collect()).collect()
+        };
+        for part in parts {
+            let (g, source) = gt::scene_gt(&scene, &part, opts.boxes, masks)?;
+            let from_masks = source == GtSource::Masks;
+            sources.insert(match source {
+                GtSource::File(f) => f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default() + " files",
+                GtSource::Masks => format!("the masks (mask_visib{})", if opts.boxes == BoxKind::Amodal { ", mask" } else { "" }),
+            });
+            for mut im in g {
+                if from_masks {
+                    // Numbered across the scene's parts, as one call would.
+                    for a in &mut im.anns {
+                        a.id = next_id;
+                        next_id += 1;
+                    }
+                }
+                position.insert((*s, im.im_id), gt_images.len());
+                gt_images.push(im);
+            }
+            progress(gt_images.len())?;
+        }
+    }
+    let cats: BTreeSet<u32> = match categories {
+        Some(c) => c.iter().copied().collect(),
+        None => ds.models_info.keys().copied().chain(gt_images.iter().flat_map(|g| g.anns.iter().map(|a| a.category_id))).collect(),
+    };
+    let (dets, counts) = detections(results, &position, &gt_images, &cats, opts)?;
+    let (n_used, n_ignored, n_without_region) = counts;
+    let mut per_object: BTreeMap<u32, ObjectAp> = BTreeMap::new();
+    for a in gt_images.iter().flat_map(|g| &g.anns).filter(|a| cats.contains(&a.category_id)) {
+        let o = per_object.entry(a.category_id).or_default();
+        o.instances += 1;
+        o.ignored += usize::from(a.ignore);
+    }
+    for d in &dets {
+        per_object.entry(d.category).or_default().detections += 1;
+    }
+    let cat_list: Vec<u32> = cats.iter().copied().collect();
+    let summary = if dets.is_empty() {
+        warnings.push("no result of a target image and scored object holds the task's region: every score is -1, as the toolkit gives".into());
+        Summary { stats: [-1.0; 12], per_category: Vec::new() }
+    } else {
+        cocoeval::summarize(&groups(&gt_images, &dets, &cats, opts.task), &cat_list)
+    };
+    for (c, ap) in &summary.per_category {
+        if let Some(o) = per_object.get_mut(c) {
+            o.ap = (*ap > -1.0).then_some(*ap);
+        }
+    }
+    let mut scores: BTreeMap<String, f64> = STAT_NAMES.iter().zip(summary.stats).map(|(k, v)| (k.to_string(), v)).collect();
+    scores.insert("average_time_per_image".into(), if dets.is_empty() { -1.0 } else { avg_time });
+    Ok(CocoReport {
+        task: opts.task,
+        boxes: opts.boxes,
+        scores,
+        per_object,
+        n_results: results.len(),
+        n_used,
+        n_ignored,
+        n_without_region,
+        n_images: gt_images.len(),
+        n_instances: gt_images.iter().flat_map(|g| &g.anns).filter(|a| cats.contains(&a.category_id)).count(),
+        ground_truth: sources.into_iter().collect::<Vec<_>>().join(", "),
+        warnings,
+        time_s: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// The results evaluated, in the toolkit's merged order (scenes in target
+/// order, file order within a scene), with their regions decoded and their
+/// areas as pycocotools' `loadRes` sets them: the box's w·h when the first
+/// result has a box, else the mask's pixel count. Also (used, ignored,
+/// without region).
+fn detections(
+    results: &[CocoResult],
+    position: &BTreeMap<(u32, u32), usize>,
+    gt_images: &[GtImage],
+    cats: &BTreeSet<u32>,
+    opts: CocoOptions,
+) -> Result<(Vec<Detection>, (usize, usize, usize))> {
+    let has_region = |r: &CocoResult| match opts.task {
+        CocoTask::Bbox => r.bbox.is_some(),
+        CocoTask::Segm => r.segmentation.is_some(),
+    };
+    let without_region = results.iter().filter(|r| !has_region(r)).count();
+    // Stable sort by the scene's rank among the targets keeps file order
+    // within a scene.
+    let mut rank: BTreeMap<u32, usize> = BTreeMap::new();
+    for &(s, _) in position.keys() {
+        let n = rank.len();
+        rank.entry(s).or_insert(n);
+    }
+    let mut used: Vec<(usize, &CocoResult)> = results
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| has_region(r) && position.contains_key(&(r.scene_id, r.image_id)) && cats.contains(&r.category_id))
+        .collect();
+    used.sort_by_key(|(_, r)| rank[&r.scene_id]);
+    let ignored = results.len() - without_region - used.len();
+    let box_area = used.first().is_some_and(|(_, r)| r.bbox.is_some());
+    let bad = |i: usize, reason: String| Error::InvalidInput(format!("result {i} (scene {}, image {}): {reason}", results[i].scene_id, results[i].image_id));
+    let mut out = Vec::with_capacity(used.len());
+    for (i, r) in used {
+        let image = position[&(r.scene_id, r.image_id)];
+        let g = &gt_images[image];
+        let mask = match (&r.segmentation, opts.task) {
+            (Some(s), CocoTask::Segm) => {
+                let m = s.decode().map_err(|e| bad(i, format!("segmentation: {e}")))?;
+                if (m.h, m.w) != (g.height, g.width) {
+                    return Err(bad(i, format!("mask size is {}x{} (width x height) but the image is {}x{}", m.w, m.h, g.width, g.height)));
+                }
+                Some(m)
+            }
+            _ => None,
+        };
+        let area = match (box_area, r.bbox, &mask) {
+            (true, Some(b), _) => b[2] * b[3],
+            (true, None, _) => {
+                return Err(bad(i, "has no bbox while the first result has one (pycocotools takes every area from the boxes then, and stops here)".into()))
+            }
+            (false, _, Some(m)) => m.area() as f64,
+            (false, _, None) => unreachable!("a result without a box has a mask here"),
+        };
+        out.push(Detection { image, category: r.category_id, score: r.score, area, bbox: r.bbox.unwrap_or_default(), mask });
+    }
+    let n = out.len();
+    Ok((out, (n, ignored, without_region)))
+}
+
+/// One group per image and scored object with ground truth or detections,
+/// each with its IoU.
+fn groups<'a>(gt_images: &'a [GtImage], dets: &'a [Detection], cats: &BTreeSet<u32>, task: CocoTask) -> Vec<Group<'a>> {
+    let mut by_key: BTreeMap<(usize, u32), (Vec<usize>, Vec<usize>)> = BTreeMap::new();
+    for (i, g) in gt_images.iter().enumerate() {
+        for (k, a) in g.anns.iter().enumerate().filter(|(_, a)| cats.contains(&a.category_id)) {
+            by_key.entry((i, a.category_id)).or_default().0.push(k);
+        }
+    }
+    for (d, det) in dets.iter().enumerate() {
+        by_key.entry((det.image, det.category)).or_default().1.push(d);
+    }
+    by_key
+        .into_iter()
+        .map(|((image, category), (gk, dk))| {
+            let anns = &gt_images[image].anns;
+            let gt = gk.iter().map(|&k| GtRegion { id: anns[k].id, area: anns[k].area, crowd: anns[k].crowd, ignore: anns[k].ignore }).collect();
+            let dt = dk.iter().map(|&d| DtRegion { score: dets[d].score, area: dets[d].area }).collect();
+            let iou: Box<dyn Fn(usize, usize) -> f64 + Send + Sync> = match task {
+                CocoTask::Bbox => Box::new(move |d, g| bbox_iou(&dets[dk[d]].bbox, &anns[gk[g]].bbox, anns[gk[g]].crowd)),
+                CocoTask::Segm => Box::new(move |d, g| {
+                    let (dm, gm) = (dets[dk[d]].mask.as_ref().expect("decoded"), anns[gk[g]].mask.as_ref().expect("decoded"));
+                    mask_iou(dm, gm, anns[gk[g]].crowd)
+                }),
+            };
+            Group { image, category, gt, dt, iou }
+        })
+        .collect()
+}
+
+/// The BOP toolkit's result file name for this task, for users who
+/// compare: `scores_bop22_coco_{segm,bbox}[_modal].json`.
+pub fn toolkit_scores_name(opts: CocoOptions) -> PathBuf {
+    let modal = if opts.task == CocoTask::Bbox && opts.boxes == BoxKind::Modal { "_modal" } else { "" };
+    PathBuf::from(format!("scores_bop22_coco_{}{modal}.json", opts.task.name()))
+}
