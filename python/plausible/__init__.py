@@ -737,6 +737,7 @@ def eval(  # noqa: A001 - the CLI's verb
     task: str = "localization",
     max_estimates_per_image: Optional[int] = None,
     sensor: Optional[str] = None,
+    boxes: Optional[str] = None,
 ) -> Dict[str, Any]:
     """BOP'19 evaluation of a results CSV on a BOP dataset folder, as the BOP
     toolkit computes it (``plausible eval``): a dict with ar, ar_vsd,
@@ -746,13 +747,18 @@ def eval(  # noqa: A001 - the CLI's verb
     ap (bop24_mAP), ap_mssd, ap_mspd, ap_mssd_mm, per-object and
     per-threshold APs; targets default to the dataset's test_targets_bop24.json.
     ``sensor``: for a split annotated per sensor (BOP-H3, IPD, XYZ-IBD, ...;
-    default: the one the toolkit evaluates for ``dataset_name``)."""
+    default: the one the toolkit evaluates for ``dataset_name``).
+    ``task="bbox"`` / ``task="segm"``: BOP's 2D detection / segmentation of a
+    COCO results JSON (``eval_bop22_coco.py``): ``scores`` holds AP, AP50, AP75,
+    AP/AR by size, AR1/AR10/AR100 and average_time_per_image; ``boxes``:
+    "amodal" (default) or "modal" ground-truth boxes for bbox."""
     if max_estimates_per_image is not None and (isinstance(max_estimates_per_image, bool) or not isinstance(max_estimates_per_image, int) or max_estimates_per_image < 1):
         raise ValueError(f"max_estimates_per_image: a whole number of at least 1, got {max_estimates_per_image!r}")
     return _native.evaluate(
         os.fspath(dataset), os.fspath(results), targets=None if targets is None else os.fspath(targets), split=split,
         errors=None if errors is None else ([errors] if isinstance(errors, str) else list(errors)), add_threshold=_float("add_threshold", add_threshold), dataset_name=dataset_name,
         device=device, adapter=adapter, records=records, task=task, max_estimates_per_image=max_estimates_per_image, sensor=sensor,
+        boxes=boxes,
     )
 
 

@@ -119,6 +119,7 @@ def evaluate(
     task: str = "localization",
     max_estimates_per_image: Optional[int] = None,
     sensor: Optional[str] = None,
+    boxes: Optional[str] = None,
 ) -> Dict[str, Any]: ...
 def device_info(adapter: Optional[str] = None) -> Tuple[str, str]: ...
 def read_frame(

@@ -183,8 +183,11 @@ pub fn hypotheses<'py>(
 /// a dict, and with `records=True` also every (estimate, instance) pair's
 /// errors. `task="detection"`: BOP'24 6D detection (AP over MSSD and MSPD
 /// thresholds; targets default to the dataset's test_targets_bop24.json).
+/// `task="bbox"` / `"segm"`: BOP's 2D detection / segmentation of a COCO
+/// results JSON (eval_bop22_coco.py's AP, AR and times; `boxes` amodal or
+/// modal for bbox).
 #[pyfunction]
-#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false, task = "localization", max_estimates_per_image = None, sensor = None))]
+#[pyo3(signature = (dataset, results, *, targets = None, split = "test", errors = None, add_threshold = 0.1, dataset_name = None, device = "auto", adapter = None, records = false, task = "localization", max_estimates_per_image = None, sensor = None, boxes = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate<'py>(
     py: Python<'py>,
@@ -201,10 +204,30 @@ pub fn evaluate<'py>(
     task: &str,
     max_estimates_per_image: Option<usize>,
     sensor: Option<String>,
+    boxes: Option<&str>,
 ) -> PyResult<Bound<'py, PyAny>> {
     use plausible::eval::{evaluate, open_dataset, task_targets, toolkit_dataset_name, ErrorType, EvalOptions, Task};
     let name = toolkit_dataset_name(&dataset, dataset_name).map_err(to_py)?;
-    let task: Task = task.parse().map_err(value_error)?;
+    let coco_task = match task.trim().to_ascii_lowercase().as_str() {
+        "bbox" => Some(plausible::coco::CocoTask::Bbox),
+        "segm" => Some(plausible::coco::CocoTask::Segm),
+        _ => None,
+    };
+    if let Some(t) = coco_task {
+        let pose_only = [("errors", errors.is_some()), ("records", records), ("max_estimates_per_image", max_estimates_per_image.is_some()), ("add_threshold", add_threshold != 0.1)];
+        if let Some((what, _)) = pose_only.iter().find(|(_, given)| *given) {
+            return Err(value_error(format!("{what} is for the 6D pose tasks, not task={task:?}")));
+        }
+        if boxes.is_some() && t == plausible::coco::CocoTask::Segm {
+            return Err(value_error("boxes is for task='bbox': masks are always the visible part".to_string()));
+        }
+        let boxes: plausible::coco::BoxKind = boxes.unwrap_or("amodal").parse().map_err(value_error)?;
+        return evaluate_coco(py, &dataset, &results, targets.as_deref(), split, name.as_deref(), sensor.as_deref(), plausible::coco::CocoOptions { task: t, boxes });
+    }
+    if boxes.is_some() {
+        return Err(value_error("boxes is for task='bbox'".to_string()));
+    }
+    let task: Task = task.parse().map_err(|e| value_error(format!("{e}; bbox or segm for BOP's 2D tasks")))?;
     let base = match task {
         Task::Localization => EvalOptions::for_dataset(name.as_deref()),
         Task::Detection => EvalOptions::detection(name.as_deref()),
@@ -240,6 +263,40 @@ pub fn evaluate<'py>(
     if records {
         v["records"] = serde_json::to_value(&recs).map_err(|e| value_error(e.to_string()))?;
     }
+    json_to_py(py, &v)
+}
+
+/// BOP's 2D tasks: the report of `plausible eval --task bbox|segm --out`.
+#[allow(clippy::too_many_arguments)]
+fn evaluate_coco<'py>(
+    py: Python<'py>,
+    dataset: &std::path::Path,
+    results: &std::path::Path,
+    targets: Option<&std::path::Path>,
+    split: &str,
+    name: Option<&str>,
+    sensor: Option<&str>,
+    opts: plausible::coco::CocoOptions,
+) -> PyResult<Bound<'py, PyAny>> {
+    use plausible::coco::{evaluate, results::read_coco_results, target_images};
+    let (report, source) = crate::interruptible(py, |stop| {
+        let ds = plausible::eval::open_dataset(dataset, split, sensor, name)?;
+        let (images, source) = target_images(&ds, targets)?;
+        if images.is_empty() {
+            return Err(plausible::Error::InvalidInput("no target images".into()));
+        }
+        let r = read_coco_results(results)?;
+        let cats = name.and_then(plausible::eval::bop_obj_ids);
+        let report = evaluate(&ds, &r, &images, cats.as_deref(), opts, &mut |_| stop.check())?;
+        Ok((report, source))
+    })?;
+    let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;
+    v["dataset"] = serde_json::json!(dataset.display().to_string());
+    v["results"] = serde_json::json!(results.display().to_string());
+    v["targets"] = serde_json::json!(match source {
+        plausible::bop::TargetSource::File(f) | plausible::bop::TargetSource::ImageList(f) => f.display().to_string(),
+        plausible::bop::TargetSource::AllInstances => "all annotated images".into(),
+    });
     json_to_py(py, &v)
 }
 

@@ -161,6 +161,23 @@ def test_eval_detection_matches_the_bop_toolkit_bit_for_bit():
         pl.eval(ds, ds / "detection.csv", task="detection", max_estimates_per_image=0)
 
 
+def test_eval_2d_tasks_match_the_bop_toolkit_bit_for_bit():
+    ds = ASSETS / "lmo-synth"
+    ref = json.loads((ds / "reference_coco.json").read_text())["coco.json"]
+    for task, boxes, key in [("segm", None, "segm"), ("bbox", None, "bbox"), ("bbox", "modal", "bbox_modal")]:
+        rep = pl.eval(ds, ds / "coco.json", task=task, boxes=boxes, dataset_name="lmo")
+        assert rep["task"] == task
+        assert rep["scores"] == ref[key], key
+    with pytest.raises(ValueError, match="boxes is for task='bbox'"):
+        pl.eval(ds, ds / "coco.json", task="segm", boxes="modal")
+    with pytest.raises(ValueError, match="amodal or modal"):
+        pl.eval(ds, ds / "coco.json", task="bbox", boxes="square")
+    with pytest.raises(ValueError, match="6D pose tasks"):
+        pl.eval(ds, ds / "coco.json", task="bbox", errors=["vsd"])
+    with pytest.raises(ValueError, match=r"\.json"):
+        pl.eval(ds, ds / "perturbed.csv", task="segm")
+
+
 def rotation(axis, angle):
     a = np.asarray(axis, float) / np.linalg.norm(axis)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])

@@ -36,8 +36,17 @@ pub struct EvalArgs {
     /// target, recall, AR) or `detection` (BOP'24: every estimate up to
     /// --max-estimates-per-image, average precision per object over MSSD and
     /// MSPD thresholds, mAP; instances under 10 % visible ignored).
+    ///
+    /// BOP's 2D tasks take a COCO results JSON (scene_id, image_id,
+    /// category_id, score, bbox, segmentation as RLE, time) and give COCO's
+    /// AP and AR as the toolkit's eval_bop22_coco.py does: `bbox` (2D
+    /// detection, boxes per --boxes) or `segm` (2D segmentation).
     #[arg(long, default_value = "localization")]
-    pub task: Task,
+    pub task: EvalTask,
+    /// --task bbox: ground-truth boxes of the whole silhouette (`amodal`,
+    /// BOP's default, from mask/) or of the visible part (`modal`).
+    #[arg(long)]
+    pub boxes: Option<plausible::coco::BoxKind>,
     /// Error types, comma-separated: vsd, mssd, mspd (their mean recall is
     /// BOP's AR), ad (ADI for symmetric objects, ADD otherwise), add, adi.
     /// Default: vsd,mssd,mspd; for --task detection mssd,mspd (the only ones
@@ -78,18 +87,47 @@ pub struct EvalArgs {
     pub dev: super::AutoDeviceArgs,
 }
 
+/// `--task`: one of the 6D pose tasks, or one of BOP's 2D tasks on COCO
+/// results.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EvalTask {
+    Pose(Task),
+    Coco(plausible::coco::CocoTask),
+}
+
+impl std::str::FromStr for EvalTask {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        use plausible::coco::CocoTask;
+        match s.trim().to_ascii_lowercase().replace('_', "-").as_str() {
+            "bbox" | "2d-detection" | "detection-2d" => Ok(EvalTask::Coco(CocoTask::Bbox)),
+            "segm" | "segmentation" | "2d-segmentation" | "segmentation-2d" => Ok(EvalTask::Coco(CocoTask::Segm)),
+            _ => s.parse::<Task>().map(EvalTask::Pose).map_err(|_| {
+                format!("unknown task '{s}' (expected localization or detection for 6D poses, bbox or segm for BOP's 2D tasks)")
+            }),
+        }
+    }
+}
+
 /// Evaluates a results file. With `--trace` its span is the trace's root:
 /// open (dataset, targets, results, device), evaluate (load_models, one
 /// span per image batch, recall), report, write.
 #[tracing::instrument(name = "plausible eval", level = "trace", skip_all)]
 pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
+    let task = match a.task {
+        EvalTask::Coco(t) => return super::eval_coco::run(a, t),
+        EvalTask::Pose(t) => t,
+    };
+    if a.boxes.is_some() {
+        bail!("--boxes is for --task bbox (BOP's 2D detection)");
+    }
     let open = tracing::trace_span!("open").entered();
     let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;
-    let base = match a.task {
+    let base = match task {
         Task::Localization => EvalOptions::for_dataset(name.as_deref()),
         Task::Detection => EvalOptions::detection(name.as_deref()),
     };
-    if a.max_estimates_per_image.is_some() && a.task != Task::Detection {
+    if a.max_estimates_per_image.is_some() && task != Task::Detection {
         bail!("--max-estimates-per-image is for --task detection (localization keeps the top inst_count of each target)");
     }
     let opts = EvalOptions {
@@ -126,7 +164,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
-    let (targets, source) = task_targets(&ds, a.targets.as_deref(), a.task).context("--targets")?;
+    let (targets, source) = task_targets(&ds, a.targets.as_deref(), task).context("--targets")?;
     if let TargetSource::File(f) | TargetSource::ImageList(f) = &source {
         // The dataset's own targets file, found without --targets.
         super::distinct_files(&outputs, &[("the dataset's targets file", Some(f))])?;
@@ -134,7 +172,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     if targets.is_empty() {
         bail!("no targets to evaluate");
     }
-    match (&source, a.task) {
+    match (&source, task) {
         (TargetSource::AllInstances, _) => eprintln!("note: no targets file: every annotated instance is a target"),
         (TargetSource::ImageList(f), Task::Localization) => eprintln!(
             "note: {} names images only (BOP'24 targets): every annotated instance of those images is a localization target (--task detection gives BOP'24's detection AP)",
@@ -150,7 +188,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         (Some(r), _) => read_results(r).context("--results")?,
         (None, Some(out)) => {
             // Detection's ground truth: every instance of the listed images.
-            let gt = match a.task {
+            let gt = match task {
                 Task::Localization => gt_as_results(&ds, &targets, &device, &opts)?,
                 Task::Detection => gt_as_results(&ds, &detection_targets(&ds, &targets)?, &device, &opts)?,
             };

@@ -9,6 +9,7 @@ pub mod check;
 pub mod demo;
 pub mod estimate;
 pub mod eval;
+pub mod eval_coco;
 pub mod hypotheses;
 pub mod machine;
 pub mod plane;
