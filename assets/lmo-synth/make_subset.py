@@ -1,7 +1,8 @@
 """Makes assets/lmo-synth: a 12-frame subset of shared/data/lmo-synth (BOP layout)
-whose BOP'19 targets are 3 objects, with every object's model (BOP'24 detection
-evaluates every annotated object), its BOP'24 image list, a perturbed results
-file for it, and the BOP toolkit's numbers for it.
+whose BOP'19 targets are 3 objects, with every object's model and every
+instance's masks (BOP'24 detection and the 2D tasks evaluate every annotated
+object), its BOP'24 image list, a perturbed results file for it, and the BOP
+toolkit's numbers for it.
 
     python3 assets/lmo-synth/make_subset.py ../shared/data/lmo-synth assets/lmo-synth
 
@@ -30,15 +31,16 @@ for name in ["scene_gt.json", "scene_camera.json", "scene_gt_info.json"]:
     json.dump({str(i): d[str(i)] for i in FRAMES}, open(os.path.join(dst, scene, name), "w"))
 for i in FRAMES:
     shutil.copyfile(os.path.join(src, scene, "depth", "%06d.png" % i), os.path.join(dst, scene, "depth", "%06d.png" % i))
-# The visible masks of the chosen objects' instances (named by the instance's
-# index in scene_gt, which the filtered scene_gt keeps), for `refine`.
-os.makedirs(os.path.join(dst, scene, "mask_visib"), exist_ok=True)
+# The visible and full masks of every instance (named by the instance's index
+# in scene_gt, which the filtered scene_gt keeps), for `refine` and BOP's 2D
+# tasks (whose ground truth is every annotated instance of the images).
 gt = json.load(open(os.path.join(src, scene, "scene_gt.json")))
-for i in FRAMES:
-    for k, inst in enumerate(gt[str(i)]):
-        if inst["obj_id"] in OBJS:
+for kind in ["mask_visib", "mask"]:
+    os.makedirs(os.path.join(dst, scene, kind), exist_ok=True)
+    for i in FRAMES:
+        for k in range(len(gt[str(i)])):
             name = "%06d_%06d.png" % (i, k)
-            shutil.copyfile(os.path.join(src, scene, "mask_visib", name), os.path.join(dst, scene, "mask_visib", name))
+            shutil.copyfile(os.path.join(src, scene, kind, name), os.path.join(dst, scene, kind, name))
 sub = [t for t in targets if t["im_id"] in FRAMES and t["obj_id"] in OBJS]
 with open(os.path.join(dst, "test_targets_bop19.json"), "w") as f:
     f.write("[\n" + ",\n".join("  " + json.dumps(t, sort_keys=True) for t in sub) + "\n]\n")
