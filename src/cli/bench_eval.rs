@@ -1,6 +1,7 @@
 //! `plausible bench eval`: BOP evaluation throughput (estimates/s) for VSD,
 //! MSSD + MSPD, the whole BOP'19 set and BOP'24 detection, GPU and CPU twin
-//! side by side in the same run, on the shipped LM-O frames (or any dataset).
+//! side by side in the same run, on the shipped LM-O frames (or any dataset);
+//! and BOP's 2D tasks (COCO results), which run on the CPU.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -19,6 +20,11 @@ pub struct BenchEvalArgs {
     /// Results file (default: the shipped perturbed estimates).
     #[arg(long)]
     pub results: Option<PathBuf>,
+    /// COCO results for the 2D detection and segmentation rows (default:
+    /// the dataset's coco.json when it has one, as the shipped subset does;
+    /// without one those rows are left out).
+    #[arg(long)]
+    pub coco_results: Option<PathBuf>,
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Timed runs per row (the median is reported).
@@ -120,6 +126,10 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
             });
         }
     }
+    let coco = a.coco_results.clone().or_else(|| Some(root.join("coco.json")).filter(|p| p.is_file()));
+    if let Some(p) = coco {
+        rows.extend(bench_coco(&ds, &p, name.as_deref(), a.repeat)?);
+    }
     if a.json {
         for r in &rows {
             println!("{}", serde_json::to_string(r)?);
@@ -131,9 +141,44 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
         eprintln!("warning: {} holds no estimate of the dataset's targets: nothing was evaluated", results_path.display());
     }
     println!("{} ({} images; wall clock, median of {})", root.display(), rows[0].images, a.repeat);
-    println!("{:<24} {:<44} {:>9} {:>12} {:>9} {:>9}", "errors", "device", "estimates", "estimates/s", "wall s", "render s");
+    println!("{:<24} {:<44} {:>9} {:>12} {:>9} {:>9}", "task (errors)", "device", "estimates", "estimates/s", "wall s", "render s");
     for r in &rows {
         println!("{:<24} {:<44} {:>9} {:>12.0} {:>9.3} {:>9.3}", r.what, r.device, r.estimates, r.estimates_per_s, r.wall_s, r.render_s);
     }
     Ok(())
+}
+
+/// BOP's 2D tasks (masks, then amodal boxes) on the CPU, where they run:
+/// results read, ground truth built from the masks, COCOeval.
+fn bench_coco(ds: &Dataset, path: &std::path::Path, name: Option<&str>, repeat: usize) -> Result<Vec<EvalBenchRow>> {
+    use plausible::coco::{evaluate, results::read_coco_results, target_images, BoxKind, CocoOptions, CocoTask};
+    let results = read_coco_results(path).context("--coco-results")?;
+    let (images, _) = target_images(ds, None)?;
+    let cats = name.and_then(plausible::eval::bop_obj_ids);
+    let mut rows = Vec::new();
+    for (what, task) in [("2d segmentation (segm)", CocoTask::Segm), ("2d detection (bbox)", CocoTask::Bbox)] {
+        let opts = CocoOptions { task, boxes: BoxKind::Amodal };
+        let run = || evaluate(ds, &results, &images, cats.as_deref(), opts, &mut |_| Ok(()));
+        run()?;
+        let mut runs = Vec::new();
+        for _ in 0..repeat {
+            let t = Instant::now();
+            let r = run()?;
+            runs.push((t.elapsed().as_secs_f64(), r));
+        }
+        runs.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let (wall, r) = runs.swap_remove(runs.len() / 2);
+        rows.push(EvalBenchRow {
+            what: what.to_string(),
+            device: format!("CPU ({} threads)", rayon::current_num_threads()),
+            estimates: r.n_used,
+            images: r.n_images,
+            estimates_per_s: r.n_used as f64 / wall,
+            wall_s: wall,
+            render_s: 0.0,
+            ar: Some(r.ap()),
+            machine: super::machine::Machine::detect(None),
+        });
+    }
+    Ok(rows)
 }
