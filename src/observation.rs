@@ -287,7 +287,7 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     }
     let (mw, mh) = png_size(path)?;
     if (mw, mh) != (width, height) {
-        return Err(bad(format!("mask is {mw}x{mh} but the depth image is {width}x{height}")));
+        return Err(bad(format!("mask is {mw}x{mh} but the image is {width}x{height}")));
     }
     let img = image::open(path).map_err(|e| bad(e.to_string()))?;
     // A 16-bit or float PNG is a depth image, not a mask (BOP masks are
@@ -305,7 +305,7 @@ pub fn read_mask_png(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> 
     let img = img.to_rgb8();
     if img.dimensions() != (width, height) {
         return Err(bad(format!(
-            "mask is {}x{} but the depth image is {width}x{height}",
+            "mask is {}x{} but the image is {width}x{height}",
             img.width(),
             img.height()
         )));

@@ -736,9 +736,12 @@ fn bad_coco_results_are_clear_errors() {
         (one(r#""segmentation": {"counts": "5 2", "size": [480, 640]}"#), "alphabet"),
         (one(r#""segmentation": {"counts": [1, 2], "size": [480, 640]}"#), "sum to 3"),
         (r#"[{"scene_id": 2, "image_id": 3, "category_id": 1, "score": 0.5, "bbox": [1, 2, 3]}]"#.to_string(), "4 ([x, y, width, height])"),
-        (r#"[{"scene_id": "2", "image_id": 3, "category_id": 1, "score": 0.5}]"#.to_string(), "not a list of BOP COCO results"),
-        (r#"[{"scene_id": 2, "image_id": 3, "category_id": 1}]"#.to_string(), "score"),
-        ("{}".to_string(), "not a list"),
+        (r#"[{"scene_id": 2, "image_id": 3, "category_id": 1, "score": 0.5}, {"scene_id": "2", "image_id": 3, "category_id": 1, "score": 0.5}]"#.to_string(), "result 1: invalid type: string"),
+        (r#"[{"scene_id": 2, "image_id": 3, "category_id": 1}]"#.to_string(), "missing field `score`"),
+        (r#"[[2, 3, 1, 0.5, [1, 2, 3, 4]]]"#.to_string(), "expected a result object"),
+        (one(r#""segmentation": {"counts": [1, -2], "size": [480, 640]}"#), "run length 1 is not a whole number"),
+        (one(r#""segmentation": {"counts": "52203", "size": [4, 4, 1]}"#), "size has 3 entries"),
+        ("{}".to_string(), "not a JSON list"),
     ];
     for (text, want) in cases {
         let path = dir.path().join("r.json");
@@ -762,4 +765,37 @@ fn bad_coco_results_are_clear_errors() {
     assert!(err_of(e).contains("has no bbox"));
     // Not .json: refused by name.
     assert!(err_of(read_coco_results(&assets().join("perturbed.csv"))).contains(".json"));
+}
+
+#[test]
+fn coco_results_read_gzipped_in_several_members_and_boxes_ignore_the_masks() {
+    use std::io::Write;
+    let ds = dataset();
+    let (images, _) = target_images(&ds, None).unwrap();
+    let text = std::fs::read(assets().join("coco.json")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    // Two gzip members splitting the text, as Python's gzip reads them.
+    let gz = dir.path().join("coco.json.gz");
+    let mut f = std::fs::File::create(&gz).unwrap();
+    for part in [&text[..text.len() / 2], &text[text.len() / 2..]] {
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        e.write_all(part).unwrap();
+        f.write_all(&e.finish().unwrap()).unwrap();
+    }
+    drop(f);
+    let eval = |path: &Path, task| {
+        let r = read_coco_results(path).unwrap();
+        coco::evaluate(&ds, &r, &images, None, CocoOptions { task, boxes: BoxKind::Amodal }, &mut |_| Ok(())).unwrap()
+    };
+    let plain = eval(&assets().join("coco.json"), CocoTask::Segm);
+    assert_eq!(eval(&gz, CocoTask::Segm).scores, plain.scores);
+    // A box evaluation does not look at the masks: a polygon there is no
+    // error (the toolkit checks masks only for segm); every result of an
+    // unscored object gives AP 0, not the -1 of "no results".
+    let poly = dir.path().join("poly.json");
+    std::fs::write(&poly, r#"[{"scene_id": 2, "image_id": 3, "category_id": 99, "score": 0.5, "bbox": [1, 2, 3, 4], "segmentation": [[1, 2, 3, 4, 5, 6]], "time": 0.25}]"#).unwrap();
+    let r = eval(&poly, CocoTask::Bbox);
+    assert_eq!((r.scores["AP"], r.scores["AR100"], r.scores["average_time_per_image"]), (0.0, 0.0, 0.25));
+    assert_eq!((r.n_used, r.n_ignored), (0, 1));
+    assert!(err_of(read_coco_results(&poly).and_then(|r| coco::evaluate(&ds, &r, &images, None, CocoOptions { task: CocoTask::Segm, boxes: BoxKind::Amodal }, &mut |_| Ok(())))).contains("polygons"));
 }

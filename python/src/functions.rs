@@ -252,14 +252,7 @@ pub fn evaluate<'py>(
         let (report, recs) = evaluate(&ds, &results, &targets, &device, &opts, &mut |_| stop.check())?;
         Ok((report, recs, source))
     })?;
-    let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;
-    // What was evaluated, as `plausible eval --out` writes it.
-    v["dataset"] = serde_json::json!(dataset.display().to_string());
-    v["results"] = serde_json::json!(results.display().to_string());
-    v["targets"] = serde_json::json!(match source {
-        plausible::bop::TargetSource::File(f) | plausible::bop::TargetSource::ImageList(f) => f.display().to_string(),
-        plausible::bop::TargetSource::AllInstances => "all annotated instances".into(),
-    });
+    let mut v = with_inputs(serde_json::to_value(&report), &dataset, &results, source, "all annotated instances")?;
     if records {
         v["records"] = serde_json::to_value(&recs).map_err(|e| value_error(e.to_string()))?;
     }
@@ -290,14 +283,26 @@ fn evaluate_coco<'py>(
         let report = evaluate(&ds, &r, &images, cats.as_deref(), opts, &mut |_| stop.check())?;
         Ok((report, source))
     })?;
-    let mut v = serde_json::to_value(&report).map_err(|e| value_error(e.to_string()))?;
+    json_to_py(py, &with_inputs(serde_json::to_value(&report), dataset, results, source, "all annotated images")?)
+}
+
+/// A report as JSON with what was evaluated, as `plausible eval --out`
+/// writes it.
+fn with_inputs(
+    report: serde_json::Result<serde_json::Value>,
+    dataset: &std::path::Path,
+    results: &std::path::Path,
+    source: plausible::bop::TargetSource,
+    all: &str,
+) -> PyResult<serde_json::Value> {
+    let mut v = report.map_err(|e| value_error(e.to_string()))?;
     v["dataset"] = serde_json::json!(dataset.display().to_string());
     v["results"] = serde_json::json!(results.display().to_string());
     v["targets"] = serde_json::json!(match source {
         plausible::bop::TargetSource::File(f) | plausible::bop::TargetSource::ImageList(f) => f.display().to_string(),
-        plausible::bop::TargetSource::AllInstances => "all annotated images".into(),
+        plausible::bop::TargetSource::AllInstances => all.to_string(),
     });
-    json_to_py(py, &v)
+    Ok(v)
 }
 
 /// The devices this machine offers: the adapter `gpu` would use (or why

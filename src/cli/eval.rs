@@ -24,7 +24,8 @@ pub struct EvalArgs {
     /// xyzibd, 3dlong for itoddmv).
     #[arg(long)]
     pub sensor: Option<String>,
-    /// Results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in mm).
+    /// Results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in
+    /// mm); for --task bbox|segm a COCO results JSON (.json, .json.gz).
     #[arg(long, required_unless_present = "gt_as_results")]
     pub results: Option<PathBuf>,
     /// Targets file (default: test_targets_bop19.json in the dataset, for
@@ -120,6 +121,9 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     };
     if a.boxes.is_some() {
         bail!("--boxes is for --task bbox (BOP's 2D detection)");
+    }
+    if let Some(r) = a.results.as_deref().filter(|r| r.to_string_lossy().ends_with(".json") || r.to_string_lossy().ends_with(".json.gz")) {
+        bail!("--results {}: a JSON file holds COCO results of BOP's 2D tasks: give --task bbox or --task segm (the 6D pose tasks read a CSV)", r.display());
     }
     let open = tracing::trace_span!("open").entered();
     let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;

@@ -18,6 +18,7 @@ fn refuse_pose_flags(a: &EvalArgs, task: CocoTask) -> Result<()> {
         ("--errors-out", a.errors_out.is_some()),
         ("--gt-as-results", a.gt_as_results.is_some()),
         ("--add-threshold", a.add_threshold != 0.1),
+        ("--batch-images", a.batch_images != 100),
     ];
     if let Some((flag, _)) = given.iter().find(|(_, g)| *g) {
         bail!("{flag} is for the 6D pose tasks (localization, detection), not --task {}", task.name());
@@ -32,6 +33,9 @@ fn refuse_pose_flags(a: &EvalArgs, task: CocoTask) -> Result<()> {
 #[tracing::instrument(name = "plausible eval (2D)", level = "trace", skip_all)]
 pub fn run(a: EvalArgs, task: CocoTask) -> Result<()> {
     refuse_pose_flags(&a, task)?;
+    if a.dev.device != "auto" || a.dev.adapter.is_some() {
+        eprintln!("note: BOP's 2D tasks render nothing and run on the CPU: --device and --adapter are not used");
+    }
     let opts = CocoOptions { task, boxes: a.boxes.unwrap_or_default() };
     let Some(results_path) = a.results.as_deref() else { bail!("give --results: a COCO results JSON") };
     let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;
@@ -102,8 +106,11 @@ pub fn print_report(r: &CocoReport) {
         "evaluated {} of {} results ({what}) against {} instances in {} images in {:.2} s; ground truth from {}",
         r.n_used, r.n_results, r.n_instances, r.n_images, r.time_s, r.ground_truth
     );
-    if r.n_ignored > 0 || r.n_without_region > 0 {
-        println!("ignored {} results of other images or unscored objects, {} without the task's region", r.n_ignored, r.n_without_region);
+    if r.n_ignored > 0 || r.n_without_region > 0 || r.n_over_cap > 0 {
+        println!(
+            "ignored {} results of other images or unscored objects, {} without the task's region, {} beyond the 100 best of their image and object",
+            r.n_ignored, r.n_without_region, r.n_over_cap
+        );
     }
     println!("{:>5} {:>9} {:>8} {:>10} {:>7}", "obj", "instances", "ignored", "detections", "AP");
     for (o, s) in &r.per_object {

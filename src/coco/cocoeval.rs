@@ -81,22 +81,34 @@ fn by_falling_score(dt: &[DtRegion]) -> Vec<usize> {
     order
 }
 
-fn evaluate_image(g: &Group, range: (f64, f64), thresholds: &[f64]) -> ImageEval {
-    let max_det = MAX_DETS[MAX_DETS.len() - 1];
+/// A group's kept detections (highest score first, stable, at most 100)
+/// and their IoUs with its ground truth in file order (`computeIoU`),
+/// computed once for every area range.
+struct Scored {
+    dt_order: Vec<usize>,
+    ious: Vec<Vec<f64>>,
+}
+
+fn score_group(g: &Group) -> Scored {
+    let dt_order: Vec<usize> = by_falling_score(&g.dt).into_iter().take(MAX_DETS[MAX_DETS.len() - 1]).collect();
+    let ious = dt_order.iter().map(|&d| (0..g.gt.len()).map(|gi| (g.iou)(d, gi)).collect()).collect();
+    Scored { dt_order, ious }
+}
+
+fn evaluate_image(g: &Group, scored: &Scored, range: (f64, f64), thresholds: &[f64]) -> ImageEval {
     let outside = |a: f64| a < range.0 || a > range.1;
     let gt_ignore: Vec<bool> = g.gt.iter().map(|r| r.ignore || outside(r.area)).collect();
     // Ground truth: ignored last, stably; detections: highest score first.
     let mut gt_order: Vec<usize> = (0..g.gt.len()).collect();
     gt_order.sort_by_key(|&i| gt_ignore[i]);
-    let dt_order: Vec<usize> = by_falling_score(&g.dt).into_iter().take(max_det).collect();
+    let dt_order = &scored.dt_order;
     let t_n = thresholds.len();
     let mut gt_match = vec![vec![false; gt_order.len()]; t_n];
     let mut dt_gt: Vec<Vec<Option<usize>>> = vec![vec![None; dt_order.len()]; t_n];
     let mut ignored = vec![vec![false; dt_order.len()]; t_n];
     if !gt_order.is_empty() && !dt_order.is_empty() {
-        let ious: Vec<Vec<f64>> = dt_order.iter().map(|&d| gt_order.iter().map(|&gi| (g.iou)(d, gi)).collect()).collect();
         for (t, &thr) in thresholds.iter().enumerate() {
-            for (di, row) in ious.iter().enumerate() {
+            for (di, row) in scored.ious.iter().enumerate() {
                 let mut best = thr.min(1.0 - 1e-10);
                 let mut m: Option<usize> = None;
                 for (gi, &gt_index) in gt_order.iter().enumerate() {
@@ -109,10 +121,10 @@ fn evaluate_image(g: &Group, range: (f64, f64), thresholds: &[f64]) -> ImageEval
                             break;
                         }
                     }
-                    if row[gi] < best {
+                    if row[gt_index] < best {
                         continue;
                     }
-                    best = row[gi];
+                    best = row[gt_index];
                     m = Some(gi);
                 }
                 if let Some(mi) = m {
@@ -228,8 +240,9 @@ pub fn summarize(groups: &[Group], categories: &[u32]) -> Summary {
     let mut recall = vec![-1.0; t_n * k_n * a_n * m_n];
     let p_at = |t: usize, r: usize, k: usize, a: usize, m: usize| (((t * r_n + r) * k_n + k) * a_n + a) * m_n + m;
     let r_at = |t: usize, k: usize, a: usize, m: usize| ((t * k_n + k) * a_n + a) * m_n + m;
+    let scored: Vec<Scored> = groups.par_iter().map(score_group).collect();
     for (a, &range) in AREA_RANGES.iter().enumerate() {
-        let evals: Vec<ImageEval> = groups.par_iter().map(|g| evaluate_image(g, range, &thr)).collect();
+        let evals: Vec<ImageEval> = groups.par_iter().zip(&scored).map(|(g, sc)| evaluate_image(g, sc, range, &thr)).collect();
         for (k, &cat) in categories.iter().enumerate() {
             let mut mine: Vec<&ImageEval> = groups.iter().zip(&evals).filter(|(g, _)| g.category == cat).map(|(_, e)| e).collect();
             mine.sort_by_key(|e| e.image);

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::Deserialize;
 
 use super::rle::Rle;
-use super::results::Segmentation;
+use super::results::MaybeSegm;
 use super::BoxKind;
 use crate::bop::Scene;
 use crate::error::{Error, Result};
@@ -47,8 +47,11 @@ pub struct GtImage {
 /// Where a scene's ground truth came from.
 #[derive(Clone, Debug, PartialEq)]
 pub enum GtSource {
-    File(PathBuf),
-    Masks,
+    /// The file, with the category ids it lists (COCOeval scores those).
+    File { path: PathBuf, categories: Option<Vec<u32>> },
+    /// The masks; `full`: boxes (and the check for empty silhouettes) from
+    /// the full masks (`mask/`) too.
+    Masks { full: bool },
 }
 
 /// The scene's COCO ground-truth file for these boxes.
@@ -64,9 +67,11 @@ pub fn gt_file(scene: &Scene, boxes: BoxKind) -> PathBuf {
 pub fn scene_gt(scene: &Scene, images: &BTreeSet<u32>, boxes: BoxKind, masks: bool) -> Result<(Vec<GtImage>, GtSource)> {
     let file = gt_file(scene, boxes);
     if file.is_file() {
-        return Ok((from_file(&file, images, masks)?, GtSource::File(file)));
+        let (gt, categories) = from_file(&file, images, masks)?;
+        return Ok((gt, GtSource::File { path: file, categories }));
     }
-    Ok((from_masks(scene, images, boxes, masks)?, GtSource::Masks))
+    let full = boxes == BoxKind::Amodal && (!masks || scene.mask_dir().is_dir());
+    Ok((from_masks(scene, images, full, masks)?, GtSource::Masks { full }))
 }
 
 #[derive(Deserialize)]
@@ -88,13 +93,20 @@ struct FileAnn {
     area: f64,
     bbox: [f64; 4],
     #[serde(default)]
-    segmentation: Option<serde_json::Value>,
+    segmentation: MaybeSegm,
+}
+
+#[derive(Deserialize)]
+struct FileCategory {
+    id: u32,
 }
 
 #[derive(Deserialize)]
 struct FileGt {
     images: Vec<FileImage>,
     annotations: Vec<FileAnn>,
+    #[serde(default)]
+    categories: Option<Vec<FileCategory>>,
 }
 
 /// Python truthiness of a JSON flag (absent, false, 0 and null are false).
@@ -109,7 +121,7 @@ fn truthy(v: &serde_json::Value) -> bool {
     }
 }
 
-fn from_file(path: &Path, images: &BTreeSet<u32>, masks: bool) -> Result<Vec<GtImage>> {
+fn from_file(path: &Path, images: &BTreeSet<u32>, masks: bool) -> Result<(Vec<GtImage>, Option<Vec<u32>>)> {
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let f: FileGt = serde_json::from_str(&text).map_err(|e| bad(format!("not a COCO annotation file: {e}")))?;
@@ -129,10 +141,8 @@ fn from_file(path: &Path, images: &BTreeSet<u32>, masks: bool) -> Result<Vec<GtI
             return Err(bad(format!("annotation {n}: id {} is used twice (pycocotools would keep only the last)", a.id)));
         }
         let img = &out[slot];
-        let mask = match (&a.segmentation, masks) {
-            (Some(v), true) => {
-                let s: Segmentation = serde_json::from_value(v.clone())
-                    .map_err(|e| bad(format!("annotation {n}: segmentation is not RLE (polygons are not read): {e}")))?;
+        let mask = match (&a.segmentation.0, masks) {
+            (Some(s), true) => {
                 let r = s.decode().map_err(|e| bad(format!("annotation {n}: {e}")))?;
                 if (r.h, r.w) != (img.height, img.width) {
                     return Err(bad(format!("annotation {n}: mask is {}x{} but image {} is {}x{}", r.w, r.h, img.im_id, img.width, img.height)));
@@ -155,7 +165,7 @@ fn from_file(path: &Path, images: &BTreeSet<u32>, masks: bool) -> Result<Vec<GtI
             mask,
         });
     }
-    Ok(out)
+    Ok((out, f.categories.map(|c| c.into_iter().map(|c| c.id).collect())))
 }
 
 /// `[x, y, w, h]` of the set pixels of a row-major mask, `None` when empty.
@@ -172,12 +182,12 @@ fn mask_box(mask: &[bool], w: u32) -> Option<[f64; 4]> {
     (x0 != usize::MAX).then(|| [x0 as f64, y0 as f64, (x1 - x0 + 1) as f64, (y1 - y0 + 1) as f64])
 }
 
-fn from_masks(scene: &Scene, images: &BTreeSet<u32>, boxes: BoxKind, masks: bool) -> Result<Vec<GtImage>> {
+/// `read_full`: amodal boxes from the full masks, and instances whose full
+/// mask is empty left out (the toolkit does this for masks alone too,
+/// where it has the full masks).
+fn from_masks(scene: &Scene, images: &BTreeSet<u32>, read_full: bool, masks: bool) -> Result<Vec<GtImage>> {
     let info = scene.gt_info.as_ref().ok_or_else(|| Error::NotFound { path: scene.file("scene_gt_info") })?;
     let full_dir = scene.mask_dir();
-    // Amodal boxes come from the full masks; for masks alone the toolkit
-    // still skips instances whose full mask is empty, when it has them.
-    let read_full = boxes == BoxKind::Amodal && (!masks || full_dir.is_dir());
     let per_image: Vec<Result<GtImage>> = images
         .par_iter()
         .map(|&im| {

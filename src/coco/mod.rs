@@ -25,7 +25,8 @@ use crate::error::{Error, Result};
 use crate::metrics::pose_error::np_mean;
 use cocoeval::{DtRegion, Group, GtRegion, Summary, STAT_NAMES};
 use gt::{GtImage, GtSource};
-use results::CocoResult;
+use rayon::prelude::*;
+use results::{CocoResult, SegmField};
 use rle::{bbox_iou, mask_iou, Rle};
 
 /// What is compared: boxes (2D detection) or masks (2D segmentation).
@@ -107,6 +108,9 @@ pub struct CocoReport {
     pub n_ignored: usize,
     /// Results without the task's region (no bbox / no segmentation).
     pub n_without_region: usize,
+    /// Results beyond the 100 highest-scored of their image and object
+    /// (COCO's cap): they cannot count.
+    pub n_over_cap: usize,
     pub n_images: usize,
     pub n_instances: usize,
     /// Where the ground truth came from: the dataset's files, or the masks.
@@ -212,62 +216,27 @@ pub fn evaluate(
             None => scenes.push((s, BTreeSet::from([im]))),
         }
     }
-    let masks = opts.task == CocoTask::Segm;
-    let mut gt_images: Vec<GtImage> = Vec::new();
-    let mut position: BTreeMap<(u32, u32), usize> = BTreeMap::new();
-    let mut sources = BTreeSet::new();
-    let mut next_id = 1;
-    for (s, ims) in &scenes {
-        let scene = ds.scene(*s)?;
-        // A scene's file is read at once; masks a few images at a time, for
-        // the progress bar and for stopping.
-        let parts: Vec<BTreeSet<u32>> = if gt::gt_file(&scene, opts.boxes).is_file() {
-            vec![ims.clone()]
-        } else {
-            ims.iter().copied().collect::<Vec<_>>().chunks(16).map(|c| c.iter().copied().collect()).collect()
-        };
-        for part in parts {
-            let (g, source) = gt::scene_gt(&scene, &part, opts.boxes, masks)?;
-            let from_masks = source == GtSource::Masks;
-            sources.insert(match source {
-                GtSource::File(f) => f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default() + " files",
-                GtSource::Masks => format!("the masks (mask_visib{})", if opts.boxes == BoxKind::Amodal { ", mask" } else { "" }),
-            });
-            for mut im in g {
-                if from_masks {
-                    // Numbered across the scene's parts, as one call would.
-                    for a in &mut im.anns {
-                        a.id = next_id;
-                        next_id += 1;
-                    }
-                }
-                position.insert((*s, im.im_id), gt_images.len());
-                gt_images.push(im);
-            }
-            progress(gt_images.len())?;
-        }
-    }
-    let cats: BTreeSet<u32> = match categories {
-        Some(c) => c.iter().copied().collect(),
-        None => ds.models_info.keys().copied().chain(gt_images.iter().flat_map(|g| g.anns.iter().map(|a| a.category_id))).collect(),
-    };
-    let (dets, counts) = detections(results, &position, &gt_images, &cats, opts)?;
-    let (n_used, n_ignored, n_without_region) = counts;
+    let gt = load_ground_truth(ds, &scenes, opts, progress, &mut warnings)?;
+    let cats = scored_objects(ds, categories, &gt);
+    let (gt_images, position) = (&gt.images, &gt.position);
+    let scene_rank: BTreeMap<u32, usize> = scenes.iter().enumerate().map(|(i, (s, _))| (*s, i)).collect();
+    let found = detections(results, &scene_rank, position, gt_images, &cats, opts)?;
+    let dets = &found.list;
     let mut per_object: BTreeMap<u32, ObjectAp> = BTreeMap::new();
     for a in gt_images.iter().flat_map(|g| &g.anns).filter(|a| cats.contains(&a.category_id)) {
         let o = per_object.entry(a.category_id).or_default();
         o.instances += 1;
         o.ignored += usize::from(a.ignore);
     }
-    for d in &dets {
+    for d in dets {
         per_object.entry(d.category).or_default().detections += 1;
     }
     let cat_list: Vec<u32> = cats.iter().copied().collect();
-    let summary = if dets.is_empty() {
-        warnings.push("no result of a target image and scored object holds the task's region: every score is -1, as the toolkit gives".into());
+    let summary = if !found.any {
+        warnings.push("no result of a target image holds the task's region: every score is -1, as the toolkit gives".into());
         Summary { stats: [-1.0; 12], per_category: Vec::new() }
     } else {
-        cocoeval::summarize(&groups(&gt_images, &dets, &cats, opts.task), &cat_list)
+        cocoeval::summarize(&groups(gt_images, dets, &cats, opts.task), &cat_list)
     };
     for (c, ap) in &summary.per_category {
         if let Some(o) = per_object.get_mut(c) {
@@ -275,83 +244,201 @@ pub fn evaluate(
         }
     }
     let mut scores: BTreeMap<String, f64> = STAT_NAMES.iter().zip(summary.stats).map(|(k, v)| (k.to_string(), v)).collect();
-    scores.insert("average_time_per_image".into(), if dets.is_empty() { -1.0 } else { avg_time });
+    scores.insert("average_time_per_image".into(), if found.any { avg_time } else { -1.0 });
     Ok(CocoReport {
         task: opts.task,
         boxes: opts.boxes,
         scores,
         per_object,
         n_results: results.len(),
-        n_used,
-        n_ignored,
-        n_without_region,
+        n_used: dets.len(),
+        n_ignored: found.ignored,
+        n_without_region: found.without_region,
+        n_over_cap: found.over_cap,
         n_images: gt_images.len(),
         n_instances: gt_images.iter().flat_map(|g| &g.anns).filter(|a| cats.contains(&a.category_id)).count(),
-        ground_truth: sources.into_iter().collect::<Vec<_>>().join(", "),
+        ground_truth: gt.sources.iter().cloned().collect::<Vec<_>>().join(", "),
         warnings,
         time_s: start.elapsed().as_secs_f64(),
     })
 }
 
+/// The target images' ground truth, in the toolkit's merged image order.
+struct GroundTruth {
+    images: Vec<GtImage>,
+    /// (scene, image) → index in `images`.
+    position: BTreeMap<(u32, u32), usize>,
+    /// Where it came from, for the report.
+    sources: BTreeSet<String>,
+    /// Categories listed by ground-truth files: COCOeval scores those.
+    file_categories: Option<BTreeSet<u32>>,
+    /// Whether some scene's was built from the masks.
+    any_masks: bool,
+}
+
+/// Reads or builds each scene's ground truth: a scene's file at once,
+/// masks a few images at a time (for the progress bar and for stopping).
+fn load_ground_truth(
+    ds: &Dataset,
+    scenes: &[(u32, BTreeSet<u32>)],
+    opts: CocoOptions,
+    progress: &mut dyn FnMut(usize) -> Result<()>,
+    warnings: &mut Vec<String>,
+) -> Result<GroundTruth> {
+    let mut gt = GroundTruth { images: Vec::new(), position: BTreeMap::new(), sources: BTreeSet::new(), file_categories: None, any_masks: false };
+    let mut next_id = 1;
+    for (s, ims) in scenes {
+        let scene = ds.scene(*s)?;
+        let parts: Vec<BTreeSet<u32>> = if gt::gt_file(&scene, opts.boxes).is_file() {
+            vec![ims.clone()]
+        } else {
+            ims.iter().copied().collect::<Vec<_>>().chunks(16).map(|c| c.iter().copied().collect()).collect()
+        };
+        for part in parts {
+            let (images, source) = gt::scene_gt(&scene, &part, opts.boxes, opts.task == CocoTask::Segm)?;
+            let from_masks = matches!(source, GtSource::Masks { .. });
+            let label = match source {
+                GtSource::File { path, categories } => {
+                    if categories.as_ref().is_none_or(|c| c.is_empty()) {
+                        warnings.push(format!("{} lists no categories: COCOeval scores none of its objects", path.display()));
+                    }
+                    gt.file_categories.get_or_insert_with(BTreeSet::new).extend(categories.unwrap_or_default());
+                    path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default() + " files"
+                }
+                GtSource::Masks { full } => {
+                    gt.any_masks = true;
+                    format!("the masks (mask_visib{})", if full { ", mask" } else { "" })
+                }
+            };
+            gt.sources.insert(label);
+            for mut im in images {
+                if from_masks {
+                    // Numbered across the scene's parts, as one call would.
+                    for a in &mut im.anns {
+                        a.id = next_id;
+                        next_id += 1;
+                    }
+                }
+                gt.position.insert((*s, im.im_id), gt.images.len());
+                gt.images.push(im);
+            }
+            progress(gt.images.len())?;
+        }
+    }
+    Ok(gt)
+}
+
+/// The objects scored: those the ground-truth files list (what COCOeval
+/// scores in the toolkit), and for scenes built from the masks the
+/// dataset's (`categories`, its toolkit list when named, else every object
+/// of models_info.json and of the ground truth).
+fn scored_objects(ds: &Dataset, categories: Option<&[u32]>, gt: &GroundTruth) -> BTreeSet<u32> {
+    let dataset = || -> BTreeSet<u32> {
+        match categories {
+            Some(c) => c.iter().copied().collect(),
+            None => ds.models_info.keys().copied().chain(gt.images.iter().flat_map(|g| g.anns.iter().map(|a| a.category_id))).collect(),
+        }
+    };
+    match (&gt.file_categories, gt.any_masks) {
+        (Some(fc), false) => fc.clone(),
+        (Some(fc), true) => dataset().into_iter().chain(fc.iter().copied()).collect(),
+        (None, _) => dataset(),
+    }
+}
+
+/// The results of a COCO evaluation, sorted out.
+struct Detections {
+    /// Of scored objects, with regions decoded and areas set.
+    list: Vec<Detection>,
+    /// Whether any result of a target image has the task's region (of any
+    /// object): without one pycocotools' `loadRes` fails and the toolkit
+    /// reports −1 everywhere; with some, none of them scored, AP is 0.
+    any: bool,
+    /// Results of other images, or of objects the dataset does not score.
+    ignored: usize,
+    /// Results without the task's region.
+    without_region: usize,
+    /// Beyond the 100 best of their image and object.
+    over_cap: usize,
+}
+
 /// The results evaluated, in the toolkit's merged order (scenes in target
 /// order, file order within a scene), with their regions decoded and their
 /// areas as pycocotools' `loadRes` sets them: the box's w·h when the first
-/// result has a box, else the mask's pixel count. Also (used, ignored,
-/// without region).
+/// merged result (of any object) has a box, else the mask's pixel count.
 fn detections(
     results: &[CocoResult],
+    scene_rank: &BTreeMap<u32, usize>,
     position: &BTreeMap<(u32, u32), usize>,
     gt_images: &[GtImage],
     cats: &BTreeSet<u32>,
     opts: CocoOptions,
-) -> Result<(Vec<Detection>, (usize, usize, usize))> {
+) -> Result<Detections> {
     let has_region = |r: &CocoResult| match opts.task {
         CocoTask::Bbox => r.bbox.is_some(),
         CocoTask::Segm => r.segmentation.is_some(),
     };
     let without_region = results.iter().filter(|r| !has_region(r)).count();
-    // Stable sort by the scene's rank among the targets keeps file order
-    // within a scene.
-    let mut rank: BTreeMap<u32, usize> = BTreeMap::new();
-    for &(s, _) in position.keys() {
-        let n = rank.len();
-        rank.entry(s).or_insert(n);
-    }
-    let mut used: Vec<(usize, &CocoResult)> = results
-        .iter()
-        .enumerate()
-        .filter(|(_, r)| has_region(r) && position.contains_key(&(r.scene_id, r.image_id)) && cats.contains(&r.category_id))
-        .collect();
-    used.sort_by_key(|(_, r)| rank[&r.scene_id]);
-    let ignored = results.len() - without_region - used.len();
-    let box_area = used.first().is_some_and(|(_, r)| r.bbox.is_some());
+    let mut merged: Vec<(usize, &CocoResult)> =
+        results.iter().enumerate().filter(|(_, r)| has_region(r) && position.contains_key(&(r.scene_id, r.image_id))).collect();
+    // Stable: file order within a scene.
+    merged.sort_by_key(|(_, r)| scene_rank[&r.scene_id]);
     let bad = |i: usize, reason: String| Error::InvalidInput(format!("result {i} (scene {}, image {}): {reason}", results[i].scene_id, results[i].image_id));
-    let mut out = Vec::with_capacity(used.len());
-    for (i, r) in used {
-        let image = position[&(r.scene_id, r.image_id)];
-        let g = &gt_images[image];
-        let mask = match (&r.segmentation, opts.task) {
-            (Some(s), CocoTask::Segm) => {
-                let m = s.decode().map_err(|e| bad(i, format!("segmentation: {e}")))?;
-                if (m.h, m.w) != (g.height, g.width) {
-                    return Err(bad(i, format!("mask size is {}x{} (width x height) but the image is {}x{}", m.w, m.h, g.width, g.height)));
-                }
-                Some(m)
-            }
-            _ => None,
-        };
-        let area = match (box_area, r.bbox, &mask) {
-            (true, Some(b), _) => b[2] * b[3],
-            (true, None, _) => {
-                return Err(bad(i, "has no bbox while the first result has one (pycocotools takes every area from the boxes then, and stops here)".into()))
-            }
-            (false, _, Some(m)) => m.area() as f64,
-            (false, _, None) => unreachable!("a result without a box has a mask here"),
-        };
-        out.push(Detection { image, category: r.category_id, score: r.score, area, bbox: r.bbox.unwrap_or_default(), mask });
+    if opts.task == CocoTask::Segm {
+        // The toolkit checks every result's mask before anything else.
+        if let Some((i, Some(SegmField::Bad(why)))) = results.iter().enumerate().map(|(i, r)| (i, &r.segmentation)).find(|(_, s)| matches!(s, Some(SegmField::Bad(_)))) {
+            return Err(bad(i, why.clone()));
+        }
     }
-    let n = out.len();
-    Ok((out, (n, ignored, without_region)))
+    let box_area = merged.first().is_some_and(|(_, r)| r.bbox.is_some());
+    if let Some((i, _)) = merged.iter().find(|(_, r)| box_area && r.bbox.is_none()) {
+        return Err(bad(*i, "has no bbox while the first result has one (pycocotools takes every area from the boxes then, and stops here)".into()));
+    }
+    // Per image and object COCOeval keeps the 100 highest-scored (stably);
+    // the rest cannot count, so their masks are not even decoded.
+    let mut by_group: BTreeMap<(usize, u32), Vec<(usize, &CocoResult)>> = BTreeMap::new();
+    for &(i, r) in merged.iter().filter(|(_, r)| cats.contains(&r.category_id)) {
+        by_group.entry((position[&(r.scene_id, r.image_id)], r.category_id)).or_default().push((i, r));
+    }
+    let cap = cocoeval::MAX_DETS[cocoeval::MAX_DETS.len() - 1];
+    let mut kept: Vec<(usize, usize, &CocoResult)> = Vec::new();
+    let mut over_cap = 0;
+    for ((image, _), mut rs) in by_group {
+        if rs.len() > cap {
+            let mut order: Vec<usize> = (0..rs.len()).collect();
+            order.sort_by(|&a, &b| rs[b].1.score.partial_cmp(&rs[a].1.score).unwrap_or(std::cmp::Ordering::Equal));
+            let mut keep = vec![false; rs.len()];
+            order.iter().take(cap).for_each(|&k| keep[k] = true);
+            over_cap += rs.len() - cap;
+            rs = rs.into_iter().zip(keep).filter(|(_, k)| *k).map(|(r, _)| r).collect();
+        }
+        kept.extend(rs.into_iter().map(|(i, r)| (i, image, r)));
+    }
+    kept.sort_by_key(|&(i, ..)| i);
+    let list = kept
+        .par_iter()
+        .map(|&(i, image, r)| {
+            let g = &gt_images[image];
+            let mask = match (&r.segmentation, opts.task) {
+                (Some(s), CocoTask::Segm) => {
+                    let m = s.decode().map_err(|e| bad(i, format!("segmentation: {e}")))?;
+                    if (m.h, m.w) != (g.height, g.width) {
+                        return Err(bad(i, format!("mask size is {}x{} (width x height) but the image is {}x{}", m.w, m.h, g.width, g.height)));
+                    }
+                    Some(m)
+                }
+                _ => None,
+            };
+            let area = match (r.bbox, &mask) {
+                (Some(b), _) if box_area => b[2] * b[3],
+                (_, Some(m)) => m.area() as f64,
+                _ => unreachable!("a result has a box, or a mask here"),
+            };
+            Ok(Detection { image, category: r.category_id, score: r.score, area, bbox: r.bbox.unwrap_or_default(), mask })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let ignored = results.len() - without_region - list.len() - over_cap;
+    Ok(Detections { list, any: !merged.is_empty(), ignored, without_region, over_cap })
 }
 
 /// One group per image and scored object with ground truth or detections,

@@ -63,7 +63,8 @@ impl Rle {
                     return Err(format!("the string ends inside a count (at character {p})"));
                 };
                 if !(48..48 + 64).contains(&b) {
-                    return Err(format!("character {p} ({:?}) is not of COCO's RLE alphabet ('0' to 'o')", b as char));
+                    let c = s[p..].chars().next().unwrap_or('?');
+                    return Err(format!("{c:?} at byte {p} is not of COCO's RLE alphabet ('0' to 'o')"));
                 }
                 if k >= 7 {
                     return Err(format!("a count at character {p} has more than 7 characters (over 2^35)"));
@@ -219,7 +220,7 @@ mod tests {
     #[test]
     fn iou_of_masks_and_boxes() {
         let a = Rle::from_mask(&mask(4, 4, |x, _| x < 2), 4, 4);
-        let b = Rle::from_mask(&mask(4, 4, |x, _| x >= 1 && x < 3), 4, 4);
+        let b = Rle::from_mask(&mask(4, 4, |x, _| (1..3).contains(&x)), 4, 4);
         assert_eq!(a.intersection(&b), 4);
         assert_eq!(mask_iou(&a, &b, false), 4.0 / 12.0);
         assert_eq!(mask_iou(&a, &b, true), 4.0 / 8.0);
