@@ -68,7 +68,8 @@ pub struct EvalArgs {
     #[arg(long)]
     pub errors_out: Option<PathBuf>,
     /// Write the ground truth of the targets as a results file here, and
-    /// evaluate it (its AR is 1 by construction: a check of the setup).
+    /// evaluate it (its AR is 1 by construction: a check of the setup); for
+    /// --task bbox|segm a COCO results JSON (every AP 1).
     #[arg(long, conflicts_with = "results")]
     pub gt_as_results: Option<PathBuf>,
     /// BOP dataset name (lm, lmo, tless, ycbv, itodd, ...) for the toolkit's

@@ -5,7 +5,8 @@ use std::io::Write;
 
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::TargetSource;
-use plausible::coco::{evaluate, results::read_coco_results, target_images, BoxKind, CocoOptions, CocoReport, CocoTask};
+use plausible::coco::results::{read_coco_results, write_coco_results};
+use plausible::coco::{evaluate, gt_as_results, target_images, BoxKind, CocoOptions, CocoReport, CocoTask};
 use plausible::eval::{bop_obj_ids, open_dataset, toolkit_dataset_name};
 
 use super::eval::EvalArgs;
@@ -16,7 +17,6 @@ fn refuse_pose_flags(a: &EvalArgs, task: CocoTask) -> Result<()> {
         ("--errors", !a.errors.is_empty()),
         ("--max-estimates-per-image", a.max_estimates_per_image.is_some()),
         ("--errors-out", a.errors_out.is_some()),
-        ("--gt-as-results", a.gt_as_results.is_some()),
         ("--add-threshold", a.add_threshold != 0.1),
         ("--batch-images", a.batch_images != 100),
     ];
@@ -37,17 +37,18 @@ pub fn run(a: EvalArgs, task: CocoTask) -> Result<()> {
         eprintln!("note: BOP's 2D tasks render nothing and run on the CPU: --device and --adapter are not used");
     }
     let opts = CocoOptions { task, boxes: a.boxes.unwrap_or_default() };
-    let Some(results_path) = a.results.as_deref() else { bail!("give --results: a COCO results JSON") };
+    let Some(results_path) = a.results.as_deref().or(a.gt_as_results.as_deref()) else { bail!("give --results: a COCO results JSON") };
     let name = toolkit_dataset_name(&a.dataset, a.dataset_name.as_deref()).context("--dataset-name")?;
-    super::distinct_files(&[("--out", a.out.as_deref())], &[("--results", Some(results_path)), ("--targets", a.targets.as_deref())])?;
-    if let Some(p) = &a.out {
+    let outputs = [("--out", a.out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())];
+    super::distinct_files(&outputs, &[("--results", a.results.as_deref()), ("--targets", a.targets.as_deref())])?;
+    for p in [&a.out, &a.gt_as_results].into_iter().flatten() {
         plausible::io::check_writable(p)?;
     }
     let ds = open_dataset(&a.dataset, &a.split, a.sensor.as_deref(), name.as_deref()).map_err(|e| {
         let flag = if a.sensor.is_some() || e.to_string().starts_with("sensor") { "--sensor" } else { "--dataset" };
         anyhow::anyhow!(e).context(flag)
     })?;
-    super::outside_dataset(&ds, &[("--out", a.out.as_deref())])?;
+    super::outside_dataset(&ds, &outputs)?;
     let (images, source) = target_images(&ds, a.targets.as_deref()).context("--targets")?;
     if images.is_empty() {
         bail!("--targets: no target images");
@@ -55,7 +56,15 @@ pub fn run(a: EvalArgs, task: CocoTask) -> Result<()> {
     if source == TargetSource::AllInstances {
         eprintln!("note: no targets file: every annotated image is a target");
     }
-    let results = read_coco_results(results_path).context("--results")?;
+    let results = match &a.gt_as_results {
+        None => read_coco_results(results_path).context("--results")?,
+        Some(out) => {
+            let gt = gt_as_results(&ds, &images, opts)?;
+            write_coco_results(out, &gt)?;
+            eprintln!("wrote the ground truth of {} images as {} results to {}", images.len(), gt.len(), out.display());
+            gt
+        }
+    };
     let categories = name.as_deref().and_then(bop_obj_ids);
     match (&name, &categories) {
         (Some(n), Some(c)) => eprintln!("BOP dataset '{n}': objects {c:?} are scored"),

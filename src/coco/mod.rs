@@ -205,17 +205,7 @@ pub fn evaluate(
     let start = std::time::Instant::now();
     let mut warnings = Vec::new();
     let avg_time = average_time(results, &mut warnings);
-    // Scenes in first-appearance order, images ascending within each: the
-    // order of the toolkit's merged image ids, which COCOeval sorts.
-    let mut scenes: Vec<(u32, BTreeSet<u32>)> = Vec::new();
-    for &(s, im) in images {
-        match scenes.iter_mut().find(|(id, _)| *id == s) {
-            Some((_, ims)) => {
-                ims.insert(im);
-            }
-            None => scenes.push((s, BTreeSet::from([im]))),
-        }
-    }
+    let scenes = scenes_in_order(images);
     let gt = load_ground_truth(ds, &scenes, opts, progress, &mut warnings)?;
     let cats = scored_objects(ds, categories, &gt);
     let (gt_images, position) = (&gt.images, &gt.position);
@@ -469,6 +459,47 @@ fn groups<'a>(gt_images: &'a [GtImage], dets: &'a [Detection], cats: &BTreeSet<u
             Group { image, category, gt, dt, iou }
         })
         .collect()
+}
+
+/// The ground truth of the target images as results: every instance with
+/// score 1, its visible mask (compressed RLE) and its box (of `opts.boxes`),
+/// no time. Evaluated, every AP is 1: a check of the setup.
+pub fn gt_as_results(ds: &Dataset, images: &[(u32, u32)], opts: CocoOptions) -> Result<Vec<CocoResult>> {
+    let mut out = Vec::new();
+    for (s, ims) in scenes_in_order(images) {
+        let scene = ds.scene(s)?;
+        let (gt, _) = gt::scene_gt(&scene, &ims, opts.boxes, true)?;
+        for g in gt {
+            for a in g.anns {
+                let m = a.mask.as_ref().expect("masks were asked for");
+                out.push(CocoResult {
+                    scene_id: s,
+                    image_id: g.im_id,
+                    category_id: a.category_id,
+                    score: 1.0,
+                    bbox: Some(a.bbox),
+                    segmentation: Some(SegmField::Rle(results::Segmentation { counts: results::Counts::Compressed(m.to_compressed()), size: [m.h, m.w] })),
+                    time: None,
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Scenes in first-appearance order, images ascending within each: the
+/// order of the toolkit's merged image ids, which COCOeval sorts.
+fn scenes_in_order(images: &[(u32, u32)]) -> Vec<(u32, BTreeSet<u32>)> {
+    let mut scenes: Vec<(u32, BTreeSet<u32>)> = Vec::new();
+    for &(s, im) in images {
+        match scenes.iter_mut().find(|(id, _)| *id == s) {
+            Some((_, ims)) => {
+                ims.insert(im);
+            }
+            None => scenes.push((s, BTreeSet::from([im]))),
+        }
+    }
+    scenes
 }
 
 /// The BOP toolkit's result file name for this task, for users who

@@ -355,3 +355,32 @@ fn check(r: CocoResult) -> std::result::Result<CocoResult, String> {
     };
     Ok(CocoResult { bbox, time, ..r })
 }
+
+/// Writes results as the BOP toolkit reads them (a JSON list; masks as
+/// compressed RLE strings or run lengths as they are held).
+pub fn write_coco_results(path: &Path, results: &[CocoResult]) -> Result<()> {
+    let list: Vec<serde_json::Value> = results
+        .iter()
+        .map(|r| {
+            let mut v = serde_json::json!({"scene_id": r.scene_id, "image_id": r.image_id, "category_id": r.category_id, "score": r.score});
+            if let Some(b) = r.bbox {
+                v["bbox"] = serde_json::json!(b);
+            }
+            if let Some(SegmField::Rle(s)) = &r.segmentation {
+                let counts = match &s.counts {
+                    Counts::Compressed(c) => serde_json::json!(c),
+                    Counts::Runs(c) => serde_json::json!(c),
+                };
+                v["segmentation"] = serde_json::json!({"counts": counts, "size": s.size});
+            }
+            if let Some(t) = r.time {
+                v["time"] = serde_json::json!(t);
+            }
+            v
+        })
+        .collect();
+    crate::io::write_atomically(path, |w| {
+        serde_json::to_writer(&mut *w, &list)?;
+        std::io::Write::write_all(w, b"\n")
+    })
+}
