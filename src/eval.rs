@@ -536,7 +536,7 @@ fn kept<'a>(index: &EstimateIndex<'a>, t: &Target, task: Task) -> Vec<&'a Estima
 /// Falling score for the toolkit's stable sorts (`sorted(key=score,
 /// reverse=True)`): −0 and 0 tie, and so does NaN, which reading refuses.
 fn falling_score(a: &&Estimate, b: &&Estimate) -> std::cmp::Ordering {
-    b.score.partial_cmp(&a.score).unwrap_or(std::cmp::Ordering::Equal)
+    crate::metrics::falling(a.score, b.score)
 }
 
 /// The estimates detection looks at: the `cap` highest-scored of each
@@ -764,37 +764,53 @@ pub fn evaluate(
     Ok((report, records))
 }
 
+/// Each image's time as the toolkit's `check_consistent_timings` gathers
+/// them, shared by the 6D and the 2D tasks.
+pub(crate) struct ImageTimes {
+    /// In first-appearance order (the toolkit's numpy mean sums them
+    /// pairwise in that order), the first estimate standing for its image.
+    pub times: Vec<f64>,
+    /// Estimates whose time is more than 1 ms from their image's first, in
+    /// file order, as (scene, image).
+    pub inconsistent: Vec<(u32, u32)>,
+    /// False when an estimate had no time (the scan stops there).
+    pub complete: bool,
+}
+
+/// Gathers [`ImageTimes`] from ((scene, image), time) in file order.
+pub(crate) fn image_times(items: impl IntoIterator<Item = ((u32, u32), Option<f64>)>) -> ImageTimes {
+    let mut out = ImageTimes { times: Vec::new(), inconsistent: Vec::new(), complete: true };
+    let mut slot: HashMap<(u32, u32), usize> = HashMap::new();
+    for (key, time) in items {
+        let Some(t) = time else {
+            out.complete = false;
+            break;
+        };
+        match slot.get(&key) {
+            Some(&i) if (out.times[i] - t).abs() > 0.001 => out.inconsistent.push(key),
+            Some(_) => {}
+            None => {
+                slot.insert(key, out.times.len());
+                out.times.push(t);
+            }
+        }
+    }
+    out
+}
+
 /// The toolkit's `average_time_per_image`: −1 unless every estimate has a
 /// time ≥ 0 and all estimates of an image agree within 1 ms (its
 /// `check_consistent_timings`), the first of them standing for the image.
 fn average_time_per_image<'a>(results: impl IntoIterator<Item = &'a Estimate>) -> f64 {
-    // Each image's time in file order (the toolkit's numpy mean sums them
-    // pairwise in that order), and where it is.
-    let mut times: Vec<f64> = Vec::new();
-    let mut slot: HashMap<(u32, u32), usize> = HashMap::new();
-    for e in results {
-        if e.time < 0.0 {
-            return -1.0;
-        }
-        if let Some(&i) = slot.get(&(e.scene_id, e.im_id)) {
-            if (times[i] - e.time).abs() > 0.001 {
-                tracing::warn!(
-                    "estimates of scene {} image {} carry different times; average time per image is unknown",
-                    e.scene_id,
-                    e.im_id
-                );
-                return -1.0;
-            }
-        }
-        slot.entry((e.scene_id, e.im_id)).or_insert_with(|| {
-            times.push(e.time);
-            times.len() - 1
-        });
-    }
-    if times.is_empty() {
+    let t = image_times(results.into_iter().map(|e| ((e.scene_id, e.im_id), (e.time >= 0.0).then_some(e.time))));
+    if let Some((scene, im)) = t.inconsistent.first() {
+        tracing::warn!("estimates of scene {scene} image {im} carry different times; average time per image is unknown");
         return -1.0;
     }
-    pose_error::np_mean(&times)
+    if !t.complete || t.times.is_empty() {
+        return -1.0;
+    }
+    pose_error::np_mean(&t.times)
 }
 
 /// What a batch of images needs from the caller.

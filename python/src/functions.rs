@@ -208,12 +208,7 @@ pub fn evaluate<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     use plausible::eval::{evaluate, open_dataset, task_targets, toolkit_dataset_name, ErrorType, EvalOptions, Task};
     let name = toolkit_dataset_name(&dataset, dataset_name).map_err(to_py)?;
-    let coco_task = match task.trim().to_ascii_lowercase().as_str() {
-        "bbox" => Some(plausible::coco::CocoTask::Bbox),
-        "segm" => Some(plausible::coco::CocoTask::Segm),
-        _ => None,
-    };
-    if let Some(t) = coco_task {
+    if let Ok(t) = task.parse::<plausible::coco::CocoTask>() {
         let pose_only = [("errors", errors.is_some()), ("records", records), ("max_estimates_per_image", max_estimates_per_image.is_some()), ("add_threshold", add_threshold != 0.1)];
         if let Some((what, _)) = pose_only.iter().find(|(_, given)| *given) {
             return Err(value_error(format!("{what} is for the 6D pose tasks, not task={task:?}")));

@@ -103,16 +103,7 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
     for (what, opts) in &sets {
         let targets = if opts.task == Task::Detection { &det_targets } else { &targets };
         for device in &devices {
-            // Warm-up: pipelines compiled, files in the page cache.
-            evaluate(&ds, &results, targets, device, opts, &mut |_| Ok(()))?;
-            let mut runs = Vec::new();
-            for _ in 0..a.repeat {
-                let t = Instant::now();
-                let (r, _) = evaluate(&ds, &results, targets, device, opts, &mut |_| Ok(()))?;
-                runs.push((t.elapsed().as_secs_f64(), r));
-            }
-            runs.sort_by(|x, y| x.0.total_cmp(&y.0));
-            let (wall, r) = runs.swap_remove(runs.len() / 2);
+            let (wall, (r, _)) = median_run(a.repeat, || evaluate(&ds, &results, targets, device, opts, &mut |_| Ok(())))?;
             rows.push(EvalBenchRow {
                 what: what.to_string(),
                 device: device.describe(),
@@ -158,16 +149,7 @@ fn bench_coco(ds: &Dataset, path: &std::path::Path, name: Option<&str>, repeat: 
     let mut rows = Vec::new();
     for (what, task) in [("2d segmentation (segm)", CocoTask::Segm), ("2d detection (bbox)", CocoTask::Bbox)] {
         let opts = CocoOptions { task, boxes: BoxKind::Amodal };
-        let run = || evaluate(ds, &results, &images, cats.as_deref(), opts, &mut |_| Ok(()));
-        run()?;
-        let mut runs = Vec::new();
-        for _ in 0..repeat {
-            let t = Instant::now();
-            let r = run()?;
-            runs.push((t.elapsed().as_secs_f64(), r));
-        }
-        runs.sort_by(|x, y| x.0.total_cmp(&y.0));
-        let (wall, r) = runs.swap_remove(runs.len() / 2);
+        let (wall, r) = median_run(repeat, || evaluate(ds, &results, &images, cats.as_deref(), opts, &mut |_| Ok(())))?;
         rows.push(EvalBenchRow {
             what: what.to_string(),
             device: format!("CPU ({} threads)", rayon::current_num_threads()),
@@ -181,4 +163,18 @@ fn bench_coco(ds: &Dataset, path: &std::path::Path, name: Option<&str>, repeat: 
         });
     }
     Ok(rows)
+}
+
+/// One warm-up run (pipelines compiled, files in the page cache), then
+/// `repeat` timed ones: the median wall time and that run's output.
+fn median_run<T>(repeat: usize, mut run: impl FnMut() -> plausible::Result<T>) -> Result<(f64, T)> {
+    run()?;
+    let mut runs = Vec::with_capacity(repeat);
+    for _ in 0..repeat {
+        let t = Instant::now();
+        let out = run()?;
+        runs.push((t.elapsed().as_secs_f64(), out));
+    }
+    runs.sort_by(|x, y| x.0.total_cmp(&y.0));
+    Ok(runs.swap_remove(runs.len() / 2))
 }

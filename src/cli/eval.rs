@@ -100,13 +100,10 @@ pub enum EvalTask {
 impl std::str::FromStr for EvalTask {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        use plausible::coco::CocoTask;
-        match s.trim().to_ascii_lowercase().replace('_', "-").as_str() {
-            "bbox" | "2d-detection" | "detection-2d" => Ok(EvalTask::Coco(CocoTask::Bbox)),
-            "segm" | "segmentation" | "2d-segmentation" | "segmentation-2d" => Ok(EvalTask::Coco(CocoTask::Segm)),
-            _ => s.parse::<Task>().map(EvalTask::Pose).map_err(|_| {
-                format!("unknown task '{s}' (expected localization or detection for 6D poses, bbox or segm for BOP's 2D tasks)")
-            }),
+        match (s.parse::<plausible::coco::CocoTask>(), s.parse::<Task>()) {
+            (Ok(t), _) => Ok(EvalTask::Coco(t)),
+            (_, Ok(t)) => Ok(EvalTask::Pose(t)),
+            _ => Err(format!("unknown task '{s}' (expected localization or detection for 6D poses, bbox or segm for BOP's 2D tasks)")),
         }
     }
 }

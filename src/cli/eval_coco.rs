@@ -6,6 +6,7 @@ use std::io::Write;
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::TargetSource;
 use plausible::coco::results::{read_coco_results, write_coco_results};
+use plausible::coco::cocoeval::STAT_NAMES;
 use plausible::coco::{evaluate, gt_as_results, target_images, BoxKind, CocoOptions, CocoReport, CocoTask};
 use plausible::eval::{bop_obj_ids, open_dataset, toolkit_dataset_name};
 
@@ -126,24 +127,10 @@ pub fn print_report(r: &CocoReport) {
         println!("{o:>5} {:>9} {:>8} {:>10} {:>7}", s.instances, s.ignored, s.detections, s.ap.map_or("-".into(), fmt));
     }
     let s = &r.scores;
-    println!(
-        "AP {}  AP50 {}  AP75 {}  AP_small {}  AP_medium {}  AP_large {}",
-        fmt(s["AP"]),
-        fmt(s["AP50"]),
-        fmt(s["AP75"]),
-        fmt(s["AP_small"]),
-        fmt(s["AP_medium"]),
-        fmt(s["AP_large"])
-    );
-    println!(
-        "AR1 {}  AR10 {}  AR100 {}  AR_small {}  AR_medium {}  AR_large {}",
-        fmt(s["AR1"]),
-        fmt(s["AR10"]),
-        fmt(s["AR100"]),
-        fmt(s["AR_small"]),
-        fmt(s["AR_medium"]),
-        fmt(s["AR_large"])
-    );
+    // AP then AR, six numbers a line, in the toolkit's order.
+    for line in STAT_NAMES.chunks(6) {
+        println!("{}", line.iter().map(|k| format!("{k} {}", fmt(s[*k]))).collect::<Vec<_>>().join("  "));
+    }
     let t = s["average_time_per_image"];
     println!("average time per image: {}", if t < 0.0 { "not given".into() } else { format!("{t:.3} s") });
     println!("(COCO AP/AR over IoU 0.5:0.95 as BOP's eval_bop22_coco.py gives them; '-' = nothing to count, the toolkit's -1)");

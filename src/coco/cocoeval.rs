@@ -5,6 +5,7 @@
 //! and numpy's summation order, so that the twelve numbers agree with
 //! `eval_bop22_coco.py` to the last bit.
 
+use crate::metrics::falling;
 use crate::metrics::pose_error::np_mean;
 
 /// IoU thresholds: `np.linspace(0.5, 0.95, 10)`, computed as numpy does.
@@ -77,7 +78,7 @@ struct ImageEval {
 /// Falling score, stable (`np.argsort(-score, kind='mergesort')`).
 fn by_falling_score(dt: &[DtRegion]) -> Vec<usize> {
     let mut order: Vec<usize> = (0..dt.len()).collect();
-    order.sort_by(|&a, &b| dt[b].score.partial_cmp(&dt[a].score).unwrap_or(std::cmp::Ordering::Equal));
+    order.sort_by(|&a, &b| falling(dt[a].score, dt[b].score));
     order
 }
 
@@ -169,7 +170,7 @@ fn accumulate(evals: &[&ImageEval], max_det: usize, t_n: usize, levels: &[f64]) 
             entries.push((e.scores[r], ei, r));
         }
     }
-    entries.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap_or(std::cmp::Ordering::Equal));
+    entries.sort_by(|a, b| falling(a.0, b.0));
     let mut precision = Vec::with_capacity(t_n);
     let mut recall = Vec::with_capacity(t_n);
     for t in 0..t_n {

@@ -16,7 +16,7 @@ pub mod results;
 pub mod rle;
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
@@ -35,6 +35,18 @@ use rle::{bbox_iou, mask_iou, Rle};
 pub enum CocoTask {
     Bbox,
     Segm,
+}
+
+impl std::str::FromStr for CocoTask {
+    type Err = String;
+    /// The toolkit's `ann_type` (`bbox`, `segm`) or the task's name.
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim().to_ascii_lowercase().replace('_', "-").as_str() {
+            "bbox" | "2d-detection" | "detection-2d" => Ok(CocoTask::Bbox),
+            "segm" | "segmentation" | "2d-segmentation" | "segmentation-2d" => Ok(CocoTask::Segm),
+            _ => Err(format!("unknown 2D task '{s}' (expected bbox or segm)")),
+        }
+    }
 }
 
 impl CocoTask {
@@ -161,23 +173,17 @@ pub fn target_images(ds: &Dataset, file: Option<&Path>) -> Result<(Vec<(u32, u32
 /// −1 when any result lacks one. Times of one image more than 1 ms apart
 /// stop the toolkit; here they are a warning and the first is kept.
 fn average_time(results: &[CocoResult], warnings: &mut Vec<String>) -> f64 {
-    let mut slot: BTreeMap<(u32, u32), usize> = BTreeMap::new();
-    let mut times: Vec<f64> = Vec::new();
-    let mut inconsistent = 0;
-    for r in results {
-        let Some(t) = r.time else { return -1.0 };
-        match slot.get(&(r.scene_id, r.image_id)) {
-            Some(&i) => inconsistent += usize::from((times[i] - t).abs() > 0.001),
-            None => {
-                slot.insert((r.scene_id, r.image_id), times.len());
-                times.push(t);
-            }
-        }
+    let t = crate::eval::image_times(results.iter().map(|r| ((r.scene_id, r.image_id), r.time)));
+    if !t.complete {
+        return -1.0;
     }
-    if inconsistent > 0 {
-        warnings.push(format!("{inconsistent} results give their image another time (more than 1 ms apart) than its first result; the first is used"));
+    if !t.inconsistent.is_empty() {
+        warnings.push(format!(
+            "{} results give their image another time (more than 1 ms apart) than its first result; the first is used",
+            t.inconsistent.len()
+        ));
     }
-    if times.is_empty() { -1.0 } else { np_mean(&times) }
+    if t.times.is_empty() { -1.0 } else { np_mean(&t.times) }
 }
 
 /// A detection's region and area, decoded once.
@@ -396,7 +402,7 @@ fn detections(
     for ((image, _), mut rs) in by_group {
         if rs.len() > cap {
             let mut order: Vec<usize> = (0..rs.len()).collect();
-            order.sort_by(|&a, &b| rs[b].1.score.partial_cmp(&rs[a].1.score).unwrap_or(std::cmp::Ordering::Equal));
+            order.sort_by(|&a, &b| crate::metrics::falling(rs[a].1.score, rs[b].1.score));
             let mut keep = vec![false; rs.len()];
             order.iter().take(cap).for_each(|&k| keep[k] = true);
             over_cap += rs.len() - cap;
@@ -500,11 +506,4 @@ fn scenes_in_order(images: &[(u32, u32)]) -> Vec<(u32, BTreeSet<u32>)> {
         }
     }
     scenes
-}
-
-/// The BOP toolkit's result file name for this task, for users who
-/// compare: `scores_bop22_coco_{segm,bbox}[_modal].json`.
-pub fn toolkit_scores_name(opts: CocoOptions) -> PathBuf {
-    let modal = if opts.task == CocoTask::Bbox && opts.boxes == BoxKind::Modal { "_modal" } else { "" };
-    PathBuf::from(format!("scores_bop22_coco_{}{modal}.json", opts.task.name()))
 }

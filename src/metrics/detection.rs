@@ -68,7 +68,7 @@ pub fn object_ap(targets: &[DetectionTarget], threshold: f64, column: usize) -> 
         .filter(|(_, (_, n))| *n > 0)
         .map(|(obj, (mut ests, n))| {
             // Falling score, ties in the toolkit's order (Python's stable sort).
-            ests.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap_or(std::cmp::Ordering::Equal).then((a.1, a.2).cmp(&(b.1, b.2))));
+            ests.sort_by(|a, b| super::falling(a.0, b.0).then((a.1, a.2).cmp(&(b.1, b.2))));
             (obj, average_precision_of(&ests.iter().map(|e| e.3).collect::<Vec<_>>(), n))
         })
         .collect()

@@ -39,7 +39,7 @@ pub struct TargetErrors {
 pub fn valid_instances(obj_ids: &[u32], visib_fract: &[f64], obj_id: u32, inst_count: u32) -> Vec<usize> {
     let mut ids: Vec<usize> = (0..obj_ids.len()).filter(|&i| obj_ids[i] == obj_id).collect();
     // partial_cmp: −0 and 0 tie, as in the toolkit (NaN is refused on reading).
-    ids.sort_by(|&a, &b| visib_fract[b].partial_cmp(&visib_fract[a]).unwrap_or(std::cmp::Ordering::Equal));
+    ids.sort_by(|&a, &b| super::falling(visib_fract[a], visib_fract[b]));
     ids.truncate(inst_count as usize);
     ids.sort_unstable();
     ids
