@@ -17,7 +17,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::bop::{Dataset, DepthMm, Estimate, GtInstance, ModelInfo, PoseMm, Scene, Target};
+use crate::bop::{Dataset, DepthMm, Estimate, GtInstance, ModelInfo, PoseMm, Projection, Scene, SensorRule, Target};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::kernels::depth::{depth_tiles_cpu, DepthTile, GpuDepth};
@@ -179,8 +179,8 @@ pub fn bop_obj_ids(dataset: &str) -> Option<Vec<u32>> {
 
 /// The sensor the BOP toolkit evaluates on a dataset annotated per sensor
 /// (its `eval_sensor`): photoneo for IPD, xyz for XYZ-IBD, 3dlong for
-/// ITODD-MV; `None` for the others (HOT3D's sensor changes by scene and
-/// its cameras are not pinhole).
+/// ITODD-MV; `None` for the others (HOT3D's changes by scene:
+/// [`SensorRule::Hot3d`]).
 pub fn bop_eval_sensor(dataset: &str) -> Option<&'static str> {
     match dataset {
         "ipd" => Some("photoneo"),
@@ -192,8 +192,8 @@ pub fn bop_eval_sensor(dataset: &str) -> Option<&'static str> {
 
 /// Opens a dataset split for evaluation. Where the split is annotated per
 /// sensor: `sensor`, or without one the sensor the BOP toolkit evaluates
-/// for the dataset `name` ([`bop_eval_sensor`]); an error names the
-/// sensors when neither applies.
+/// for the dataset `name` ([`bop_eval_sensor`], HOT3D's per scene); an
+/// error names the sensors when neither applies.
 pub fn open_dataset(root: &std::path::Path, split: &str, sensor: Option<&str>, name: Option<&str>) -> Result<Dataset> {
     if sensor.is_some() {
         return Dataset::open_sensor(root, split, sensor);
@@ -203,9 +203,17 @@ pub fn open_dataset(root: &std::path::Path, split: &str, sensor: Option<&str>, n
     if sensors.is_empty() {
         return Ok(ds);
     }
+    if name == Some("hot3d") {
+        return Dataset::open_per_scene(root, split, SensorRule::Hot3d);
+    }
     match name.and_then(bop_eval_sensor).filter(|s| sensors.iter().any(|x| x == s)) {
         Some(s) => Dataset::open_sensor(root, split, Some(s)),
-        None => Err(Error::InvalidInput(format!("sensor: the split '{split}' is annotated per sensor ({}): choose one", sensors.join(", ")))),
+        None => {
+            // HOT3D's cameras (rgb, gray1, gray2) change by scene: the
+            // toolkit's choice comes with the dataset's name.
+            let hot3d = if sensors.iter().any(|s| s == "gray1") { " (HOT3D: name the dataset hot3d to read each scene with the camera the BOP toolkit evaluates)" } else { "" };
+            Err(Error::InvalidInput(format!("sensor: the split '{split}' is annotated per sensor ({}): choose one{hot3d}", sensors.join(", "))))
+        }
     }
 }
 
@@ -634,18 +642,21 @@ struct Pair<'a> {
 /// Per-image inputs of a batch.
 struct Frame {
     im_id: u32,
-    k: [f64; 9],
+    /// The image's camera (MSPD projects through it, lens or pinhole).
+    camera: Projection,
     /// Image width (MSPD is scaled to 640 px).
     width: u32,
     depth: Option<DepthMm>,
-    /// The intrinsics checked against the depth image (when it is read).
-    intrinsics: Option<Intrinsics>,
+    /// The pinhole intrinsics checked against the depth image, and the K
+    /// they came from (when depth is read).
+    pinhole: Option<(Intrinsics, [f64; 9])>,
 }
 
 impl Frame {
-    fn depth_and_intrinsics(&self) -> (&DepthMm, &Intrinsics) {
+    fn depth_and_intrinsics(&self) -> (&DepthMm, &Intrinsics, &[f64; 9]) {
         let d = self.depth.as_ref().expect("depth is read when rendering");
-        (d, self.intrinsics.as_ref().expect("intrinsics come with the depth"))
+        let (i, k) = self.pinhole.as_ref().expect("intrinsics come with the depth");
+        (d, i, k)
     }
 }
 
@@ -881,13 +892,16 @@ impl BatchCtx<'_> {
                         reason: format!("target image {im_id} is not annotated"),
                     });
                 }
-                let k = self.scene.frame_camera(im_id)?.k;
+                let camera = self.scene.frame_camera(im_id)?.projection;
+                if self.need_depth {
+                    self.scene.pinhole_k(im_id)?;
+                }
                 let depth = if self.need_depth { Some(self.scene.read_depth(im_id)?) } else { None };
-                let (width, intrinsics) = match &depth {
-                    Some(d) => (d.width, Some(self.scene.intrinsics(im_id, d.width, d.height)?)),
+                let (width, pinhole) = match &depth {
+                    Some(d) => (d.width, Some(self.scene.pinhole(im_id, d.width, d.height)?)),
                     None => (self.scene.image_size(im_id)?.0, None),
                 };
-                Ok(Frame { im_id, k, width, depth, intrinsics })
+                Ok(Frame { im_id, camera, width, depth, pinhole })
             })
             .collect()
     }
@@ -909,9 +923,9 @@ impl BatchCtx<'_> {
         let t0 = Instant::now();
         let mut out = HashMap::new();
         for f in frames {
-            let (depth, k) = f.depth_and_intrinsics();
+            let (depth, k, kk) = f.depth_and_intrinsics();
             let mesh_of = |obj: u32| self.models.get(&obj).and_then(|m| m.render.as_ref());
-            let fr = frame_visibility(self.device, &self.scene.gt[&f.im_id], mesh_of, depth, k, &f.k, self.opts.vsd_delta_mm)?;
+            let fr = frame_visibility(self.device, &self.scene.gt[&f.im_id], mesh_of, depth, k, kk, self.opts.vsd_delta_mm)?;
             out.insert(f.im_id, fr);
         }
         report.time_s.render_s += t0.elapsed().as_secs_f64();
@@ -932,7 +946,7 @@ impl BatchCtx<'_> {
             out[MSSD] = out[MSSD_MM] / d;
         }
         if self.opts.has(ErrorType::Mspd) {
-            out[MSPD] = pose_error::mspd(e, g, &f.k, &m.pts, &m.syms) * (640.0 / f.width as f64);
+            out[MSPD] = pose_error::mspd(e, g, &f.camera, &m.pts, &m.syms) * (640.0 / f.width as f64);
         }
         let add = || far(&|| pose_error::add(e, g, &m.pts)) / d;
         let adi = || far(&|| pose_error::adi(e, g, &m.pts, m.tree.as_ref().expect("point tree"))) / d;
@@ -980,7 +994,7 @@ impl BatchCtx<'_> {
                 idx.push(None);
                 continue;
             }
-            let (_, k) = frames[*fi].depth_and_intrinsics();
+            let (_, k, _) = frames[*fi].depth_and_intrinsics();
             let key = (p.est.obj_id, camera_key(k));
             let group = &mut groups.entry(key).or_insert_with(|| (*k, Vec::new())).1;
             let mut add = |rk: RenderKey, pose: PoseMm| {
@@ -1005,7 +1019,13 @@ impl BatchCtx<'_> {
         drop(render);
         let _vsd = tracing::trace_span!("vsd").entered();
         let t0 = Instant::now();
-        let images: Vec<VsdImage> = frames.iter().map(|f| VsdImage::new(f.depth_and_intrinsics().0, &f.k)).collect();
+        let images: Vec<VsdImage> = frames
+            .iter()
+            .map(|f| {
+                let (d, _, k) = f.depth_and_intrinsics();
+                VsdImage::new(d, k)
+            })
+            .collect();
         let taus = &self.opts.vsd_taus;
         errors.par_iter_mut().zip(pairs.par_iter().zip(idx.par_iter())).for_each(|(out, ((fi, p), ix))| {
             let v = match ix {
@@ -1129,8 +1149,7 @@ type MeshCache = HashMap<u32, Option<RenderMesh>>;
 fn image_visibility(ds: &Dataset, scene: &Scene, im: u32, device: &Device, delta_mm: f32, meshes: &mut MeshCache) -> Result<Vec<f64>> {
     let gt = scene.gt.get(&im).map(Vec::as_slice).unwrap_or_default();
     let depth = scene.read_depth(im)?;
-    let k = scene.intrinsics(im, depth.width, depth.height)?;
-    let kk = scene.frame_camera(im)?.k;
+    let (k, kk) = scene.pinhole(im, depth.width, depth.height)?;
     for g in gt {
         if let std::collections::hash_map::Entry::Vacant(e) = meshes.entry(g.obj_id) {
             let path = ds.model_path(g.obj_id);

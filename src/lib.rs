@@ -26,6 +26,7 @@ pub mod explain;
 pub mod gpu;
 pub mod hypotheses;
 pub mod io;
+pub mod lens;
 pub mod kernels;
 pub mod metrics;
 pub mod observation;

@@ -7,14 +7,14 @@
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
-use plausible::bop::{read_results, write_results, Dataset, Estimate, PoseMm};
+use plausible::bop::{read_results, write_results, Dataset, Estimate, PoseMm, Projection, SensorRule};
 use plausible::coco::{self, results::read_coco_results, target_images, BoxKind, CocoOptions, CocoReport, CocoTask};
-use plausible::eval::{detection_targets, evaluate, gt_as_results, ErrorType, EvalOptions, EvalReport, Task};
+use plausible::eval::{detection_targets, evaluate, gt_as_results, open_dataset, ErrorType, EvalOptions, EvalReport, Task};
 use plausible::gpu::test_context;
 use plausible::kernels::depth::{depth_tiles_cpu, GpuDepth};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
-use plausible::metrics::pose_error::rotation_about;
+use plausible::metrics::pose_error::{mspd, rotation_about};
 use plausible::visual::Device;
 
 fn assets() -> PathBuf {
@@ -257,6 +257,88 @@ fn gpu_detection_matches_the_bop_toolkit_bit_for_bit() {
                 assert_eq!(s.targets as u64, w["num_targets_per_object"][o.to_string()].as_u64().unwrap(), "{who}: object {o}");
             }
         }
+    }
+}
+
+fn hot3d() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/hot3d-synth")
+}
+
+#[test]
+fn hot3d_fisheye_detection_matches_the_bop_toolkit_bit_for_bit() {
+    // HOT3D's layout: FISHEYE624 cameras as cam_model, annotations per
+    // camera, the camera chosen by scene (gray1 on Quest 3, rgb on Aria).
+    // reference_detection.json: the toolkit's eval_bop24_pose.py with the
+    // Hand Tracking Toolkit's camera models. MSPD is scaled by each
+    // camera's width (1280 and 1408).
+    let ds = open_dataset(&hot3d(), "test", None, Some("hot3d")).unwrap();
+    assert_eq!(ds.sensor_rule, Some(SensorRule::Hot3d));
+    let want: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(hot3d().join("reference_detection.json")).unwrap()).unwrap();
+    let results = read_results(&hot3d().join("estimates.csv")).unwrap();
+    let r = detect(&ds, &results, &EvalOptions::detection(Some("hot3d")));
+    for (got, key) in [(r.ap, "bop24_mAP"), (r.ap_mssd, "bop24_mAP_mssd"), (r.ap_mspd, "bop24_mAP_mspd"), (r.ap_mssd_mm, "bop24_mAP_mssd_mm")] {
+        assert_eq!(got, want[key].as_f64(), "{key}");
+    }
+    assert_eq!(r.average_time_per_image, want["bop24_average_time_per_image"].as_f64().unwrap());
+    for (e, rows) in &r.per_threshold_ap {
+        for (i, row) in rows.iter().enumerate() {
+            for (o, ap) in &row.per_object {
+                assert_eq!(Some(*ap), want["per_threshold_per_object_ap"][e][i][o.to_string()].as_f64(), "{e} threshold {i} object {o}");
+            }
+        }
+    }
+    for (o, s) in &r.per_object {
+        assert_eq!(s.targets as u64, want["num_targets_per_object"][o.to_string()].as_u64().unwrap(), "object {o}");
+    }
+    // Another camera for every scene is another evaluation (gray2: other
+    // poses, other lenses), and MSPD through a pinhole of the same focal
+    // length and centre is another number: the lens is what is measured.
+    let gray2 = Dataset::open_sensor(&hot3d(), "test", Some("gray2")).unwrap();
+    assert_ne!(detect(&gray2, &results, &EvalOptions::detection(Some("hot3d"))).ap_mspd, r.ap_mspd);
+    let scene = ds.scene(3365).unwrap();
+    let Projection::Lens(lens) = scene.frame_camera(0).unwrap().projection else { panic!("a lens") };
+    let pinhole = Projection::Pinhole([lens.f[0], 0.0, lens.c[0], 0.0, lens.f[1], lens.c[1], 0.0, 0.0, 1.0]);
+    let g = &scene.gt[&0][0];
+    let est = PoseMm { r: rotation_about(DVec3::Z, 0.05) * g.pose.r, t: g.pose.t + DVec3::new(4.0, -3.0, 9.0) };
+    let pts: Vec<DVec3> = Mesh::load(&ds.model_path(g.obj_id), MeshUnits::Millimetres).unwrap().0.vertices.iter().map(|v| *v * 1000.0).collect();
+    let sym = [plausible::metrics::pose_error::Symmetry::IDENTITY];
+    let (fish, pin) = (mspd(&est, &g.pose, &Projection::Lens(lens), &pts, &sym), mspd(&est, &g.pose, &pinhole, &pts, &sym));
+    assert!(fish > 1.0 && (fish - pin).abs() > 0.05 * fish, "fisheye {fish} px, pinhole {pin} px");
+}
+
+#[test]
+fn lens_cameras_refuse_what_needs_a_pinhole_and_bad_cam_models_are_clear() {
+    // VSD renders with a pinhole: on a fisheye it is refused, by name, as
+    // the toolkit refuses it.
+    let ds = open_dataset(&hot3d(), "test", None, Some("hot3d")).unwrap();
+    let (listed, _) = ds.targets(Some(&ds.targets_file(true))).unwrap();
+    let results = read_results(&hot3d().join("estimates.csv")).unwrap();
+    let opts = EvalOptions { errors: vec![ErrorType::Vsd, ErrorType::Mssd], ..EvalOptions::for_dataset(Some("hot3d")) };
+    let e = err_of(evaluate(&ds, &results, &listed, &Device::Cpu, &opts, &mut |_| Ok(())));
+    assert!(e.contains("fisheye 624 lens model") && e.contains("need a pinhole camera"), "{e}");
+    // A scene outside HOT3D's ranges has no camera by the rule.
+    let d = tempfile::tempdir().unwrap();
+    for sub in ["test", "models"] {
+        std::fs::create_dir(d.path().join(sub)).unwrap();
+    }
+    copy_dir(&hot3d().join("test"), &d.path().join("test"));
+    copy_dir(&assets().join("models"), &d.path().join("models"));
+    std::fs::rename(d.path().join("test/003401"), d.path().join("test/004000")).unwrap();
+    let bad = open_dataset(d.path(), "test", None, Some("hot3d")).unwrap();
+    let e = err_of(bad.scene(4000));
+    assert!(e.contains("scene 4000 has no sensor") && e.contains("rgb for its Aria scenes"), "{e}");
+    // Broken cam_model entries name the file, the image and the fault.
+    let cam = d.path().join("test/001288/scene_camera_gray1.json");
+    let text = std::fs::read_to_string(&cam).unwrap();
+    for (from, to, says) in [
+        ("CameraModelType.FISHEYE624", "Kannala", "unknown projection_model_type 'Kannala'"),
+        ("\"image_width\": 1280", "\"image_width\": -3", "image_width -3"),
+        ("\"cam_model\"", "\"cam_K\": [1,0,0,0,1,0,0,0,1], \"cam_model\"", "both cam_K and cam_model"),
+        ("455.2,\n    455.9,", "", "has 14 numbers; CameraModelType.FISHEYE624 takes fx, fy, cx, cy then 12 coefficients (or f, cx, cy and 12: 15 numbers)"),
+    ] {
+        std::fs::write(&cam, text.replacen(from, to, 1)).unwrap();
+        let e = err_of(bad.scene(1288));
+        assert!(e.contains("scene_camera_gray1.json") && e.contains("image 0") && e.contains(says), "{says}: {e}");
     }
 }
 

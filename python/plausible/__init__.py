@@ -747,7 +747,9 @@ def eval(  # noqa: A001 - the CLI's verb
     ap (bop24_mAP), ap_mssd, ap_mspd, ap_mssd_mm, per-object and
     per-threshold APs; targets default to the dataset's test_targets_bop24.json.
     ``sensor``: for a split annotated per sensor (BOP-H3, IPD, XYZ-IBD, ...;
-    default: the one the toolkit evaluates for ``dataset_name``).
+    default: the one the toolkit evaluates for ``dataset_name``; for "hot3d"
+    by scene, gray1 on Quest 3 and rgb on Aria). Lens cameras (``cam_model``,
+    HOT3D's fisheyes) take MSSD and MSPD, as in the toolkit; VSD needs a pinhole.
     ``task="bbox"`` / ``task="segm"``: BOP's 2D detection / segmentation of a
     COCO results JSON (``eval_bop22_coco.py``): ``scores`` holds AP, AP50, AP75,
     AP/AR by size, AR1/AR10/AR100 and average_time_per_image; ``boxes``:

@@ -161,6 +161,17 @@ def test_eval_detection_matches_the_bop_toolkit_bit_for_bit():
         pl.eval(ds, ds / "detection.csv", task="detection", max_estimates_per_image=0)
 
 
+def test_eval_hot3d_fisheye_cameras_match_the_bop_toolkit_bit_for_bit():
+    # HOT3D's layout: FISHEYE624 cam_model cameras, the camera chosen per scene.
+    ds = ASSETS / "hot3d-synth"
+    ref = json.loads((ds / "reference_detection.json").read_text())
+    rep = pl.eval(ds, ds / "estimates.csv", task="detection", dataset_name="hot3d", device="cpu")
+    for ours, theirs in [("ap", "bop24_mAP"), ("ap_mssd", "bop24_mAP_mssd"), ("ap_mspd", "bop24_mAP_mspd"), ("ap_mssd_mm", "bop24_mAP_mssd_mm")]:
+        assert rep[ours] == ref[theirs], ours
+    with pytest.raises(ValueError, match="fisheye 624 lens model"):
+        pl.eval(ds, ds / "estimates.csv", dataset_name="hot3d", errors=["vsd"])
+
+
 def test_eval_2d_tasks_match_the_bop_toolkit_bit_for_bit():
     ds = ASSETS / "lmo-synth"
     ref = json.loads((ds / "reference_coco.json").read_text())["coco.json"]

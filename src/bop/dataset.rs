@@ -15,6 +15,7 @@ use serde::de::DeserializeOwned;
 use serde::Deserialize;
 
 use crate::camera::Intrinsics;
+use crate::lens::LensCamera;
 use crate::observation::{png_size, MAX_IMAGE_SIDE};
 use crate::error::{Error, Result};
 use crate::pose::Pose;
@@ -109,11 +110,39 @@ pub struct GtInstance {
 /// One image's camera (`scene_camera.json`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameCamera {
-    /// Row-major 3×3 intrinsics.
-    pub k: [f64; 9],
+    /// How the camera projects: `cam_K` or BOP-H3's `cam_model`.
+    pub projection: Projection,
     /// Depth PNG value × `depth_scale` = millimetres (needed only where
     /// depth is read: RGB-only splits may leave it out).
     pub depth_scale: Option<f64>,
+}
+
+/// A scene camera's projection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// `cam_K`: row-major 3×3 pinhole intrinsics.
+    Pinhole([f64; 9]),
+    /// `cam_model`: a lens model with its image size (HOT3D's fisheyes;
+    /// the H3 layout's pinholes as `PinholePlane`).
+    Lens(LensCamera),
+}
+
+impl Projection {
+    /// The pinhole intrinsics: `cam_K`, or a `PinholePlane` model's.
+    pub fn k(&self) -> Option<[f64; 9]> {
+        match self {
+            Projection::Pinhole(k) => Some(*k),
+            Projection::Lens(l) => l.pinhole_k(),
+        }
+    }
+
+    /// The image size a `cam_model` gives; `None` for `cam_K`.
+    pub fn image_size(&self) -> Option<(u32, u32)> {
+        match self {
+            Projection::Pinhole(_) => None,
+            Projection::Lens(l) => Some((l.width, l.height)),
+        }
+    }
 }
 
 /// An evaluation target: `inst_count` instances of `obj_id` in an image.
@@ -150,6 +179,38 @@ pub struct Dataset {
     /// `scene_camera_{sensor}.json`, `scene_gt_info_{sensor}.json`,
     /// `depth_{sensor}/`); `None` for the classic layout.
     pub sensor: Option<String>,
+    /// Where the sensor changes by scene (HOT3D), the rule that picks it;
+    /// `sensor` is then `None`.
+    pub sensor_rule: Option<SensorRule>,
+}
+
+/// Which sensor's annotations a scene is read with, for a split whose
+/// sensor changes by scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SensorRule {
+    /// HOT3D as the BOP toolkit evaluates it (`dataset_params`'
+    /// `hot3d_eval_modality`): the Quest 3 scenes 0–1848 by their first
+    /// monochrome camera (`gray1`), the Aria scenes 1849–3831 by their RGB
+    /// camera (`rgb`).
+    Hot3d,
+}
+
+impl SensorRule {
+    /// The sensor of a scene; `None` for a scene the rule does not cover.
+    pub fn sensor(self, scene_id: u32) -> Option<&'static str> {
+        match (self, scene_id) {
+            (SensorRule::Hot3d, 0..=1848) => Some("gray1"),
+            (SensorRule::Hot3d, 1849..=3831) => Some("rgb"),
+            (SensorRule::Hot3d, _) => None,
+        }
+    }
+
+    /// The rule in words, for messages.
+    pub fn describe(self) -> &'static str {
+        match self {
+            SensorRule::Hot3d => "gray1 for HOT3D's Quest 3 scenes (0-1848), rgb for its Aria scenes (1849-3831)",
+        }
+    }
 }
 
 impl Dataset {
@@ -189,7 +250,15 @@ impl Dataset {
             None => root.join("camera.json"),
         };
         let image_size = read_image_size(&camera)?;
-        let ds = Dataset { root: root.to_path_buf(), split: split.to_string(), models_dir, models_info, image_size, sensor: sensor.map(str::to_string) };
+        let ds = Dataset {
+            root: root.to_path_buf(),
+            split: split.to_string(),
+            models_dir,
+            models_info,
+            image_size,
+            sensor: sensor.map(str::to_string),
+            sensor_rule: None,
+        };
         if let Some(s) = sensor {
             // A sensor the split has no annotations for is said now, by name.
             if let Some(&first) = ds.scene_ids()?.first() {
@@ -202,9 +271,27 @@ impl Dataset {
         Ok(ds)
     }
 
-    /// What the annotation files' names end with: `_{sensor}` or nothing.
-    fn suffix(&self) -> String {
-        self.sensor.as_deref().map(|s| format!("_{s}")).unwrap_or_default()
+    /// Opens `root`, a split whose sensor changes by scene, reading each
+    /// scene with the sensor `rule` picks for it.
+    pub fn open_per_scene(root: &Path, split: &str, rule: SensorRule) -> Result<Dataset> {
+        let mut ds = Dataset::open(root, split)?;
+        ds.sensor_rule = Some(rule);
+        Ok(ds)
+    }
+
+    /// What a scene's annotation files' names end with: `_{sensor}` or
+    /// nothing.
+    fn suffix(&self, scene_id: u32) -> Result<String> {
+        if let Some(rule) = self.sensor_rule {
+            return rule.sensor(scene_id).map(|s| format!("_{s}")).ok_or_else(|| {
+                Error::InvalidInput(format!(
+                    "{}: scene {scene_id} has no sensor by the rule that picks one per scene ({})",
+                    self.scene_dir(scene_id).display(),
+                    rule.describe()
+                ))
+            });
+        }
+        Ok(self.sensor.as_deref().map(|s| format!("_{s}")).unwrap_or_default())
     }
 
     /// Whether `path` (absolute, symlinks resolved) is where this dataset
@@ -263,7 +350,7 @@ impl Dataset {
         if !dir.is_dir() {
             return Err(Error::InvalidInput(format!("{}: scene {scene_id} is not in the dataset", dir.display())));
         }
-        let suffix = self.suffix();
+        let suffix = self.suffix(scene_id)?;
         let file = |stem: &str| dir.join(format!("{stem}{suffix}.json"));
         if !file("scene_gt").is_file() {
             return Err(self.missing_annotations(&dir, &file("scene_gt")));
@@ -292,12 +379,13 @@ impl Dataset {
         if sensors.is_empty() {
             return Error::NotFound { path: want.to_path_buf() };
         }
-        let which = match &self.sensor {
-            Some(s) => format!("there is no sensor '{s}'"),
-            None => "choose one".into(),
+        let which = match (&self.sensor, self.sensor_rule) {
+            (Some(s), _) => format!("there is no sensor '{s}'"),
+            (None, Some(rule)) => format!("the rule per scene ({}) names one the scene lacks", rule.describe()),
+            (None, None) => "choose one".into(),
         };
         Error::InvalidInput(format!(
-            "{}: the split is annotated per sensor ({}): {which} (the BOP toolkit evaluates photoneo for ipd, xyz for xyzibd, 3dlong for itoddmv)",
+            "{}: the split is annotated per sensor ({}): {which} (the BOP toolkit evaluates photoneo for ipd, xyz for xyzibd, 3dlong for itoddmv, rgb or gray1 by scene for hot3d)",
             dir.display(),
             sensors.join(", ")
         ))
@@ -426,16 +514,49 @@ impl Scene {
     /// point far outside the image or a focal length of a pixel gave every
     /// estimate metres away and every score 0 without a word.
     pub fn intrinsics(&self, im_id: u32, width: u32, height: u32) -> Result<Intrinsics> {
-        let cam = self.frame_camera(im_id)?;
-        let bad = |reason: String| Error::BadJson { path: self.file("scene_camera"), reason: format!("image {im_id}: {reason}") };
-        let i = Intrinsics::from_k(&cam.k, width, height).map_err(|e| bad(e.to_string()))?;
-        i.check_against_image().map_err(bad)?;
-        Ok(i)
+        Ok(self.pinhole(im_id, width, height)?.0)
     }
 
-    /// The size of an image: the dataset's `camera.json`, else the depth
-    /// PNG's header.
+    /// [`Self::intrinsics`] with the row-major K they came from (the
+    /// toolkit's VSD uses K as given). A lens camera with distortion is an
+    /// error naming what needs a pinhole.
+    pub fn pinhole(&self, im_id: u32, width: u32, height: u32) -> Result<(Intrinsics, [f64; 9])> {
+        let k = self.pinhole_k(im_id)?;
+        let bad = |reason: String| Error::BadJson { path: self.file("scene_camera"), reason: format!("image {im_id}: {reason}") };
+        let i = Intrinsics::from_k(&k, width, height).map_err(|e| bad(e.to_string()))?;
+        i.check_against_image().map_err(bad)?;
+        Ok((i, k))
+    }
+
+    /// An image's pinhole K (row-major): `cam_K` or a `PinholePlane`
+    /// `cam_model`'s. A lens with distortion is an error naming what needs
+    /// a pinhole (checked before depth is read: HOT3D has none).
+    pub fn pinhole_k(&self, im_id: u32) -> Result<[f64; 9]> {
+        match self.frame_camera(im_id)?.projection {
+            Projection::Pinhole(k) => Ok(k),
+            Projection::Lens(l) => l.pinhole_k().ok_or_else(|| Error::BadJson {
+                path: self.file("scene_camera"),
+                reason: format!(
+                    "image {im_id}: its camera is a {} lens model (cam_model); rendering, depth and VSD need a pinhole camera (cam_K or a PinholePlane cam_model), as in the BOP toolkit (MSSD and MSPD take any lens)",
+                    l.kind.name()
+                ),
+            }),
+        }
+    }
+
+    /// The size of an image: its `cam_model`'s (checked against the
+    /// dataset's `camera.json` where it has one), else `camera.json`'s, else
+    /// the depth PNG's header.
     pub fn image_size(&self, im_id: u32) -> Result<(u32, u32)> {
+        if let Some((w, h)) = self.frame_camera(im_id)?.projection.image_size() {
+            return match self.image_size {
+                Some((cw, ch)) if (cw, ch) != (w, h) => Err(Error::BadJson {
+                    path: self.file("scene_camera"),
+                    reason: format!("image {im_id}: cam_model is {w}x{h} but the dataset's camera file says {cw}x{ch}"),
+                }),
+                _ => Ok((w, h)),
+            };
+        }
         if let Some(s) = self.image_size {
             return Ok(s);
         }
@@ -627,8 +748,18 @@ pub fn read_scene_gt(path: &Path) -> Result<BTreeMap<u32, Vec<GtInstance>>> {
 #[derive(Deserialize)]
 struct RawCamera {
     #[serde(rename = "cam_K")]
-    k: Vec<f64>,
+    k: Option<Vec<f64>>,
+    cam_model: Option<RawCamModel>,
     depth_scale: Option<f64>,
+}
+
+/// BOP-H3's `cam_model` (the Hand Tracking Toolkit's calibration fields).
+#[derive(Deserialize)]
+struct RawCamModel {
+    projection_model_type: String,
+    projection_params: Vec<f64>,
+    image_width: f64,
+    image_height: f64,
 }
 
 /// Reads `scene_camera.json`; a `depth_scale` given must be plausible
@@ -639,14 +770,25 @@ pub fn read_scene_camera(path: &Path) -> Result<BTreeMap<u32, FrameCamera>> {
     for (key, c) in raw {
         let im = parse_id(path, &key, "an image")?;
         let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("image {im}: {reason}") };
-        let k: [f64; 9] = c.k.as_slice().try_into().map_err(|_| bad(format!("cam_K has {} numbers, expected 9", c.k.len())))?;
-        Intrinsics::from_k(&k, 1, 1).map_err(|e| bad(e.to_string()))?;
+        let projection = match (c.k, c.cam_model) {
+            (Some(k), None) => {
+                let k: [f64; 9] = k.as_slice().try_into().map_err(|_| bad(format!("cam_K has {} numbers, expected 9", k.len())))?;
+                Intrinsics::from_k(&k, 1, 1).map_err(|e| bad(e.to_string()))?;
+                Projection::Pinhole(k)
+            }
+            (None, Some(m)) => Projection::Lens(
+                LensCamera::from_bop(&m.projection_model_type, m.image_width, m.image_height, &m.projection_params)
+                    .map_err(|e| bad(e.to_string()))?,
+            ),
+            (Some(_), Some(_)) => return Err(bad("both cam_K and cam_model: a camera is one or the other".into())),
+            (None, None) => return Err(bad("neither cam_K nor cam_model".into())),
+        };
         if let Some(d) = c.depth_scale {
             if !(d.is_finite() && d > 1e-6 && d < 1e3) {
                 return Err(bad(format!("depth_scale {d} is not a plausible scale to millimetres")));
             }
         }
-        out.insert(im, FrameCamera { k, depth_scale: c.depth_scale });
+        out.insert(im, FrameCamera { projection, depth_scale: c.depth_scale });
     }
     Ok(out)
 }

@@ -7,6 +7,6 @@ pub mod results;
 
 pub use dataset::{
     read_models_info, read_scene_camera, read_scene_gt, read_scene_gt_info, read_targets, ContinuousSymmetry, Dataset, DepthMm,
-    FrameCamera, GtInstance, ModelInfo, PoseMm, Scene, Target, TargetSource,
+    FrameCamera, GtInstance, Projection, ModelInfo, PoseMm, Scene, SensorRule, Target, TargetSource,
 };
 pub use results::{read_results, write_results, Estimate};

@@ -86,36 +86,30 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
         None => super::asset("assets/lmo-synth").context("--dataset")?,
     };
     let results_path = a.results.clone().unwrap_or_else(|| root.join("perturbed.csv"));
-    let ds = Dataset::open(&root, &a.split).context("--dataset")?;
-    let (targets, _) = ds.targets(None)?;
-    let (det_targets, _) = plausible::eval::task_targets(&ds, None, Task::Detection)?;
+    let name = plausible::eval::toolkit_dataset_name(&root, None)?;
+    let ds = plausible::eval::open_dataset(&root, &a.split, None, name.as_deref()).context("--dataset")?;
     let results = read_results(&results_path).context("--results")?;
     let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;
-    let name = plausible::eval::toolkit_dataset_name(&root, None)?;
     let local = |errors: Vec<ErrorType>| EvalOptions { errors, ..Default::default() };
-    let sets: [(&str, EvalOptions); 4] = [
+    let mut sets: Vec<(&str, EvalOptions)> = vec![
         ("vsd", local(vec![ErrorType::Vsd])),
         ("mssd+mspd", local(vec![ErrorType::Mssd, ErrorType::Mspd])),
         ("bop19 (vsd+mssd+mspd)", local(ErrorType::BOP19.to_vec())),
         ("bop24 detection", EvalOptions::detection(name.as_deref())),
     ];
-    let mut rows = Vec::new();
-    for (what, opts) in &sets {
-        let targets = if opts.task == Task::Detection { &det_targets } else { &targets };
-        for device in &devices {
-            let (wall, (r, _)) = median_run(a.repeat, || evaluate(&ds, &results, targets, device, opts, &mut |_| Ok(())))?;
-            rows.push(EvalBenchRow {
-                what: what.to_string(),
-                device: device.describe(),
-                estimates: r.n_estimates,
-                images: r.n_images,
-                estimates_per_s: r.n_estimates as f64 / wall,
-                wall_s: wall,
-                render_s: r.time_s.render_s,
-                ar: r.ar.or(r.ar_vsd).or(r.ar_mssd).or(r.ap),
-                machine: super::machine::Machine::detect(Some(device)),
-            });
-        }
+    if !pinhole_cameras(&ds)? {
+        eprintln!("note: {} has lens cameras (cam_model): VSD needs a pinhole, its rows are left out", root.display());
+        sets.retain(|(_, o)| !o.errors.contains(&ErrorType::Vsd));
+    }
+    let mut rows = pose_rows(&ds, &results, &sets, &devices, a.repeat)?;
+    if a.dataset.is_none() {
+        // HOT3D's fisheyes: MSPD through the lens model (an arctan and a
+        // polynomial per point) beside the pinhole rows above.
+        let hot3d = super::asset("assets/hot3d-synth").context("the shipped HOT3D-layout dataset")?;
+        let ds = plausible::eval::open_dataset(&hot3d, "test", None, Some("hot3d"))?;
+        let results = read_results(&hot3d.join("estimates.csv"))?;
+        let sets = [("bop24 det. hot3d fisheye", EvalOptions::detection(Some("hot3d")))];
+        rows.extend(pose_rows(&ds, &results, &sets, &devices, a.repeat)?);
     }
     let coco = a.coco_results.clone().or_else(|| Some(root.join("coco.json")).filter(|p| p.is_file()));
     if let Some(p) = coco {
@@ -167,6 +161,39 @@ fn bench_coco(ds: &Dataset, path: &std::path::Path, name: Option<&str>, repeat: 
 
 /// One warm-up run (pipelines compiled, files in the page cache), then
 /// `repeat` timed ones: the median wall time and that run's output.
+/// Whether the first annotated image of the split has a pinhole camera
+/// (`cam_K` or a `PinholePlane` lens): the VSD rows need one.
+fn pinhole_cameras(ds: &Dataset) -> Result<bool> {
+    let Some(&first) = ds.scene_ids()?.first() else { return Ok(true) };
+    let scene = ds.scene(first)?;
+    Ok(scene.camera.values().next().is_none_or(|c| c.projection.k().is_some()))
+}
+
+/// One row per error set and device: `evaluate`'s median wall time.
+fn pose_rows(ds: &Dataset, results: &[plausible::bop::Estimate], sets: &[(&str, EvalOptions)], devices: &[Device], repeat: usize) -> Result<Vec<EvalBenchRow>> {
+    let (targets, _) = ds.targets(None)?;
+    let (det_targets, _) = plausible::eval::task_targets(ds, None, Task::Detection)?;
+    let mut rows = Vec::new();
+    for (what, opts) in sets {
+        let targets = if opts.task == Task::Detection { &det_targets } else { &targets };
+        for device in devices {
+            let (wall, (r, _)) = median_run(repeat, || evaluate(ds, results, targets, device, opts, &mut |_| Ok(())))?;
+            rows.push(EvalBenchRow {
+                what: what.to_string(),
+                device: device.describe(),
+                estimates: r.n_estimates,
+                images: r.n_images,
+                estimates_per_s: r.n_estimates as f64 / wall,
+                wall_s: wall,
+                render_s: r.time_s.render_s,
+                ar: r.ar.or(r.ar_vsd).or(r.ar_mssd).or(r.ap),
+                machine: super::machine::Machine::detect(Some(device)),
+            });
+        }
+    }
+    Ok(rows)
+}
+
 fn median_run<T>(repeat: usize, mut run: impl FnMut() -> plausible::Result<T>) -> Result<(f64, T)> {
     run()?;
     let mut runs = Vec::with_capacity(repeat);

@@ -21,7 +21,9 @@ pub struct EvalArgs {
     /// Sensor of a split annotated per sensor (scene_gt_{sensor}.json,
     /// depth_{sensor}/, ...: BOP-H3 and the BOP'24 industrial datasets).
     /// Default: the one the BOP toolkit evaluates (photoneo for ipd, xyz for
-    /// xyzibd, 3dlong for itoddmv).
+    /// xyzibd, 3dlong for itoddmv; for hot3d, by scene: gray1 on Quest 3,
+    /// rgb on Aria). Cameras may be pinhole (cam_K) or lens models
+    /// (cam_model: HOT3D's fisheyes take MSSD and MSPD, not VSD).
     #[arg(long)]
     pub sensor: Option<String>,
     /// Results CSV: scene_id,im_id,obj_id,score,R,t,time (R row-major, t in
@@ -160,6 +162,9 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     })?;
     if let (None, Some(s)) = (&a.sensor, &ds.sensor) {
         eprintln!("sensor {s}: the one the BOP toolkit evaluates for {} (--sensor picks another)", name.as_deref().unwrap_or_default());
+    }
+    if let Some(rule) = ds.sensor_rule {
+        eprintln!("sensor by scene: {}, as the BOP toolkit evaluates it (--sensor picks one for all)", rule.describe());
     }
     super::outside_dataset(&ds, &outputs)?;
     match &name {

@@ -9,7 +9,8 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::bop::{ModelInfo, PoseMm};
+use crate::bop::{ModelInfo, PoseMm, Projection};
+use crate::lens::LensCamera;
 
 /// A symmetry transformation of a model (model frame, mm).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -120,18 +121,48 @@ fn project(p: &[[f64; 4]; 3], x: DVec3) -> (f64, f64) {
     (h(&p[0]) / z, h(&p[1]) / z)
 }
 
-/// Maximum Symmetry-aware Projection Distance (pixels) with intrinsics `k`
-/// (row-major 3×3).
-pub fn mspd(est: &PoseMm, gt: &PoseMm, k: &[f64; 9], pts: &[DVec3], syms: &[Symmetry]) -> f64 {
-    let pe = projection(k, est);
-    let proj_est: Vec<(f64, f64)> = pts.iter().map(|&x| project(&pe, x)).collect();
+/// A pose seen through a camera: model point → pixel.
+enum Projector<'a> {
+    /// `cam_K`: P = K·[R | t] applied at once, as `misc.project_pts`.
+    Pinhole([[f64; 4]; 3]),
+    /// A lens model: the point moved to the camera frame, then projected,
+    /// as the toolkit's `pose_error_htt.project_pts_htt`.
+    Lens(&'a LensCamera, PoseMm),
+}
+
+impl Projector<'_> {
+    fn new<'a>(camera: &'a Projection, pose: &PoseMm) -> Projector<'a> {
+        match camera {
+            Projection::Pinhole(k) => Projector::Pinhole(projection(k, pose)),
+            Projection::Lens(l) => Projector::Lens(l, *pose),
+        }
+    }
+
+    #[inline]
+    fn at(&self, x: DVec3) -> (f64, f64) {
+        match self {
+            Projector::Pinhole(p) => project(p, x),
+            Projector::Lens(l, pose) => {
+                let [u, v] = l.project(apply(pose, x));
+                (u, v)
+            }
+        }
+    }
+}
+
+/// Maximum Symmetry-aware Projection Distance (pixels) through `camera`:
+/// a pinhole `cam_K`, or a lens model (HOT3D's fisheyes) as the toolkit
+/// projects it with the Hand Tracking Toolkit.
+pub fn mspd(est: &PoseMm, gt: &PoseMm, camera: &Projection, pts: &[DVec3], syms: &[Symmetry]) -> f64 {
+    let pe = Projector::new(camera, est);
+    let proj_est: Vec<(f64, f64)> = pts.iter().map(|&x| pe.at(x)).collect();
     syms.iter()
         .map(|s| {
-            let pg = projection(k, &symmetric_pose(gt, s));
+            let pg = Projector::new(camera, &symmetric_pose(gt, s));
             pts.iter()
                 .zip(&proj_est)
                 .map(|(&x, e)| {
-                    let g = project(&pg, x);
+                    let g = pg.at(x);
                     ((e.0 - g.0).powi(2) + (e.1 - g.1).powi(2)).sqrt()
                 })
                 .fold(0.0, f64::max)
@@ -294,7 +325,7 @@ mod tests {
         assert!(re(&est.r, &gt.r).abs() < 1e-9);
         // f = 500 px at 1 m: a 3 mm x shift and 4 mm y shift project to 1.5 and 2 px.
         let k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0];
-        let e = mspd(&est, &gt, &k, &pts, &ident);
+        let e = mspd(&est, &gt, &Projection::Pinhole(k), &pts, &ident);
         // Points at z = 990 and 1010: the largest shift is at z = 990.
         let want = 500.0 * 5.0 / 990.0;
         assert!((e - want).abs() < 1e-9, "{e} vs {want}");
@@ -362,9 +393,9 @@ mod tests {
         let plain = ModelInfo { symmetries_discrete: vec![], ..sym.clone() };
         let k = [572.0, 0.0, 320.0, 0.0, 573.0, 240.0, 0.0, 0.0, 1.0];
         assert!(mssd(&est, &gt, &pts, &symmetries(&sym, MAX_SYM_DISC_STEP)) < 1e-9);
-        assert!(mspd(&est, &gt, &k, &pts, &symmetries(&sym, MAX_SYM_DISC_STEP)) < 1e-9);
+        assert!(mspd(&est, &gt, &Projection::Pinhole(k), &pts, &symmetries(&sym, MAX_SYM_DISC_STEP)) < 1e-9);
         assert!(mssd(&est, &gt, &pts, &symmetries(&plain, MAX_SYM_DISC_STEP)) > 60.0);
-        assert!(mspd(&est, &gt, &k, &pts, &symmetries(&plain, MAX_SYM_DISC_STEP)) > 40.0);
+        assert!(mspd(&est, &gt, &Projection::Pinhole(k), &pts, &symmetries(&plain, MAX_SYM_DISC_STEP)) > 40.0);
     }
 
     #[test]

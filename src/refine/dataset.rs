@@ -216,6 +216,8 @@ impl std::ops::AddAssign for ImageStats {
 
 /// An image's depth in metres with its intrinsics.
 pub fn depth_image(scene: &Scene, im_id: u32) -> Result<DepthImage> {
+    // A lens camera is said before the depth is looked for (HOT3D has none).
+    scene.pinhole_k(im_id)?;
     let mm = scene.read_depth(im_id)?;
     let intrinsics = scene.intrinsics(im_id, mm.width, mm.height)?;
     Ok(DepthImage { intrinsics, depth: mm.mm.iter().map(|v| v * 1e-3).collect() })
