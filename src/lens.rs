@@ -311,6 +311,30 @@ mod tests {
     }
 
     #[test]
+    fn every_model_matches_the_hand_tracking_toolkit() {
+        // htt_projections.json: hand_tracking_toolkit.camera's eye_to_window
+        // of points from the axis to 80° off it (one behind a fisheye), for
+        // every model it names (make_htt_projections.py).
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/hot3d-synth/htt_projections.json");
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let cases = v["cases"].as_array().unwrap();
+        assert_eq!(cases.len(), 8);
+        let nums = |x: &serde_json::Value| x.as_array().unwrap().iter().map(|n| n.as_f64().unwrap()).collect::<Vec<f64>>();
+        for c in cases {
+            let model = c["projection_model_type"].as_str().unwrap();
+            let params = nums(&c["projection_params"]);
+            let cam = LensCamera::from_bop(model, 1408.0, 1408.0, &params).unwrap();
+            for (p, w) in c["points"].as_array().unwrap().iter().zip(c["window"].as_array().unwrap()) {
+                let (p, w) = (nums(p), nums(w));
+                let got = cam.project(DVec3::new(p[0], p[1], p[2]));
+                for i in 0..2 {
+                    assert!((got[i] - w[i]).abs() <= 1e-9 * w[i].abs().max(1.0), "{model} {params:?} at {p:?}: {got:?} vs {w:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn bad_cameras_are_refused_with_the_reason() {
         let err = |m: &str, w: f64, p: &[f64]| LensCamera::from_bop(m, w, 480.0, p).unwrap_err().to_string();
         assert!(err("Kannala", 640.0, &[1.0; 8]).contains("unknown projection_model_type 'Kannala'"));
