@@ -778,6 +778,29 @@ fn coco_2d_detection_and_segmentation_match_the_bop_toolkit_bit_for_bit() {
 }
 
 #[test]
+fn hot3d_2d_tasks_match_the_bop_toolkit_bit_for_bit() {
+    // HOT3D's layout for the 2D tasks: masks per camera (mask_rgb/,
+    // mask_visib_gray1/, ...), the camera chosen by scene. reference_coco.json:
+    // scripts/hot3d_coco_reference.sh (the toolkit's calc_gt_coco.py and
+    // eval_bop22_coco.py for hot3d) on make_coco.py's results for it.
+    let want: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(hot3d().join("reference_coco.json")).unwrap()).unwrap();
+    let ds = open_dataset(&hot3d(), "test", None, Some("hot3d")).unwrap();
+    let (images, _) = target_images(&ds, None).unwrap();
+    let hot3d_ids = plausible::eval::bop_obj_ids("hot3d").unwrap();
+    for (file, key, task, boxes) in [
+        ("coco.json", "segm", CocoTask::Segm, BoxKind::Amodal),
+        ("coco.json", "bbox", CocoTask::Bbox, BoxKind::Amodal),
+        ("coco.json", "bbox_modal", CocoTask::Bbox, BoxKind::Modal),
+        ("coco_segm.json", "segm", CocoTask::Segm, BoxKind::Amodal),
+    ] {
+        let results = read_coco_results(&hot3d().join(file)).unwrap();
+        let r = coco::evaluate(&ds, &results, &images, Some(&hot3d_ids), CocoOptions { task, boxes }, &mut |_| Ok(())).unwrap();
+        assert_same_scores(&r, &want[file][key], &format!("hot3d {file} {key}"));
+        assert_eq!(r.n_images, 16);
+    }
+}
+
+#[test]
 fn coco_ground_truth_as_results_scores_one() {
     let ds = dataset();
     let (images, _) = target_images(&ds, None).unwrap();

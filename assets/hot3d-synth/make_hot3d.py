@@ -13,13 +13,17 @@ objects seen through each camera, so that reading the wrong camera's files gives
 objects are LM-O's (models -> ../lmo-synth/models), placed up to 58 degrees off the axis where the
 lens distorts most. The estimates are the ground truth moved by seeded noise: small and large
 errors, symmetric flips, duplicates, misses, false detections and one estimate behind the camera.
-numpy only.
+The evaluated camera of each scene also gets masks (`mask_{camera}/`, `mask_visib_{camera}/`): an
+ellipse about the object's projected centre, of its projected size, cut by a straight edge to the
+instance's visible fraction (drawn from a second generator, so the 6D data stay as they were).
+numpy and imageio.
 """
 import argparse
 import json
 import math
 import os
 
+import imageio.v2 as imageio
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -79,6 +83,48 @@ def check_monotone(coeffs, theta_max):
     assert np.all(np.diff(rd) > 0), "lens not monotone"
 
 
+def fisheye624(params, v):
+    """Window coordinates of camera-frame point v (the Hand Tracking Toolkit's FISHEYE624)."""
+    if len(params) == 15:
+        f, c, k = [params[0]] * 2, params[1:3], params[3:]
+    else:
+        f, c, k = params[0:2], params[2:4], params[4:]
+    r = math.hypot(v[0], v[1])
+    s = math.atan2(r, v[2]) / max(r, 2.0 ** -128)
+    x, y = v[0] * s, v[1] * s
+    r2 = min(x * x + y * y, math.pi ** 2)
+    radial = 1 + sum(k[i] * r2 ** (i + 1) for i in range(6))
+    x, y = x * radial, y * radial
+    q2 = x * x + y * y
+    tx = x + 2 * k[7] * x * y + k[6] * (q2 + 2 * x * x)
+    ty = y + 2 * k[6] * x * y + k[7] * (q2 + 2 * y * y)
+    tx, ty = tx + k[8] * q2 + k[9] * q2 * q2, ty + k[10] * q2 + k[11] * q2 * q2
+    return tx * f[0] + c[0], ty * f[1] + c[1]
+
+
+def masks(mrng, w, h, params, t, diameter, visib):
+    """Full and visible masks of an instance: an ellipse about its projected centre, the visible
+    part the pixels furthest along a random direction, as many as the visible fraction says."""
+    cx, cy = fisheye624(params, t)
+    f = params[0]
+    a = f * 0.5 * diameter / np.linalg.norm(t)
+    b = a * mrng.uniform(0.6, 1.0)
+    phi = mrng.uniform(0, math.pi)
+    ys, xs = np.mgrid[0:h, 0:w]
+    u, v = xs - cx, ys - cy
+    p = (u * math.cos(phi) + v * math.sin(phi)) / a
+    q = (-u * math.sin(phi) + v * math.cos(phi)) / b
+    full = p * p + q * q <= 1.0
+    vis = np.zeros_like(full)
+    idx = np.flatnonzero(full)
+    if idx.size:
+        d = mrng.normal(size=2)
+        along = xs.ravel()[idx] * d[0] + ys.ravel()[idx] * d[1]
+        keep = idx[np.argsort(-along, kind="stable")[: int(round(visib * idx.size))]]
+        vis.ravel()[keep] = True
+    return full, vis
+
+
 def symmetries(info):
     out = [np.eye(4)]
     for s in info.get("symmetries_discrete", []):
@@ -91,6 +137,7 @@ def main():
     ap.add_argument("--seed", type=int, default=7)
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
+    mrng = np.random.default_rng(args.seed + 1000)  # masks only
     check_monotone(ARIA_RGB, 1.2)
     check_monotone(MONO, 1.4)
     info = json.load(open(os.path.join(HERE, "..", "lmo-synth", "models", "models_info.json")))
@@ -129,9 +176,15 @@ def main():
                     },
                     "cam_R_w2c": r_c.flatten().tolist(), "cam_t_w2c": t_c.tolist(),
                 }
-            # Estimates in the evaluated camera's frame (the first listed: gray1 / rgb).
-            eval_cam = first if headset == "quest3" else "rgb"
+            # Masks and estimates for the evaluated camera (gray1 / rgb, the first listed).
+            eval_cam = first
             r_e, t_e = rot_y(cams[eval_cam][3][0]), np.array(cams[eval_cam][3][1], float)
+            w, h, params = cams[eval_cam][:3]
+            for gt_id, ((o, _, t), v) in enumerate(zip(poses, visib)):
+                full, vis = masks(mrng, w, h, params, r_e @ t + t_e, info[str(o)]["diameter"], v)
+                for sub, m in ((f"mask_{eval_cam}", full), (f"mask_visib_{eval_cam}", vis)):
+                    os.makedirs(os.path.join(sdir, sub), exist_ok=True)
+                    imageio.imwrite(os.path.join(sdir, sub, f"{im_id:06d}_{gt_id:06d}.png"), m.astype(np.uint8) * 255)
             time = round(float(rng.uniform(0.05, 0.4)), 3)
             present = set()
             for o, r, t in poses:

@@ -1,7 +1,11 @@
 """Makes COCO-format 2D detection and segmentation results (BOP'22 format) for a
 BOP dataset's target images, seeded (same output every run):
 
-    python3 assets/lmo-synth/make_coco.py DATASET OUT_PREFIX [SEED]
+    python3 assets/lmo-synth/make_coco.py DATASET OUT_PREFIX [SEED [hot3d]]
+
+(`hot3d`: a dataset in HOT3D's layout, read as the toolkit reads it: the images of
+test_targets_bop24.json, each scene's files of its evaluated camera, `_gray1` for scenes up to
+1848, `_rgb` above.)
 
 writes OUT_PREFIX.json (every result has "bbox", a compressed-RLE
 "segmentation" and "time") and OUT_PREFIX_segm.json (no "bbox", half the
@@ -29,7 +33,15 @@ from pycocotools import mask as mu
 
 root, prefix = sys.argv[1], sys.argv[2]
 rng = np.random.default_rng(int(sys.argv[3]) if len(sys.argv) > 3 else 22)
-targets = json.load(open(os.path.join(root, "test_targets_bop19.json")))
+hot3d = len(sys.argv) > 4 and sys.argv[4] == "hot3d"
+targets = json.load(open(os.path.join(root, "test_targets_bop24.json" if hot3d else "test_targets_bop19.json")))
+
+
+def cam(sid):
+    """The file suffix of a scene's evaluated camera."""
+    return ("_gray1" if sid <= 1848 else "_rgb") if hot3d else ""
+
+
 images = []
 for t in targets:
     if (t["scene_id"], t["im_id"]) not in images:
@@ -68,14 +80,14 @@ scenes = {}
 for n, (sid, iid) in enumerate(images):
     d = os.path.join(root, "test", "%06d" % sid)
     if sid not in scenes:
-        scenes[sid] = json.load(open(os.path.join(d, "scene_gt.json")))
+        scenes[sid] = json.load(open(os.path.join(d, f"scene_gt{cam(sid)}.json")))
     gt = scenes[sid][str(iid)]
     t_im = round(float(rng.uniform(0.1, 2.0)), 3)
     out = []
     h = w = None
     for k, inst in enumerate(gt):
-        vis = imageio.imread(os.path.join(d, "mask_visib", "%06d_%06d.png" % (iid, k))) > 0
-        full = imageio.imread(os.path.join(d, "mask", "%06d_%06d.png" % (iid, k))) > 0
+        vis = imageio.imread(os.path.join(d, f"mask_visib{cam(sid)}", "%06d_%06d.png" % (iid, k))) > 0
+        full = imageio.imread(os.path.join(d, f"mask{cam(sid)}", "%06d_%06d.png" % (iid, k))) > 0
         h, w = vis.shape
         if vis.sum() == 0 or rng.random() < 0.15:
             continue
