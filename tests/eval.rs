@@ -380,6 +380,37 @@ fn a_split_annotated_per_sensor_with_tiff_depth_evaluates_as_the_classic_one() {
 }
 
 #[test]
+fn a_pinhole_cam_model_evaluates_as_cam_k() {
+    // BOP-H3 writes pinhole cameras (HANDAL, HOPEv2) as a PinholePlane
+    // cam_model: VSD renders with its K, MSPD projects through it (as the
+    // toolkit's Hand Tracking Toolkit path does), the image size is its own.
+    let d = tempfile::tempdir().unwrap();
+    copy_dir(&assets(), d.path());
+    let path = d.path().join("test/000002/scene_camera.json");
+    let mut cams: serde_json::Map<String, serde_json::Value> = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    for c in cams.values_mut() {
+        let k: Vec<f64> = c["cam_K"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let c = c.as_object_mut().unwrap();
+        c.remove("cam_K");
+        c.insert(
+            "cam_model".into(),
+            serde_json::json!({"projection_model_type": "PinholePlane", "projection_params": [k[0], k[4], k[2], k[5]], "image_width": 640, "image_height": 480}),
+        );
+    }
+    std::fs::write(&path, serde_json::to_string(&cams).unwrap()).unwrap();
+    let ds = Dataset::open(d.path(), "test").unwrap();
+    assert!(matches!(ds.scene(2).unwrap().frame_camera(3).unwrap().projection, Projection::Lens(_)));
+    let results = read_results(&assets().join("perturbed.csv")).unwrap();
+    let opts = EvalOptions { errors: vec![ErrorType::Vsd, ErrorType::Mssd, ErrorType::Mspd], ..Default::default() };
+    let (want, got) = (run(&dataset(), &results, &Device::Cpu, &opts), run(&ds, &results, &Device::Cpu, &opts));
+    assert_eq!((got.ar, got.ar_vsd, got.ar_mssd, got.ar_mspd), (want.ar, want.ar_vsd, want.ar_mssd, want.ar_mspd));
+    // A cam_model of another size than the dataset's camera.json is refused.
+    std::fs::write(&path, std::fs::read_to_string(&path).unwrap().replace("\"image_width\":640", "\"image_width\":1280")).unwrap();
+    let e = err_of(Dataset::open(d.path(), "test").unwrap().scene(2).unwrap().image_size(3));
+    assert!(e.contains("cam_model is 1280x480 but the dataset's camera file says 640x480"), "{e}");
+}
+
+#[test]
 fn detection_keeps_the_best_estimates_of_each_image_up_to_the_cap() {
     let ds = dataset();
     let gt = detection_gt(&ds);
