@@ -750,6 +750,9 @@ pub fn evaluate(
         let scene = &scenes[scene_id];
         let images: Vec<(&u32, &Vec<(usize, Target)>)> = images.iter().collect();
         for batch in images.chunks(opts.batch_images) {
+            // Depth for VSD, or for the visible fractions of a scene without
+            // scene_gt_info (the others keep theirs: HOT3D has no depth).
+            let need_depth = opts.has(ErrorType::Vsd) || scene.gt_info.is_none();
             let ctx = BatchCtx { scene, models: &models, opts, device, need_depth };
             let _span = tracing::trace_span!("batch", scene = scene.id, images = batch.len()).entered();
             let (t, r) = ctx.run(batch, &index, &mut report)?;
@@ -894,7 +897,13 @@ impl BatchCtx<'_> {
                 }
                 let camera = self.scene.frame_camera(im_id)?.projection;
                 if self.need_depth {
-                    self.scene.pinhole_k(im_id)?;
+                    self.scene.pinhole_k(im_id).map_err(|e| match (&self.scene.gt_info, self.opts.has(ErrorType::Vsd)) {
+                        (None, false) => Error::InvalidInput(format!(
+                            "{} is missing: without it the visible fractions are computed from depth, which needs a pinhole camera ({e})",
+                            self.scene.file("scene_gt_info").display()
+                        )),
+                        _ => e,
+                    })?;
                 }
                 let depth = if self.need_depth { Some(self.scene.read_depth(im_id)?) } else { None };
                 let (width, pinhole) = match &depth {

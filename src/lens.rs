@@ -16,6 +16,7 @@
 
 use glam::DVec3;
 
+use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 
 /// A camera model of the Hand Tracking Toolkit, by its
@@ -122,7 +123,9 @@ impl LensCamera {
         if let Some(v) = params.iter().find(|v| !v.is_finite()) {
             return Err(bad(format!("projection_params holds {v}")));
         }
-        let (f, c, rest) = if kind == LensKind::Fisheye624 && params.len() == 15 {
+        // Only Aria's `CameraModelType.FISHEYE624` has the single focal
+        // length form (the toolkit's "Aria data hack").
+        let (f, c, rest) = if model == "CameraModelType.FISHEYE624" && params.len() == 15 {
             ([params[0]; 2], [params[1], params[2]], &params[3..])
         } else if params.len() >= 4 {
             ([params[0], params[1]], [params[2], params[3]], &params[4..])
@@ -130,7 +133,7 @@ impl LensCamera {
             return Err(bad(format!("projection_params has {} numbers; {model} takes fx, fy, cx, cy then {} coefficients", params.len(), kind.n_coeffs())));
         };
         if rest.len() != kind.n_coeffs() {
-            let aria = if kind == LensKind::Fisheye624 { " (or f, cx, cy and 12: 15 numbers)" } else { "" };
+            let aria = if model == "CameraModelType.FISHEYE624" { " (or f, cx, cy and 12: 15 numbers)" } else { "" };
             return Err(bad(format!(
                 "projection_params has {} numbers; {model} takes fx, fy, cx, cy then {} coefficients{aria}",
                 params.len(),
@@ -140,6 +143,10 @@ impl LensCamera {
         if f.iter().any(|&v| v <= 0.0) {
             return Err(bad(format!("focal lengths must be positive (fx {}, fy {})", f[0], f[1])));
         }
+        // The size is known, so the pinhole check applies: a principal point
+        // far outside the image or a focal length of a pixel would score
+        // every estimate 0 (or every MSPD 0) without a word.
+        Intrinsics { fx: f[0], fy: f[1], cx: c[0], cy: c[1], width, height }.check_against_image().map_err(bad)?;
         let mut coeffs = [0.0; 12];
         coeffs[..rest.len()].copy_from_slice(rest);
         Ok(LensCamera { kind, width, height, f, c, coeffs })
@@ -166,8 +173,8 @@ impl LensCamera {
         let k = &self.coeffs;
         match self.kind {
             LensKind::PinholePlane => p,
-            LensKind::OpenCv => opencv(p, [k[0], k[1], k[2]], [0.0; 3], k[3], k[4]),
-            LensKind::Rational => opencv(p, [k[0], k[1], k[2]], [k[5], k[6], k[7]], k[3], k[4]),
+            LensKind::OpenCv => opencv(p, [k[0], k[1], k[2]], None, k[3], k[4]),
+            LensKind::Rational => opencv(p, [k[0], k[1], k[2]], Some([k[5], k[6], k[7]]), k[3], k[4]),
             LensKind::Fisheye44 => fisheye44(p, k),
             LensKind::Fisheye62 => {
                 let [x, y] = radial6(p, [k[0], k[1], k[2], k[3], k[6], k[7]]);
@@ -210,14 +217,15 @@ fn tangential([x, y]: [f64; 2], p1: f64, p2: f64) -> [f64; 2] {
     [x + (2.0 * p2 * xy + p1 * (r2 + 2.0 * x2)), y + (2.0 * p1 * xy + p2 * (r2 + 2.0 * y2))]
 }
 
-/// OpenCV's radial (`num / den`, den 1 for the five-coefficient model) and
-/// tangential terms.
-fn opencv([x, y]: [f64; 2], num: [f64; 3], den: [f64; 3], p1: f64, p2: f64) -> [f64; 2] {
+/// OpenCV's radial (`num / den`; the five-coefficient model has no
+/// denominator, the rational one always divides, even by 1 + 0·r², which
+/// is NaN for an infinite r as in the toolkit) and tangential terms.
+fn opencv([x, y]: [f64; 2], num: [f64; 3], den: Option<[f64; 3]>, p1: f64, p2: f64) -> [f64; 2] {
     let (x2, y2, xy) = (x * x, y * y, x * y);
     let r2 = x2 + y2;
     let (r4, r6) = (r2 * r2, r2 * r2 * r2);
     let mut radial = 1.0 + num[0] * r2 + num[1] * r4 + num[2] * r6;
-    if den != [0.0; 3] {
+    if let Some(den) = den {
         radial /= 1.0 + den[0] * r2 + den[1] * r4 + den[2] * r6;
     }
     [x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2), y * radial + 2.0 * p2 * xy + p1 * (r2 + 2.0 * y2)]
@@ -296,18 +304,17 @@ mod tests {
         let (k1, k2, k3, p1, p2) = (-0.2, 0.05, -0.01, 1e-3, -2e-3);
         let r2 = x * x + y * y;
         let radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2;
-        let want = [x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + 2.0 * p2 * x * y + p1 * (r2 + 2.0 * y * y)];
-        let cam = LensCamera::from_bop("OpenCV", 640.0, 480.0, &[1.0, 1.0, 0.0, 0.0, k1, k2, k3, p1, p2]).unwrap();
-        let got = cam.project(DVec3::new(x, y, 1.0));
-        assert!((got[0] - want[0]).abs() < 1e-12 && (got[1] - want[1]).abs() < 1e-12);
-        // Rational with a zero denominator polynomial is the same model.
-        let rat = LensCamera::from_bop("Rational", 640.0, 480.0, &[1.0, 1.0, 0.0, 0.0, k1, k2, k3, p1, p2, 0.0, 0.0, 0.0]).unwrap();
-        let g2 = rat.project(DVec3::new(x, y, 1.0));
-        assert!((g2[0] - want[0]).abs() < 1e-12 && (g2[1] - want[1]).abs() < 1e-12);
-        let rat = LensCamera::from_bop("Rational", 640.0, 480.0, &[1.0, 1.0, 0.0, 0.0, k1, k2, k3, p1, p2, 0.1, 0.0, 0.0]).unwrap();
-        let g3 = rat.project(DVec3::new(x, y, 1.0));
-        let radial = radial / (1.0 + 0.1 * r2);
-        assert!((g3[0] - (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x))).abs() < 1e-12);
+        let px = |radial: f64| [500.0 * (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)) + 320.0, 500.0 * (y * radial + 2.0 * p2 * x * y + p1 * (r2 + 2.0 * y * y)) + 240.0];
+        let close = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9;
+        let cam = |model: &str, extra: &[f64]| {
+            let mut p = vec![500.0, 500.0, 320.0, 240.0, k1, k2, k3, p1, p2];
+            p.extend(extra);
+            LensCamera::from_bop(model, 640.0, 480.0, &p).unwrap().project(DVec3::new(x, y, 1.0))
+        };
+        assert!(close(cam("OpenCV", &[]), px(radial)));
+        // Rational with a zero denominator polynomial is the same model; with k4 it divides.
+        assert!(close(cam("Rational", &[0.0, 0.0, 0.0]), px(radial)));
+        assert!(close(cam("Rational", &[0.1, 0.0, 0.0]), px(radial / (1.0 + 0.1 * r2))));
     }
 
     #[test]
@@ -341,9 +348,13 @@ mod tests {
         assert!(err("PinholePlane", 640.0, &[500.0, 500.0, 320.0]).contains("has 3 numbers"));
         assert!(err("PinholePlane", 640.0, &[500.0, 500.0, 320.0, 240.0, 0.1]).contains("then 0 coefficients"));
         assert!(err("CameraModelType.FISHEYE624", 640.0, &[500.0; 14]).contains("15 numbers"));
+        // The single focal length form is Aria's FISHEYE624 alone, as in the toolkit.
+        assert!(err("OculusVisionFishEye624", 640.0, &[500.0; 15]).contains("has 15 numbers"));
         assert!(err("PinholePlane", 640.5, &[500.0, 500.0, 320.0, 240.0]).contains("image_width 640.5"));
         assert!(err("PinholePlane", 0.0, &[500.0, 500.0, 320.0, 240.0]).contains("image_width 0"));
         assert!(err("PinholePlane", 640.0, &[-500.0, 500.0, 320.0, 240.0]).contains("positive"));
         assert!(err("PinholePlane", 640.0, &[f64::NAN, 500.0, 320.0, 240.0]).contains("NaN"));
+        assert!(err("PinholePlane", 640.0, &[500.0, 500.0, 1e300, 240.0]).contains("principal point"));
+        assert!(err("PinholePlane", 640.0, &[1e-300, 500.0, 320.0, 240.0]).contains("not plausible"));
     }
 }

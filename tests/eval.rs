@@ -316,6 +316,19 @@ fn lens_cameras_refuse_what_needs_a_pinhole_and_bad_cam_models_are_clear() {
     let opts = EvalOptions { errors: vec![ErrorType::Vsd, ErrorType::Mssd], ..EvalOptions::for_dataset(Some("hot3d")) };
     let e = err_of(evaluate(&ds, &results, &listed, &Device::Cpu, &opts, &mut |_| Ok(())));
     assert!(e.contains("fisheye 624 lens model") && e.contains("need a pinhole camera"), "{e}");
+    // A scene without its scene_gt_info file says so (its visible fractions
+    // would come from depth, which a fisheye has no use for).
+    let d0 = tempfile::tempdir().unwrap();
+    for sub in ["test", "models"] {
+        std::fs::create_dir(d0.path().join(sub)).unwrap();
+    }
+    copy_dir(&hot3d().join("test"), &d0.path().join("test"));
+    copy_dir(&assets().join("models"), &d0.path().join("models"));
+    std::fs::copy(hot3d().join("test_targets_bop24.json"), d0.path().join("test_targets_bop24.json")).unwrap();
+    std::fs::remove_file(d0.path().join("test/003401/scene_gt_info_rgb.json")).unwrap();
+    let no_info = open_dataset(d0.path(), "test", None, Some("hot3d")).unwrap();
+    let e = err_of(evaluate(&no_info, &results, &listed, &Device::Cpu, &EvalOptions::detection(Some("hot3d")), &mut |_| Ok(())));
+    assert!(e.contains("003401/scene_gt_info_rgb.json is missing") && e.contains("fisheye 624"), "{e}");
     // A scene outside HOT3D's ranges has no camera by the rule.
     let d = tempfile::tempdir().unwrap();
     for sub in ["test", "models"] {
@@ -404,10 +417,14 @@ fn a_pinhole_cam_model_evaluates_as_cam_k() {
     let opts = EvalOptions { errors: vec![ErrorType::Vsd, ErrorType::Mssd, ErrorType::Mspd], ..Default::default() };
     let (want, got) = (run(&dataset(), &results, &Device::Cpu, &opts), run(&ds, &results, &Device::Cpu, &opts));
     assert_eq!((got.ar, got.ar_vsd, got.ar_mssd, got.ar_mspd), (want.ar, want.ar_vsd, want.ar_mssd, want.ar_mspd));
-    // A cam_model of another size than the dataset's camera.json is refused.
+    // A cam_model of another size than the dataset's camera.json is refused,
+    // and without camera.json, one of another size than its depth image.
     std::fs::write(&path, std::fs::read_to_string(&path).unwrap().replace("\"image_width\":640", "\"image_width\":1280")).unwrap();
     let e = err_of(Dataset::open(d.path(), "test").unwrap().scene(2).unwrap().image_size(3));
     assert!(e.contains("cam_model is 1280x480 but the dataset's camera file says 640x480"), "{e}");
+    std::fs::remove_file(d.path().join("camera.json")).unwrap();
+    let e = err_of(Dataset::open(d.path(), "test").unwrap().scene(2).unwrap().read_depth(3));
+    assert!(e.contains("depth is 640x480 but the image's cam_model") && e.contains("says 1280x480"), "{e}");
 }
 
 #[test]

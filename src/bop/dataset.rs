@@ -16,7 +16,8 @@ use serde::Deserialize;
 
 use crate::camera::Intrinsics;
 use crate::lens::LensCamera;
-use crate::observation::{png_size, MAX_IMAGE_SIDE};
+use super::tiff_depth::{depth_size, is_tiff, read_tiff_depth};
+use crate::observation::MAX_IMAGE_SIDE;
 use crate::error::{Error, Result};
 use crate::pose::Pose;
 
@@ -537,7 +538,7 @@ impl Scene {
             Projection::Lens(l) => l.pinhole_k().ok_or_else(|| Error::BadJson {
                 path: self.file("scene_camera"),
                 reason: format!(
-                    "image {im_id}: its camera is a {} lens model (cam_model); rendering, depth and VSD need a pinhole camera (cam_K or a PinholePlane cam_model), as in the BOP toolkit (MSSD and MSPD take any lens)",
+                    "image {im_id}: its camera is a {} lens model (cam_model); rendering, depth and VSD need a pinhole camera (cam_K or a PinholePlane cam_model; the BOP toolkit computes VSD for cam_K alone), MSSD and MSPD take any lens",
                     l.kind.name()
                 ),
             }),
@@ -561,7 +562,17 @@ impl Scene {
             return Ok(s);
         }
         let path = self.depth_path(im_id);
-        let (w, h) = png_size(&path)?;
+        if !path.exists() {
+            // Say why depth was looked for (an RGB-only split with cam_K).
+            return Err(Error::BadJson {
+                path: self.file("scene_camera"),
+                reason: format!(
+                    "image {im_id}: its size is unknown: its camera is a cam_K (no size), the dataset has no camera file and there is no depth image {}",
+                    path.display()
+                ),
+            });
+        }
+        let (w, h) = depth_size(&path)?;
         self.check_size(&path, w, h)?;
         Ok((w, h))
     }
@@ -577,7 +588,7 @@ impl Scene {
             None => {
                 let (first, fw, fh) = self.first_size.get_or_init(|| {
                     let first = self.gt.keys().next().map(|&im| self.depth_path(im)).filter(|p| p.is_file()).unwrap_or_else(|| path.to_path_buf());
-                    let (fw, fh) = if first == path { (w, h) } else { png_size(&first).unwrap_or((w, h)) };
+                    let (fw, fh) = if first == path { (w, h) } else { depth_size(&first).unwrap_or((w, h)) };
                     (first, fw, fh)
                 });
                 if (w, h) != (*fw, *fh) {
@@ -598,17 +609,25 @@ impl Scene {
         let path = self.depth_path(im_id);
         let cam = self.frame_camera(im_id)?;
         let bad = |reason: String| Error::BadImage { path: path.clone(), reason };
-        let (w, h) = png_size(&path)?;
+        let (w, h) = depth_size(&path)?;
         self.check_size(&path, w, h)?;
-        let img = image::open(&path).map_err(|e| bad(e.to_string()))?;
-        let image::DynamicImage::ImageLuma16(img) = img else {
-            return Err(bad(format!("depth must be a 16-bit single-channel image (BOP convention: PNG, TIFF for ITODD), got {:?}", img.color())));
-        };
+        if let Some((cw, ch)) = cam.projection.image_size().filter(|&s| s != (w, h)) {
+            return Err(bad(format!("depth is {w}x{h} but the image's cam_model in {} says {cw}x{ch}", self.file("scene_camera").display())));
+        }
         let s = cam.depth_scale.ok_or_else(|| Error::BadJson {
             path: self.file("scene_camera"),
             reason: format!("image {im_id} has no depth_scale (PNG value × depth_scale = mm), needed to read its depth"),
         })?;
-        let mm: Vec<f32> = img.as_raw().iter().map(|&v| v as f32 * s as f32).collect();
+        let mm: Vec<f32> = if is_tiff(&path) {
+            let (_, _, v) = read_tiff_depth(&path)?;
+            v.into_iter().map(|v| v * s as f32).collect()
+        } else {
+            let img = image::open(&path).map_err(|e| bad(e.to_string()))?;
+            let image::DynamicImage::ImageLuma16(img) = img else {
+                return Err(bad(format!("depth must be a 16-bit single-channel PNG (BOP convention; TIFF for ITODD and float sensors), got {:?}", img.color())));
+            };
+            img.as_raw().iter().map(|&v| v as f32 * s as f32).collect()
+        };
         crate::observation::check_depth_scale(&mm, 1e-3, s).map_err(bad)?;
         Ok(DepthMm { width: w, height: h, mm })
     }

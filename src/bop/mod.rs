@@ -4,6 +4,7 @@
 
 pub mod dataset;
 pub mod results;
+pub mod tiff_depth;
 
 pub use dataset::{
     read_models_info, read_scene_camera, read_scene_gt, read_scene_gt_info, read_targets, ContinuousSymmetry, Dataset, DepthMm,

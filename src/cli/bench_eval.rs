@@ -20,6 +20,10 @@ pub struct BenchEvalArgs {
     /// Results file (default: the shipped perturbed estimates).
     #[arg(long)]
     pub results: Option<PathBuf>,
+    /// BOP dataset name (lmo, tless, hot3d, ...) for the toolkit's
+    /// per-dataset settings; default: the dataset folder's name when it is one.
+    #[arg(long)]
+    pub dataset_name: Option<String>,
     /// COCO results for the 2D detection and segmentation rows (default:
     /// the dataset's coco.json when it has one, as the shipped subset does;
     /// without one those rows are left out).
@@ -86,7 +90,7 @@ pub fn bench_eval(a: BenchEvalArgs, verbose: u8) -> Result<()> {
         None => super::asset("assets/lmo-synth").context("--dataset")?,
     };
     let results_path = a.results.clone().unwrap_or_else(|| root.join("perturbed.csv"));
-    let name = plausible::eval::toolkit_dataset_name(&root, None)?;
+    let name = plausible::eval::toolkit_dataset_name(&root, a.dataset_name.as_deref()).context("--dataset-name")?;
     let ds = plausible::eval::open_dataset(&root, &a.split, None, name.as_deref()).context("--dataset")?;
     let results = read_results(&results_path).context("--results")?;
     let devices = super::bench_eval::side_by_side(&a.device, a.adapter.as_deref(), a.no_cpu, verbose)?;

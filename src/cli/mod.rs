@@ -242,6 +242,19 @@ fn resolved(p: &std::path::Path) -> Option<PathBuf> {
     Some(dir.join(p.file_name()?))
 }
 
+/// The flag to blame for an error reading the targets: `--targets` where
+/// the error is about the targets file, else `--dataset` (the scene files
+/// that the targets are checked against).
+pub fn targets_flag(e: &plausible::Error, targets: Option<&std::path::Path>, ds: &plausible::bop::Dataset) -> &'static str {
+    let file = targets.map(std::path::Path::to_path_buf).unwrap_or_else(|| ds.targets_file(false));
+    let msg = e.to_string();
+    if msg.contains(&file.display().to_string()) || msg.contains("test_targets") || msg.contains("targets file") {
+        "--targets"
+    } else {
+        "--dataset"
+    }
+}
+
 /// Refuses two flags naming one file where one of them is written: an
 /// output would overwrite an input, or another output.
 pub fn distinct_files(outputs: &[(&str, Option<&std::path::Path>)], inputs: &[(&str, Option<&std::path::Path>)]) -> Result<()> {

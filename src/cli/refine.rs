@@ -251,6 +251,8 @@ pub fn load_scenes(ds: &Dataset, images: impl Iterator<Item = (u32, u32)>) -> Re
         }
         let scene = &scenes[&scene_id];
         let at = || format!("scene {scene_id} image {im_id}");
+        // A lens camera first: HOT3D has no depth either, and the lens is the reason.
+        scene.pinhole_k(im_id).with_context(at)?;
         let depth = scene.depth_path(im_id);
         if !depth.is_file() {
             bail!("{}: no depth image {}", at(), depth.display());

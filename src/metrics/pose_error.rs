@@ -93,12 +93,31 @@ pub fn symmetric_pose(gt: &PoseMm, s: &Symmetry) -> PoseMm {
 /// Maximum Symmetry-aware Surface Distance: min over symmetries of the
 /// largest distance between corresponding model points.
 pub fn mssd(est: &PoseMm, gt: &PoseMm, pts: &[DVec3], syms: &[Symmetry]) -> f64 {
-    syms.iter()
-        .map(|s| {
-            let g = symmetric_pose(gt, s);
-            pts.iter().map(|&x| (apply(est, x) - apply(&g, x)).length()).fold(0.0, f64::max)
-        })
-        .fold(f64::INFINITY, f64::min)
+    py_min(syms.iter().map(|s| {
+        let g = symmetric_pose(gt, s);
+        np_max(pts.iter().map(|&x| (apply(est, x) - apply(&g, x)).length()))
+    }))
+}
+
+/// numpy's `max` of distances: NaN when any is NaN (a point or projection
+/// that overflowed), which no threshold accepts. A plain `f64::max` fold
+/// drops NaN and would score such an estimate 0, i.e. perfect.
+fn np_max(v: impl Iterator<Item = f64>) -> f64 {
+    v.fold(0.0, |m, x| if m.is_nan() || x.is_nan() { f64::NAN } else { m.max(x) })
+}
+
+/// Python's `min` of the per-symmetry errors, as the toolkit takes it: the
+/// first, replaced by each later one that is smaller (a NaN first stays, a
+/// later NaN never replaces).
+fn py_min(v: impl Iterator<Item = f64>) -> f64 {
+    let mut it = v;
+    let Some(mut m) = it.next() else { return f64::INFINITY };
+    for x in it {
+        if x < m {
+            m = x;
+        }
+    }
+    m
 }
 
 /// Projection matrix P = K·[R | t] (3×4), as `misc.project_pts` builds it.
@@ -156,18 +175,13 @@ impl Projector<'_> {
 pub fn mspd(est: &PoseMm, gt: &PoseMm, camera: &Projection, pts: &[DVec3], syms: &[Symmetry]) -> f64 {
     let pe = Projector::new(camera, est);
     let proj_est: Vec<(f64, f64)> = pts.iter().map(|&x| pe.at(x)).collect();
-    syms.iter()
-        .map(|s| {
-            let pg = Projector::new(camera, &symmetric_pose(gt, s));
-            pts.iter()
-                .zip(&proj_est)
-                .map(|(&x, e)| {
-                    let g = pg.at(x);
-                    ((e.0 - g.0).powi(2) + (e.1 - g.1).powi(2)).sqrt()
-                })
-                .fold(0.0, f64::max)
-        })
-        .fold(f64::INFINITY, f64::min)
+    py_min(syms.iter().map(|s| {
+        let pg = Projector::new(camera, &symmetric_pose(gt, s));
+        np_max(pts.iter().zip(&proj_est).map(|(&x, e)| {
+            let g = pg.at(x);
+            ((e.0 - g.0).powi(2) + (e.1 - g.1).powi(2)).sqrt()
+        }))
+    }))
 }
 
 /// Sum of `v` by pairwise summation, in numpy's order (blocks of up to 128
@@ -296,6 +310,21 @@ impl PointTree {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_overflowing_projection_is_nan_not_zero() {
+        // An estimate metres beyond f64's range projects to NaN: no
+        // threshold may accept it (a plain max fold made it 0 px, perfect).
+        let k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0];
+        let pts = [DVec3::new(10.0, 0.0, 0.0), DVec3::new(0.0, 10.0, 5.0)];
+        let gt = PoseMm { r: DMat3::IDENTITY, t: DVec3::new(0.0, 0.0, 500.0) };
+        let far = PoseMm { r: DMat3::IDENTITY, t: DVec3::new(f64::INFINITY, 0.0, 1.0) };
+        assert!(mspd(&far, &gt, &Projection::Pinhole(k), &pts, &[Symmetry::IDENTITY]).is_nan());
+        assert!(mssd(&far, &gt, &pts, &[Symmetry::IDENTITY]).is_infinite());
+        // Python's min over symmetries: a NaN first stays, a later one does not win.
+        assert!(py_min([f64::NAN, 1.0].into_iter()).is_nan());
+        assert_eq!(py_min([2.0, f64::NAN, 1.0].into_iter()), 1.0);
+    }
 
     fn pose(r: DMat3, t: DVec3) -> PoseMm {
         PoseMm { r, t }
