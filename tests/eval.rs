@@ -427,6 +427,47 @@ fn a_pinhole_cam_model_evaluates_as_cam_k() {
     assert!(e.contains("depth is 640x480 but the image's cam_model") && e.contains("says 1280x480"), "{e}");
 }
 
+/// Writes a grey float TIFF.
+fn write_f32_tiff(path: &Path, w: u32, h: u32, v: &[f32]) {
+    let mut enc = tiff::encoder::TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+    enc.write_image::<tiff::encoder::colortype::Gray32Float>(w, h, v).unwrap();
+}
+
+#[test]
+fn float_tiff_depth_evaluates_as_the_16_bit_png() {
+    // A sensor writing float depth (TIFF, read as the toolkit's
+    // imageio.imread(...).astype(float32)): the subset's depth as f32 TIFF,
+    // missing pixels as NaN or negative instead of 0: the same numbers.
+    let d = tempfile::tempdir().unwrap();
+    copy_dir(&assets(), d.path());
+    let dir = d.path().join("test/000002/depth");
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        let img = image::open(&p).unwrap().into_luma16();
+        let v: Vec<f32> = img.as_raw().iter().enumerate().map(|(i, &x)| if x > 0 { x as f32 } else if i % 2 == 0 { f32::NAN } else { -1.0 }).collect();
+        write_f32_tiff(&p.with_extension("tif"), img.width(), img.height(), &v);
+        std::fs::remove_file(&p).unwrap();
+    }
+    let ds = Dataset::open(d.path(), "test").unwrap();
+    assert!(ds.scene(2).unwrap().depth_path(3).ends_with("depth/000003.tif"));
+    let results = read_results(&assets().join("perturbed.csv")).unwrap();
+    let opts = EvalOptions { errors: vec![ErrorType::Vsd, ErrorType::Mssd, ErrorType::Mspd], ..Default::default() };
+    let (want, got) = (run(&dataset(), &results, &Device::Cpu, &opts), run(&ds, &results, &Device::Cpu, &opts));
+    assert_eq!((got.ar, got.ar_vsd), (want.ar, want.ar_vsd));
+    // An infinite depth, a colour TIFF and a truncated one are clear errors.
+    let p = dir.join("000003.tif");
+    write_f32_tiff(&p, 640, 480, &[f32::INFINITY; 640 * 480]);
+    let e = err_of(ds.scene(2).unwrap().read_depth(3));
+    assert!(e.contains("000003.tif") && e.contains("307200 pixels hold an infinite depth"), "{e}");
+    image::RgbImage::new(640, 480).save(&p).unwrap();
+    let e = err_of(ds.scene(2).unwrap().read_depth(3));
+    assert!(e.contains("single-channel") && e.contains("RGB"), "{e}");
+    write_f32_tiff(&p, 640, 480, &[1000.0; 640 * 480]);
+    let bytes = std::fs::read(&p).unwrap();
+    std::fs::write(&p, &bytes[..bytes.len() / 3]).unwrap();
+    assert!(err_of(ds.scene(2).unwrap().read_depth(3)).contains("000003.tif"));
+}
+
 #[test]
 fn detection_keeps_the_best_estimates_of_each_image_up_to_the_cap() {
     let ds = dataset();
