@@ -4,10 +4,9 @@
 #
 #   scripts/hot3d_reference.sh DATASET RESULTS.csv OUTDIR
 #
-# DATASET: e.g. assets/hot3d-synth. OUTDIR gets: datasets/hot3d/ (shadow dataset: test/ and
-#   test_targets_bop24.json linked, models_eval/ with the 33 model files the toolkit loads for hot3d:
-#   the dataset's own, the missing ones linked to its first and given its models_info entry; they
-#   are never annotated, so they score nothing), results/METHOD_hot3d-test.csv, eval/ (toolkit
+# DATASET: e.g. assets/hot3d-synth. OUTDIR gets: datasets/hot3d/ (shadow dataset made by
+#   scripts/hot3d_shadow.py: links to the scenes and targets, models_eval/ with the 33 model files the
+#   toolkit loads for hot3d), results/METHOD_hot3d-test.csv, eval/ (toolkit
 #   output), logs/eval.log, summary.json (scores_bop24.json, the AP of each object per error type and
 #   threshold, the targets per object, wall time).
 # Environment: BOP_TOOLKIT (required: a checkout of thodan/bop_toolkit, commit cea62d6), HTT (required:
@@ -27,24 +26,8 @@ PY="$VENV/bin/python"
 DATASET=hot3d
 mkdir -p "$OUT"; OUT="$(readlink -f "$OUT")"
 rm -rf "$OUT/datasets" "$OUT/results" "$OUT/eval" "$OUT/logs" "$OUT/summary.json"
-D="$OUT/datasets/$DATASET"
-mkdir -p "$D/models_eval" "$OUT/results" "$OUT/eval" "$OUT/logs"
-ln -s "$DATA/test" "$D/test"
-ln -s "$DATA/test_targets_bop24.json" "$D/test_targets_bop24.json"
-MODELS="$DATA/models_eval"; [ -d "$MODELS" ] || MODELS="$DATA/models"
-"$PY" - "$MODELS" "$D/models_eval" <<'EOF'
-import json, os, sys
-src, dst = sys.argv[1:]
-info = json.load(open(os.path.join(src, "models_info.json")))
-first = min(int(k) for k in info)
-for i in range(1, 34):
-    name = f"obj_{i:06d}.ply"
-    have = str(i) in info and os.path.exists(os.path.join(src, name))
-    os.symlink(os.path.join(src, name if have else f"obj_{first:06d}.ply"), os.path.join(dst, name))
-    if not have:
-        info[str(i)] = info[str(first)]
-json.dump(info, open(os.path.join(dst, "models_info.json"), "w"), indent=1)
-EOF
+mkdir -p "$OUT/results" "$OUT/eval" "$OUT/logs"
+"$PY" "$(dirname "$0")/hot3d_shadow.py" "$DATA" "$OUT/datasets/$DATASET"
 base="$(basename "$RESULTS")"; stem="${base%.*}"; NAME="${stem//_/-}_${DATASET}-test.csv"
 cp "$RESULTS" "$OUT/results/$NAME"
 export PATH="$VENV/bin:$PATH" PYTHONPATH="$HERE:$HTT_DIR" BOP_PATH="$OUT/datasets" BOP_RESULTS_PATH="$OUT/results"

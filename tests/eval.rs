@@ -870,7 +870,7 @@ fn coco_2d_detection_and_segmentation_match_the_bop_toolkit_bit_for_bit() {
 fn hot3d_2d_tasks_match_the_bop_toolkit_bit_for_bit() {
     // HOT3D's layout for the 2D tasks: masks per camera (mask_rgb/,
     // mask_visib_gray1/, ...), the camera chosen by scene. reference_coco.json:
-    // scripts/hot3d_coco_reference.sh (the toolkit's calc_gt_coco.py and
+    // scripts/coco_reference.sh with DATASET_NAME=hot3d (the toolkit's calc_gt_coco.py and
     // eval_bop22_coco.py for hot3d) on make_coco.py's results for it.
     let want: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(hot3d().join("reference_coco.json")).unwrap()).unwrap();
     let ds = open_dataset(&hot3d(), "test", None, Some("hot3d")).unwrap();
