@@ -241,22 +241,28 @@ fn gpu_detection_matches_the_bop_toolkit_bit_for_bit() {
         let results = read_results(&assets().join(file)).unwrap();
         for device in devices() {
             let r = detect_on(&ds, &results, &opts, &device);
-            let who = format!("{file} on {}", device.describe());
-            for (got, key) in [(r.ap, "bop24_mAP"), (r.ap_mssd, "bop24_mAP_mssd"), (r.ap_mspd, "bop24_mAP_mspd"), (r.ap_mssd_mm, "bop24_mAP_mssd_mm")] {
-                assert_eq!(got, w[key].as_f64(), "{who}: {key}");
-            }
-            assert_eq!(r.average_time_per_image, w["bop24_average_time_per_image"].as_f64().unwrap(), "{who}");
-            for (e, rows) in &r.per_threshold_ap {
-                for (i, row) in rows.iter().enumerate() {
-                    for (o, ap) in &row.per_object {
-                        assert_eq!(Some(*ap), w["per_threshold_per_object_ap"][e][i][o.to_string()].as_f64(), "{who}: {e} threshold {i} object {o}");
-                    }
-                }
-            }
-            for (o, s) in &r.per_object {
-                assert_eq!(s.targets as u64, w["num_targets_per_object"][o.to_string()].as_u64().unwrap(), "{who}: object {o}");
+            assert_same_detection(&r, w, &format!("{file} on {}", device.describe()));
+        }
+    }
+}
+
+/// A detection report against the toolkit's numbers, bit for bit: the
+/// mAPs, the average time, every object's AP at every threshold and the
+/// instance counts.
+fn assert_same_detection(r: &EvalReport, w: &serde_json::Value, who: &str) {
+    for (got, key) in [(r.ap, "bop24_mAP"), (r.ap_mssd, "bop24_mAP_mssd"), (r.ap_mspd, "bop24_mAP_mspd"), (r.ap_mssd_mm, "bop24_mAP_mssd_mm")] {
+        assert_eq!(got, w[key].as_f64(), "{who}: {key}");
+    }
+    assert_eq!(r.average_time_per_image, w["bop24_average_time_per_image"].as_f64().unwrap(), "{who}");
+    for (e, rows) in &r.per_threshold_ap {
+        for (i, row) in rows.iter().enumerate() {
+            for (o, ap) in &row.per_object {
+                assert_eq!(Some(*ap), w["per_threshold_per_object_ap"][e][i][o.to_string()].as_f64(), "{who}: {e} threshold {i} object {o}");
             }
         }
+    }
+    for (o, s) in &r.per_object {
+        assert_eq!(s.targets as u64, w["num_targets_per_object"][o.to_string()].as_u64().unwrap(), "{who}: object {o}");
     }
 }
 
@@ -276,20 +282,7 @@ fn hot3d_fisheye_detection_matches_the_bop_toolkit_bit_for_bit() {
     let want: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(hot3d().join("reference_detection.json")).unwrap()).unwrap();
     let results = read_results(&hot3d().join("estimates.csv")).unwrap();
     let r = detect(&ds, &results, &EvalOptions::detection(Some("hot3d")));
-    for (got, key) in [(r.ap, "bop24_mAP"), (r.ap_mssd, "bop24_mAP_mssd"), (r.ap_mspd, "bop24_mAP_mspd"), (r.ap_mssd_mm, "bop24_mAP_mssd_mm")] {
-        assert_eq!(got, want[key].as_f64(), "{key}");
-    }
-    assert_eq!(r.average_time_per_image, want["bop24_average_time_per_image"].as_f64().unwrap());
-    for (e, rows) in &r.per_threshold_ap {
-        for (i, row) in rows.iter().enumerate() {
-            for (o, ap) in &row.per_object {
-                assert_eq!(Some(*ap), want["per_threshold_per_object_ap"][e][i][o.to_string()].as_f64(), "{e} threshold {i} object {o}");
-            }
-        }
-    }
-    for (o, s) in &r.per_object {
-        assert_eq!(s.targets as u64, want["num_targets_per_object"][o.to_string()].as_u64().unwrap(), "object {o}");
-    }
+    assert_same_detection(&r, &want, "hot3d estimates.csv");
     // Another camera for every scene is another evaluation (gray2: other
     // poses, other lenses), and MSPD through a pinhole of the same focal
     // length and centre is another number: the lens is what is measured.
