@@ -29,7 +29,7 @@ struct RasterParams {
     width: u32, height: u32, n_hyp: u32, n_meshlets: u32,
     id_bits: u32, cull: u32, radius: f32, tau: f32,
     alpha: f32, near: f32, n_obs: u32, first: u32,
-    draw_budget: u32, pad0: u32, pad1: u32, pad2: u32,
+    draw_budget: u32, slots: u32, pad1: u32, pad2: u32,
 }
 
 struct GpuTriangle { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }

@@ -71,82 +71,91 @@ fn score_traced_main(
     reduce_slot(h, p, wid.x * params.width * params.height, screen_rect(p, dual(p)), false, lid);
 }
 
+// What the pixels of one hypothesis (or one invocation's share of them)
+// add up to: depth and normal agreement sums (eq. 4, 5), pixels rendered
+// where nothing is observed, pixels rendered, -, in front of the
+// observation, and behind it.
+struct PixelSums { sum: vec2<f32>, cnt: vec4<u32>, behind: u32 }
+
+// Adds rendered pixel (x, y) with visibility key `key` (not EMPTY) and
+// observation `obs` to `acc`.
+fn score_pixel(acc: ptr<function, PixelSums>, p: GpuPose, du: Dual, key: u32, obs: vec4<f32>, x: f32, y: f32) {
+    if (obs.w <= 0.0) {
+        // Only where another object is: hidden behind it?
+        if (obs.w < 0.0 && resolve(p, du, key, x, y).w > -obs.w) {
+            return;
+        }
+        (*acc).cnt.y += 1u;
+        (*acc).cnt.x += 1u;
+        return;
+    }
+    (*acc).cnt.y += 1u;
+    let r = resolve(p, du, key, x, y);
+    let diff = r.w - obs.w;
+    (*acc).sum.x += 1.0 - min(1.0, abs(diff) / params.tau);
+    if (dot(obs.xyz, obs.xyz) > 0.0) {
+        let c = clamp(dot(obs.xyz, r.xyz), 0.0, 1.0);
+        (*acc).sum.y += 1.0 - min(1.0, (1.0 - c) / params.alpha);
+    }
+    if (diff < -params.tau) {
+        (*acc).cnt.w += 1u;
+    } else if (diff > params.tau) {
+        (*acc).behind += 1u;
+    }
+}
+
+// The record of a hypothesis whose rendered pixels sum to `acc`; one
+// drawn `over` budget is marked with valid = OVER_BUDGET for the host to
+// score on the CPU.
+fn score_record(acc: PixelSums, over: bool) -> ScoreRecord {
+    var rec: ScoreRecord;
+    rec.valid = params.n_obs + acc.cnt.x;
+    rec.rendered = acc.cnt.y;
+    rec.observed = params.n_obs;
+    rec.front = acc.cnt.w;
+    rec.behind = acc.behind;
+    if (rec.valid > 0u) {
+        let inv = 1.0 / f32(rec.valid);
+        rec.mean_ad = acc.sum.x * inv;
+        rec.mean_an = acc.sum.y * inv;
+        rec.score = 0.5 * (rec.mean_ad + rec.mean_an);
+    } else {
+        rec.mean_ad = 0.0;
+        rec.mean_an = 0.0;
+        rec.score = 0.0;
+    }
+    if (over) {
+        rec.valid = OVER_BUDGET;
+    }
+    return rec;
+}
+
 // Scores hypothesis h from its slot at `base` (keys inside `rect` only),
-// emptying the slot, and writes its record; one drawn `over` budget is
-// marked with valid = OVER_BUDGET for the host to score on the CPU.
+// emptying the slot, and writes its record.
 fn reduce_slot(h: u32, p: GpuPose, base: u32, rect: vec4<i32>, over: bool, lid: u32) {
-    {
-        var sum = vec2<f32>(0.0);
-        var cnt = vec4<u32>(0u); // rendered-only, rendered, -, front
-        var behind = 0u;
-        let n = rect_pixels(rect);
-        let du = dual(p);
-        for (var w = rect_walk(rect, lid); w.j < n; walk_step(&w, rect)) {
-            let key = take_key(base + w.y * params.width + w.x);
-            if (key == EMPTY) {
-                continue;
-            }
-            let obs = textureLoad(observed, vec2<u32>(w.x, w.y), 0);
-            let x = f32(w.x);
-            let y = f32(w.y);
-            if (obs.w <= 0.0) {
-                // Only where another object is: hidden behind it?
-                if (obs.w < 0.0 && resolve(p, du, key, x, y).w > -obs.w) {
-                    continue;
-                }
-                cnt.y += 1u;
-                cnt.x += 1u;
-                continue;
-            }
-            cnt.y += 1u;
-            let r = resolve(p, du, key, x, y);
-            let diff = r.w - obs.w;
-            sum.x += 1.0 - min(1.0, abs(diff) / params.tau);
-            if (dot(obs.xyz, obs.xyz) > 0.0) {
-                let c = clamp(dot(obs.xyz, r.xyz), 0.0, 1.0);
-                sum.y += 1.0 - min(1.0, (1.0 - c) / params.alpha);
-            }
-            if (diff < -params.tau) {
-                cnt.w += 1u;
-            } else if (diff > params.tau) {
-                behind += 1u;
-            }
+    var acc = PixelSums(vec2<f32>(0.0), vec4<u32>(0u), 0u);
+    let n = rect_pixels(rect);
+    let du = dual(p);
+    for (var w = rect_walk(rect, lid); w.j < n; walk_step(&w, rect)) {
+        let key = take_key(base + w.y * params.width + w.x);
+        if (key != EMPTY) {
+            score_pixel(&acc, p, du, key, textureLoad(observed, vec2<u32>(w.x, w.y), 0), f32(w.x), f32(w.y));
         }
-        s_sum[lid] = sum;
-        s_cnt[lid] = cnt;
-        s_behind[lid] = behind;
+    }
+    s_sum[lid] = acc.sum;
+    s_cnt[lid] = acc.cnt;
+    s_behind[lid] = acc.behind;
+    workgroupBarrier();
+    for (var s = WG / 2u; s > 0u; s >>= 1u) {
+        if (lid < s) {
+            s_sum[lid] += s_sum[lid + s];
+            s_cnt[lid] += s_cnt[lid + s];
+            s_behind[lid] += s_behind[lid + s];
+        }
         workgroupBarrier();
-        for (var s = WG / 2u; s > 0u; s >>= 1u) {
-            if (lid < s) {
-                s_sum[lid] += s_sum[lid + s];
-                s_cnt[lid] += s_cnt[lid + s];
-                s_behind[lid] += s_behind[lid + s];
-            }
-            workgroupBarrier();
-        }
-        if (lid == 0u) {
-            let c = s_cnt[0];
-            var rec: ScoreRecord;
-            rec.valid = params.n_obs + c.x;
-            rec.rendered = c.y;
-            rec.observed = params.n_obs;
-            rec.front = c.w;
-            rec.behind = s_behind[0];
-            if (rec.valid > 0u) {
-                let inv = 1.0 / f32(rec.valid);
-                rec.mean_ad = s_sum[0].x * inv;
-                rec.mean_an = s_sum[0].y * inv;
-                rec.score = 0.5 * (rec.mean_ad + rec.mean_an);
-            } else {
-                rec.mean_ad = 0.0;
-                rec.mean_an = 0.0;
-                rec.score = 0.0;
-            }
-            if (over) {
-                rec.valid = OVER_BUDGET;
-            }
-            records[h] = rec;
-        }
+    }
+    if (lid == 0u) {
+        records[h] = score_record(PixelSums(s_sum[0], s_cnt[0], s_behind[0]), over);
     }
 }
 

@@ -871,7 +871,11 @@ fn gpu_fused_score_and_plane_physics_match_the_cpu_twins() {
     let params = ScoreParams::default();
     let (gr, ge, _) = score_poses_with_physics(&Device::Gpu(Box::new(ctx.clone())), &rmesh, &target, &poses, params, &physics, |_| {}).unwrap();
     let (cr, ce, _) = score_poses_with_physics(&Device::Cpu, &rmesh, &target, &poses, params, &physics, |_| {}).unwrap();
-    let plain = GpuScorer::new(&ctx, &rmesh, &target, params, poses.len()).unwrap().score(&poses).unwrap().0;
+    // The fused kernel is score_main's (one workgroup per hypothesis), so
+    // its records equal that kernel's bit for bit.
+    let mut plain = GpuScorer::new(&ctx, &rmesh, &target, params, poses.len()).unwrap();
+    plain.set_kernel(plausible::kernels::score::ScoreKernel::Workgroups).unwrap();
+    let plain = plain.score(&poses).unwrap().0;
     assert_eq!(gr, plain, "the fused kernel changes the visual records");
     let visual_off = gr.iter().zip(&cr).filter(|(g, c)| (g.score - c.score).abs() > 1e-3).count();
     assert!(visual_off <= 4, "{visual_off} visual scores differ from the twin");

@@ -7,7 +7,7 @@ use plausible::camera::Intrinsics;
 use plausible::gpu::{test_context, BatchLimits, Context, GpuOptions};
 use plausible::hypotheses::around_and_random;
 use plausible::kernels::raster::{render_cpu, render_gpu, RenderImage};
-use plausible::kernels::score::{score_cpu, score_image, GpuScorer, ScoreParams};
+use plausible::kernels::score::{score_cpu, score_image, GpuScorer, ScoreKernel, ScoreParams};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -92,6 +92,64 @@ fn score_gpu_matches_cpu_twin() {
         assert!((c.score - g.score).abs() < 1e-3, "hypothesis {i}: cpu {c:?} gpu {g:?}");
         assert!((c.mean_ad - g.mean_ad).abs() < 1e-3 && (c.mean_an - g.mean_an).abs() < 1e-3);
         assert_eq!(c.observed, g.observed);
+    }
+}
+
+/// Whether the adapter runs the lanes score kernel (subgroups of one fixed
+/// size: lavapipe's are its SIMD vector). Where it cannot, says so.
+fn lanes_available(ctx: &Context) -> bool {
+    let ok = ctx.subgroup_lanes.is_some();
+    if !ok {
+        eprintln!("SKIPPED (lanes kernel): {} has no subgroups of one fixed size", ctx.describe());
+        assert!(!ctx.is_software() || std::env::var("PLAUSIBLE_REQUIRE_GPU").as_deref() != Ok("1"), "lavapipe must run the lanes kernel");
+    }
+    ok
+}
+
+/// The two score kernels draw the same visibility keys, so their records
+/// agree: the counts exactly, the means up to the order of f32 sums (the
+/// workgroup kernel adds in a tree, the lanes kernel pixel by pixel).
+/// Over several waves with a part-filled last vector, sheared poses, poses
+/// crossing the near plane, behind the camera or off the image, and other
+/// objects' depth in front; and both agree with the twin.
+#[test]
+fn gpu_lanes_and_workgroup_score_kernels_agree() {
+    let ctx = test_context();
+    if !lanes_available(&ctx) {
+        return;
+    }
+    let mesh = RenderMesh::new(&duck()).unwrap();
+    let truth = true_pose();
+    let mut poses = around_and_random(&truth, 613, 21);
+    let shear = glam::DMat3::from_cols(DVec3::new(1.02, 0.0, 0.0), DVec3::new(0.04, 1.0, 0.0), DVec3::new(0.0, -0.03, 0.97));
+    poses.extend(around_and_random(&truth, 40, 22).iter().map(|p| Pose::new(p.r * shear, p.t)));
+    for z in [0.05, 0.0, -0.3, 0.001] {
+        poses.push(Pose::new(truth.r, DVec3::new(truth.t.x, truth.t.y, z)));
+    }
+    poses.push(Pose::new(truth.r, truth.t + DVec3::new(3.0, 0.0, 0.0)));
+    let plain = demo_target(&mesh, SensorNoise::default());
+    let mut occluded = plain.clone();
+    let wall = RenderMesh::new(&shapes::cuboid(DVec3::new(0.03, 0.2, 0.01))).unwrap();
+    occluded.set_occluders(render_cpu(&wall, &Pose::new(glam::DMat3::IDENTITY, DVec3::new(0.03, -0.01, 0.6)), &occluded.intrinsics).depth).unwrap();
+    let params = ScoreParams::default();
+    for target in [&plain, &occluded] {
+        let mut scorer = GpuScorer::new(&ctx, &mesh, target, params, 256).unwrap();
+        let mut run = |kernel| {
+            scorer.set_kernel(kernel).unwrap();
+            assert_eq!(scorer.kernel(), kernel);
+            scorer.score(&poses).unwrap().0
+        };
+        let (lanes, groups) = (run(ScoreKernel::Lanes), run(ScoreKernel::Workgroups));
+        let cpu = score_cpu(&mesh, target, &poses, &params);
+        assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 400);
+        for (i, ((l, g), c)) in lanes.iter().zip(&groups).zip(&cpu).enumerate() {
+            let counts = |r: &plausible::kernels::score::ScoreRecord| (r.valid, r.rendered, r.observed, r.front, r.behind);
+            assert_eq!(counts(l), counts(g), "hypothesis {i}: lanes {l:?} workgroups {g:?}");
+            for (a, b) in [(l.score, g.score), (l.mean_ad, g.mean_ad), (l.mean_an, g.mean_an)] {
+                assert!((a - b).abs() <= 1e-5, "hypothesis {i}: lanes {l:?} workgroups {g:?}");
+            }
+            assert!((l.score - c.score).abs() < 1e-3, "hypothesis {i}: lanes {l:?} cpu {c:?}");
+        }
     }
 }
 
@@ -713,14 +771,20 @@ fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
     let cast = cast_ids(&rays, &rays.ray_caster().unwrap().gpu_layout(), &GpuPose::from(&truth), &ti, &mut z, &mut ids);
     assert!(cast.overflow);
 
-    for mesh in [&raster, &rays] {
-        let scorer = GpuScorer::new(&ctx, mesh, &target, params, poses.len()).unwrap();
+    // The rasterizer with each of its two score kernels, then the ray caster.
+    let kernels = [(&raster, ScoreKernel::Workgroups), (&raster, ScoreKernel::Lanes), (&rays, ScoreKernel::Auto)];
+    for (mesh, kernel) in kernels {
+        let mut scorer = GpuScorer::new(&ctx, mesh, &target, params, poses.len()).unwrap();
+        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
+            continue;
+        }
+        scorer.set_kernel(kernel).unwrap();
         assert_eq!(scorer.ray_casts(), mesh.renderer == RendererChoice::RayCast);
         let (gpu, _) = scorer.score(&poses).unwrap();
         let cpu = score_cpu(mesh, &target, &poses, &params);
         assert!(cpu[0].rendered > 0);
         for (i, (c, g)) in cpu.iter().zip(&gpu).enumerate() {
-            assert!((c.score - g.score).abs() < 1e-6 && c.rendered == g.rendered, "hypothesis {i}: cpu {c:?} gpu {g:?}");
+            assert!((c.score - g.score).abs() < 1e-6 && c.rendered == g.rendered, "{kernel:?} hypothesis {i}: cpu {c:?} gpu {g:?}");
         }
     }
     for (p, img) in poses.iter().zip(render_gpu(&ctx, &raster, &poses, &ti).unwrap()) {

@@ -8,7 +8,7 @@ use anyhow::{Context as _, Result};
 use glam::DVec3;
 use plausible::camera::Intrinsics;
 use plausible::hypotheses::around_and_random;
-use plausible::kernels::score::{score_cpu, GpuScorer, ScoreParams};
+use plausible::kernels::score::{score_cpu, GpuScorer, ScoreKernel, ScoreParams};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -78,8 +78,34 @@ pub struct BenchScoreArgs {
     /// `bvh` (ray casting through a CWBVH).
     #[arg(long, default_value = "auto")]
     pub renderer: Vec<plausible::kernels::RendererChoice>,
+    /// GPU score kernels to measure (repeatable), each a row beside the same
+    /// CPU figures: `auto` (`lanes` on a software adapter where the mesh
+    /// and region fit its loop budget, else `workgroups`), `workgroups` (a
+    /// workgroup per hypothesis, pixels drawn with atomics: the kernel for
+    /// hardware GPUs) or `lanes` (an invocation per hypothesis: for
+    /// lavapipe, whose atomics run lane by lane)
+    #[arg(long, value_enum, default_value = "auto")]
+    pub kernel: Vec<KernelArg>,
     #[command(flatten)]
     pub device: DeviceArgs,
+}
+
+/// `--kernel` values ([`ScoreKernel`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum KernelArg {
+    Auto,
+    Workgroups,
+    Lanes,
+}
+
+impl From<KernelArg> for ScoreKernel {
+    fn from(k: KernelArg) -> Self {
+        match k {
+            KernelArg::Auto => ScoreKernel::Auto,
+            KernelArg::Workgroups => ScoreKernel::Workgroups,
+            KernelArg::Lanes => ScoreKernel::Lanes,
+        }
+    }
 }
 
 #[derive(Serialize, Debug)]
@@ -98,6 +124,10 @@ pub struct ScoreBenchRow {
     pub cpu_renderer: String,
     pub gpu_renderer: String,
     pub renderer_choice: String,
+    /// The GPU score kernel (`workgroups` or `lanes`; the ray caster has
+    /// its own) and the one asked for.
+    pub gpu_kernel: String,
+    pub kernel_choice: String,
     pub n: usize,
     pub width: u32,
     pub height: u32,
@@ -168,6 +198,7 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
     // A repeated --lod or --renderer would only measure the same row twice.
     a.lod = distinct(&a.lod);
     a.renderer = distinct(&a.renderer);
+    a.kernel = distinct(&a.kernel);
     let device = a.device.open(verbose, true)?;
     let (adapter, backend) = match &device {
         Device::Gpu(c) => (c.info.name.clone(), format!("{:?}", c.info.backend)),
@@ -237,56 +268,58 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 for &renderer in &a.renderer {
                     let mut rmesh = RenderMesh::new(&scoring.mesh)?;
                     rmesh.renderer = renderer;
-                    let mut row = ScoreBenchRow {
-                        adapter: adapter.clone(),
-                        backend: backend.clone(),
-                        mesh: name.clone(),
-                        triangles: scoring.mesh.triangles.len(),
-                        mesh_triangles: mesh.triangles.len(),
-                        lod: lod.to_string(),
-                        lod_error_mm: scoring.error_m * 1e3,
-                        cpu_renderer: cpu_renderer_at(&rmesh, &truth, &ti).to_string(),
-                        gpu_renderer: rmesh.gpu_renderer().to_string(),
-                        renderer_choice: format!("{renderer:?}").to_lowercase(),
-                        n,
-                        width: ti.width,
-                        height: ti.height,
-                        gpu_hyps_per_s: None,
-                        cpu_hyps_per_s: None,
-                        cpu_threads: rayon::current_num_threads(),
-                        gpu_physics_hyps_per_s: None,
-                        cpu_physics_hyps_per_s: None,
-                        upload_ms: None,
-                        render_ms: None,
-                        reduce_ms: None,
-                        readback_ms: None,
-                        gpu_timestamp_compute_ms: None,
-                        timing: "wall clock",
-                        machine: machine.clone(),
-                    };
-                    if let Device::Gpu(ctx) = &device {
-                        // A mesh past the kernels' loop budget is refused, not
-                        // benchmarked: the row keeps its CPU figures.
-                        match plausible::kernels::check_gpu_budget(ctx, &rmesh, ti.pixels()) {
-                            Ok(()) => tracing::trace_span!("gpu")
-                                .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, &mut row))?,
-                            Err(e) => eprintln!("{name}: GPU not measured: {e}"),
+                    // The CPU twin once per mesh, beside each GPU kernel's row.
+                    let cpu = (!a.no_cpu).then(|| tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat)));
+                    for &kernel in &a.kernel {
+                        let mut row = ScoreBenchRow {
+                            adapter: adapter.clone(),
+                            backend: backend.clone(),
+                            mesh: name.clone(),
+                            triangles: scoring.mesh.triangles.len(),
+                            mesh_triangles: mesh.triangles.len(),
+                            lod: lod.to_string(),
+                            lod_error_mm: scoring.error_m * 1e3,
+                            cpu_renderer: cpu_renderer_at(&rmesh, &truth, &ti).to_string(),
+                            gpu_renderer: rmesh.gpu_renderer().to_string(),
+                            renderer_choice: format!("{renderer:?}").to_lowercase(),
+                            gpu_kernel: "-".into(),
+                            kernel_choice: format!("{kernel:?}").to_lowercase(),
+                            n,
+                            width: ti.width,
+                            height: ti.height,
+                            gpu_hyps_per_s: None,
+                            cpu_hyps_per_s: cpu,
+                            cpu_threads: rayon::current_num_threads(),
+                            gpu_physics_hyps_per_s: None,
+                            cpu_physics_hyps_per_s: None,
+                            upload_ms: None,
+                            render_ms: None,
+                            reduce_ms: None,
+                            readback_ms: None,
+                            gpu_timestamp_compute_ms: None,
+                            timing: "wall clock",
+                            machine: machine.clone(),
+                        };
+                        if let Device::Gpu(ctx) = &device {
+                            // A mesh past the kernels' loop budget is refused, not
+                            // benchmarked: the row keeps its CPU figures.
+                            match plausible::kernels::check_gpu_budget(ctx, &rmesh, ti.pixels()) {
+                                Ok(()) => tracing::trace_span!("gpu")
+                                    .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, kernel.into(), &mut row))?,
+                                Err(e) => eprintln!("{name}: GPU not measured: {e}"),
+                            }
                         }
+                        if let Some(physics) = &physics {
+                            let _span = tracing::trace_span!("physics").entered();
+                            measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
+                        }
+                        if a.json {
+                            println!("{}", serde_json::to_string(&row)?);
+                        } else {
+                            print_row(&row, a.physics);
+                        }
+                        rows.push(row);
                     }
-                    if !a.no_cpu {
-                        let cpu = tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat));
-                        row.cpu_hyps_per_s = Some(cpu);
-                    }
-                    if let Some(physics) = &physics {
-                        let _span = tracing::trace_span!("physics").entered();
-                        measure_physics(&device, !a.no_cpu, physics, &rmesh, &target, params, &poses, repeat, &mut row)?;
-                    }
-                    if a.json {
-                        println!("{}", serde_json::to_string(&row)?);
-                    } else {
-                        print_row(&row, a.physics);
-                    }
-                    rows.push(row);
                 }
             }
         }
@@ -305,6 +338,7 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
 
 /// The GPU rows of a configuration: end to end (median of `repeat`), the
 /// rasterization alone, and timestamps in a separate run.
+#[allow(clippy::too_many_arguments)] // one call site
 fn measure_gpu(
     ctx: &plausible::gpu::Context,
     rmesh: &RenderMesh,
@@ -312,10 +346,18 @@ fn measure_gpu(
     params: ScoreParams,
     poses: &[plausible::pose::Pose],
     repeat: usize,
+    kernel: ScoreKernel,
     row: &mut ScoreBenchRow,
 ) -> Result<()> {
     let n = poses.len();
     let mut scorer = GpuScorer::new(ctx, rmesh, target, params, n)?;
+    if let Err(e) = scorer.set_kernel(kernel) {
+        eprintln!("{}: GPU not measured: {e}", row.mesh);
+        return Ok(());
+    }
+    if !scorer.ray_casts() {
+        row.gpu_kernel = format!("{:?}", scorer.kernel()).to_lowercase();
+    }
     scorer.score(poses)?; // warm-up
     let mut runs = Vec::new();
     for _ in 0..repeat {
@@ -427,7 +469,7 @@ fn print_row(row: &ScoreBenchRow, physics: bool) {
         format!("{}x{}", row.width, row.height),
         f(row.gpu_hyps_per_s, 0),
         f(row.cpu_hyps_per_s, 0),
-        row.gpu_renderer,
+        if row.gpu_kernel == "lanes" { "lanes" } else { &row.gpu_renderer },
         row.cpu_renderer,
         ratio,
         f(row.upload_ms, 2),

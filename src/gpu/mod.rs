@@ -193,6 +193,10 @@ pub struct Context {
     /// Whether the device records GPU timestamps (used by `bench` for the
     /// per-stage split; wall clock is reported beside them).
     pub timestamps: bool,
+    /// Lanes of a subgroup, when the device runs subgroup operations with
+    /// one fixed subgroup size (lavapipe: its SIMD vector); the one-lane-per-
+    /// hypothesis score kernel (`shaders/score_lanes.wgsl`) needs both.
+    pub subgroup_lanes: Option<u32>,
     /// Pipelines are compiled once per context and kept here.
     pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, Arc<wgpu::ComputePipeline>>>>,
 }
@@ -263,7 +267,7 @@ impl Context {
         }
         required.max_storage_buffers_per_shader_stage = STORAGE_BUFFERS;
         required.max_compute_workgroup_storage_size = alimits.max_compute_workgroup_storage_size.min(16384);
-        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        let features = adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("plausible"),
             required_features: features,
@@ -279,7 +283,19 @@ impl Context {
         }
         tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
         let timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
-        Ok(Context { device, queue, info, limits, max_texture_dim: required.max_texture_dimension_2d, timestamps, cache: Default::default() })
+        let subgroup_lanes =
+            (features.contains(wgpu::Features::SUBGROUP) && info.subgroup_min_size == info.subgroup_max_size && info.subgroup_min_size > 0)
+                .then_some(info.subgroup_min_size);
+        Ok(Context {
+            device,
+            queue,
+            info,
+            limits,
+            max_texture_dim: required.max_texture_dimension_2d,
+            timestamps,
+            subgroup_lanes,
+            cache: Default::default(),
+        })
     }
 
     /// A one-line description: adapter name and backend.
@@ -301,6 +317,12 @@ impl Context {
 
     /// Compiles (once) the compute pipeline `entry` of `source`.
     pub(crate) fn pipeline(&self, key: &'static str, source: &str, entry: &str) -> Arc<wgpu::ComputePipeline> {
+        self.pipeline_with(key, source, entry, &[])
+    }
+
+    /// [`pipeline`](Self::pipeline) with values for the module's `override`
+    /// constants (`key` must name the values too: the cache goes by it).
+    pub(crate) fn pipeline_with(&self, key: &'static str, source: &str, entry: &str, constants: &[(&str, f64)]) -> Arc<wgpu::ComputePipeline> {
         let mut cache = self.cache.lock().unwrap();
         if let Some(p) = cache.get(key) {
             return p.clone();
@@ -314,7 +336,7 @@ impl Context {
             layout: None,
             module: &module,
             entry_point: Some(entry),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
             cache: None,
         }));
         cache.insert(key, p.clone());

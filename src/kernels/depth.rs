@@ -231,7 +231,7 @@ impl<'a> GpuDepth<'a> {
             wgpu::BindGroupEntry { binding: 4, resource: self.tiles.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 5, resource: self.out.as_entire_binding() },
         ];
-        self.bufs.dispatch_waves(ctx, &mut enc, &self.pipeline, &extra, params, batch.len(), None);
+        self.bufs.dispatch_waves(ctx, &mut enc, (&self.pipeline, super::raster::WaveLayout::Workgroups), &extra, params, batch.len(), None);
         ctx.queue.submit([enc.finish()]);
         let bytes = ctx.read_buffer(&self.out, offset.max(1) as u64 * 4)?;
         let depths: &[f32] = bytemuck::cast_slice(&bytes);

@@ -236,7 +236,8 @@ pub struct RasterParams {
     /// Pixel-loop iterations one invocation may spend drawing a
     /// hypothesis ([`raster::draw_budget`]; set per dispatch).
     pub draw_budget: u32,
-    pub pad0: u32,
+    /// Visibility slots of a wave (hypotheses a dispatch may draw at once).
+    pub slots: u32,
     pub pad1: u32,
     pub pad2: u32,
 }
@@ -511,6 +512,7 @@ pub fn shader_sources() -> Vec<(&'static str, String)> {
     vec![
         ("render", render::render_wgsl()),
         ("score", score::SCORE_WGSL.to_string()),
+        ("score_lanes", score::SCORE_LANES_WGSL.to_string()),
         ("raycast", raycast::RAYCAST_WGSL.to_string()),
         ("depth", depth::depth_wgsl()),
         ("contacts", contacts::CONTACTS_WGSL.to_string()),
@@ -524,15 +526,22 @@ pub fn shader_sources() -> Vec<(&'static str, String)> {
 #[cfg(test)]
 pub(crate) mod wgsl_layout {
     /// The capabilities every shader is validated with: none beyond core
-    /// WGSL, what every adapter (lavapipe, downlevel GL) offers.
+    /// WGSL, what every adapter (lavapipe, downlevel GL) offers; only the
+    /// lanes score kernel, used where the device has them, takes subgroup
+    /// operations in compute shaders.
     pub const CAPABILITIES: naga::valid::Capabilities = naga::valid::Capabilities::empty();
 
     /// Parses and validates `src` (panicking with naga's message).
     pub fn module(name: &str, src: &str) -> naga::Module {
         let module = naga::front::wgsl::parse_str(src).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
-        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), CAPABILITIES)
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+        let mut validator = if name == "score_lanes" {
+            let mut v = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), CAPABILITIES | naga::valid::Capabilities::SUBGROUP);
+            v.subgroup_stages(naga::valid::ShaderStages::COMPUTE).subgroup_operations(naga::valid::SubgroupOperationSet::all());
+            v
+        } else {
+            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), CAPABILITIES)
+        };
+        validator.validate(&module).unwrap_or_else(|e| panic!("{name}: {e:?}"));
         module
     }
 
@@ -621,7 +630,7 @@ mod tests {
         macro_rules! same {
             ($t:ty, $($f:ident),+) => { &[$((stringify!($f), offset_of!($t, $f))),+] };
         }
-        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_meshlets, id_bits, cull, radius, tau, alpha, near, n_obs, first, draw_budget, pad0, pad1, pad2));
+        wgsl_layout::assert_layout(src, "RasterParams", size_of::<RasterParams>(), same!(RasterParams, fx, fy, cx, cy, width, height, n_hyp, n_meshlets, id_bits, cull, radius, tau, alpha, near, n_obs, first, draw_budget, slots, pad1, pad2));
         wgsl_layout::assert_layout(src, "GpuMeshlet", size_of::<GpuMeshlet>(), same!(GpuMeshlet, sphere, cone, first, count, first_vertex, vertex_count));
         wgsl_layout::assert_layout(src, "GpuTriangle", size_of::<GpuTriangle>(), same!(GpuTriangle, v0, v1, v2, plane));
         let rows = offset_of!(GpuPose, rows);

@@ -350,7 +350,7 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
         n_obs,
         first: 0,
         draw_budget: u32::MAX,
-        pad0: 0,
+        slots: 0,
         pad1: 0,
         pad2: 0,
     }
@@ -360,6 +360,23 @@ pub(crate) fn raster_params(mesh: &RenderMesh, k: &Intrinsics, n_hyp: u32, tau: 
 /// iterations in total, counted per SIMD vector of invocations: a loop
 /// runs as long as any of the vector's lanes is in it.
 pub const SOFTWARE_LOOP_CAP: u32 = 65_535;
+
+/// How a kernel's dispatch lays hypotheses onto workgroups.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum WaveLayout {
+    /// One workgroup per hypothesis and visibility slot (`raster.wgsl`'s
+    /// kernels); the draw budget is per invocation ([`draw_budget`]).
+    Workgroups,
+    /// One invocation per hypothesis, this many to a workgroup
+    /// (`score_lanes.wgsl`); the draw budget is the SIMD vector's loop
+    /// iterations ([`LANES_LOOP_BUDGET`]).
+    Lanes(u32),
+}
+
+/// Loop iterations a vector of `score_lanes.wgsl` may spend in all: the
+/// software cap less a margin (the kernel counts its vector's iterations
+/// exactly, each loop's entry included).
+pub const LANES_LOOP_BUDGET: u32 = SOFTWARE_LOOP_CAP - 1_000;
 
 /// Pixel-loop iterations one invocation may spend drawing a hypothesis
 /// (`params.draw_budget` in raster.wgsl). Unlimited on hardware GPUs. On a
@@ -472,19 +489,24 @@ impl RasterBuffers {
         &self,
         ctx: &Context,
         enc: &mut wgpu::CommandEncoder,
-        pipeline: &wgpu::ComputePipeline,
+        (pipeline, layout): (&wgpu::ComputePipeline, WaveLayout),
         extra: &[wgpu::BindGroupEntry<'_>],
         params: RasterParams,
         n: usize,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
-        let waves = self.write_wave_params(ctx, params, n);
-        let groups: Vec<wgpu::BindGroup> = (0..waves).map(|w| self.wave_group(ctx, pipeline, w, extra, true)).collect();
+        let waves = self.write_wave_params(ctx, params, n, layout);
+        let vis = layout == WaveLayout::Workgroups;
+        let groups: Vec<wgpu::BindGroup> = (0..waves).map(|w| self.wave_group(ctx, pipeline, w, extra, true, vis)).collect();
+        let per_group = match layout {
+            WaveLayout::Workgroups => 1,
+            WaveLayout::Lanes(lanes) => lanes,
+        };
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("waves"), timestamp_writes: timestamps });
         pass.set_pipeline(pipeline);
         for (w, group) in groups.iter().enumerate() {
             pass.set_bind_group(0, group, &[]);
-            pass.dispatch_workgroups(self.wave_len(n, w), 1, 1);
+            pass.dispatch_workgroups(self.wave_len(n, w).div_ceil(per_group), 1, 1);
         }
     }
 
@@ -506,9 +528,10 @@ impl RasterBuffers {
         (per_row, rows): (u32, u32),
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
-        let waves = self.write_wave_params(ctx, params, n);
-        let groups: Vec<(wgpu::BindGroup, wgpu::BindGroup)> =
-            (0..waves).map(|w| (self.wave_group(ctx, raycast, w, traced, false), self.wave_group(ctx, reduce, w, reduced, false))).collect();
+        let waves = self.write_wave_params(ctx, params, n, WaveLayout::Workgroups);
+        let groups: Vec<(wgpu::BindGroup, wgpu::BindGroup)> = (0..waves)
+            .map(|w| (self.wave_group(ctx, raycast, w, traced, false, true), self.wave_group(ctx, reduce, w, reduced, false, true)))
+            .collect();
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("traced waves"), timestamp_writes: timestamps });
         for (w, (trace, score)) in groups.iter().enumerate() {
             pass.set_pipeline(raycast);
@@ -527,13 +550,17 @@ impl RasterBuffers {
 
     /// Writes one parameter block per wave of `n` hypotheses; returns the
     /// number of waves.
-    fn write_wave_params(&self, ctx: &Context, params: RasterParams, n: usize) -> usize {
+    fn write_wave_params(&self, ctx: &Context, params: RasterParams, n: usize, layout: WaveLayout) -> usize {
         let slots = self.slots as usize;
         let waves = n.div_ceil(slots);
         let mut blocks = vec![0u8; waves * PARAMS_STRIDE as usize];
-        let budget = draw_budget(ctx, params.n_meshlets, params.width * params.height);
+        let budget = match layout {
+            WaveLayout::Workgroups => draw_budget(ctx, params.n_meshlets, params.width * params.height),
+            WaveLayout::Lanes(_) if ctx.is_software() => LANES_LOOP_BUDGET,
+            WaveLayout::Lanes(_) => u32::MAX,
+        };
         for w in 0..waves {
-            let p = RasterParams { n_hyp: n as u32, first: (w * slots) as u32, draw_budget: budget, ..params };
+            let p = RasterParams { n_hyp: n as u32, first: (w * slots) as u32, draw_budget: budget, slots: self.slots, ..params };
             let at = w * PARAMS_STRIDE as usize;
             blocks[at..at + std::mem::size_of::<RasterParams>()].copy_from_slice(bytemuck::bytes_of(&p));
         }
@@ -541,9 +568,19 @@ impl RasterBuffers {
         waves
     }
 
-    /// The bind group of wave `w` for `pipeline`: the shared bindings 0-3,
-    /// the meshlet table when the kernel rasterizes, and `extra`.
-    fn wave_group(&self, ctx: &Context, pipeline: &wgpu::ComputePipeline, w: usize, extra: &[wgpu::BindGroupEntry<'_>], meshlets: bool) -> wgpu::BindGroup {
+    /// The bind group of wave `w` for `pipeline`: the shared bindings 0-2,
+    /// the visibility buffer (3) and the meshlet table when the kernel uses
+    /// them, and `extra`.
+    #[allow(clippy::too_many_arguments)] // flags of what the kernel binds
+    fn wave_group(
+        &self,
+        ctx: &Context,
+        pipeline: &wgpu::ComputePipeline,
+        w: usize,
+        extra: &[wgpu::BindGroupEntry<'_>],
+        meshlets: bool,
+        vis: bool,
+    ) -> wgpu::BindGroup {
         let mut entries = vec![
             wgpu::BindGroupEntry {
                 binding: 0,
@@ -555,8 +592,10 @@ impl RasterBuffers {
             },
             wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&self.tris) },
             wgpu::BindGroupEntry { binding: 2, resource: self.poses.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() },
         ];
+        if vis {
+            entries.push(wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_entire_binding() });
+        }
         if meshlets {
             entries.push(wgpu::BindGroupEntry { binding: MESHLETS_BINDING, resource: wgpu::BindingResource::TextureView(&self.meshlets) });
         }

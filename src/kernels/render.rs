@@ -68,7 +68,7 @@ pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsi
         let params = raster_params(mesh, k, chunk.len() as u32, 0.0, 0.0, 0);
         let mut enc = ctx.device.create_command_encoder(&Default::default());
         let extra = [wgpu::BindGroupEntry { binding: 4, resource: images.as_entire_binding() }];
-        bufs.dispatch_waves(ctx, &mut enc, &pipeline, &extra, params, chunk.len(), None);
+        bufs.dispatch_waves(ctx, &mut enc, (&pipeline, super::raster::WaveLayout::Workgroups), &extra, params, chunk.len(), None);
         ctx.queue.submit([enc.finish()]);
         let bytes = ctx.read_buffer(&images, (chunk.len() * pix * 16) as u64)?;
         let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
