@@ -150,6 +150,16 @@ fn gpu_lanes_and_workgroup_score_kernels_agree() {
             }
             assert!((l.score - c.score).abs() < 1e-3, "hypothesis {i}: lanes {l:?} cpu {c:?}");
         }
+        // Chunks of 100 (waves that end mid-vector, view order per chunk),
+        // one hypothesis, nine: the same records in input order.
+        let mut small = GpuScorer::with_max_chunk(&ctx, &mesh, target, params, 100, 100).unwrap();
+        small.set_kernel(ScoreKernel::Lanes).unwrap();
+        assert_eq!(small.score(&poses).unwrap().0, lanes);
+        for n in [1, 9] {
+            let mut few = GpuScorer::new(&ctx, &mesh, target, params, n).unwrap();
+            few.set_kernel(ScoreKernel::Lanes).unwrap();
+            assert_eq!(few.score(&poses[..n]).unwrap().0, lanes[..n]);
+        }
     }
 }
 
