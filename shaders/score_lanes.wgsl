@@ -10,19 +10,20 @@
 // workgroup's invocations share one hypothesis, draws each pixel with an
 // atomicMax (about 40 cycles a pixel). Here the lanes of a vector are
 // different hypotheses, each alone in its slot of the `keys` storage
-// texture: a pixel is a texel load (a vector gather) and, where the
-// triangle is nearer, a plain store; the triangle set-up, shared by the
-// lanes, is one vector computation for all of them. Measured on the duck
-// at 128x128 (see README, "Where lavapipe's time goes").
+// texture: a pixel is a texel load (a vector gather) and a plain store;
+// the triangle set-up, shared by the lanes, is one vector computation for
+// all of them. Measured on the duck at 128x128 (README, "Where lavapipe's
+// time goes", and the design notes).
 //
 // lavapipe stops a vector's loops after 65,535 iterations in total. The
-// subgroup here is the vector (the host uses this kernel only where the
-// subgroup size equals LANES, fixed by the host), and every loop runs
-// subgroup-uniform trip counts (subgroupMax of the lanes' own), so
-// `spent` counts the vector's iterations exactly: a vector that would
-// exceed params.draw_budget stops drawing, still empties what it drew,
-// and reports its hypotheses over budget (the host scores them on the
-// CPU twin). Never a silently truncated image.
+// subgroup here is the vector (LANES is the subgroup size, set by the
+// host, which uses this kernel only where that size is fixed), so
+// subgroupMax of the lanes' trip counts bounds each loop's iterations, and
+// `spent` adds up those bounds, each loop's entry included: a vector that
+// would exceed params.draw_budget stops drawing, still empties what it
+// drew, and reports its hypotheses over budget (the host draws them with
+// the workgroup kernel, then the CPU twin). Never a silently truncated
+// image.
 
 // Visibility keys, one texel per pixel: slot s (hypothesis first + s of the
 // wave) is the params.width x params.height block at slot_corner(s).

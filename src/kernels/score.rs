@@ -536,7 +536,7 @@ impl GpuScorer {
             return Ok(());
         }
         let stage = if self.plane.is_some() || self.traced.is_some() {
-            Err("it has no plane stage and does not ray-cast".to_string())
+            Err("this scorer fuses the plane stage or ray-casts, which only the workgroup kernels do".to_string())
         } else if kernel == ScoreKernel::Auto && !self.ctx.is_software() {
             Err("hardware adapters draw faster with atomics".to_string())
         } else if kernel == ScoreKernel::Auto && !lanes_fit(&self.mesh, self.target_intrinsics.pixels()) {
@@ -883,10 +883,10 @@ impl GpuScorer {
     }
 }
 
-
 /// Where the camera lies as seen from the model (its direction, on the
 /// octahedron, quantized and interleaved into a Morton code): hypotheses
-/// near in this order see the same faces of the mesh.
+/// near in this order see the same faces of the mesh. Only an order: for a
+/// sheared pose Aᵀ stands in for A⁻¹.
 fn view_order(p: &Pose) -> u64 {
     let d = (-(p.r.transpose() * p.t)).normalize_or_zero();
     let l1 = d.x.abs() + d.y.abs() + d.z.abs();
