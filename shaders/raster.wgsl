@@ -313,8 +313,12 @@ fn depth_key(ks: KeyScale, iz: f32, t: u32) -> u32 {
 }
 
 // Depth test of image pixel (x, y) of the triangle's bounds.
+// The weights are summed in the twin's order, the row's start first (w0 +
+// dw_dy * j, then + dw_dx * i): in another order a pixel centre on an edge
+// can fall on the other side of it (a few pixels of big triangles differed
+// from the twin and the lanes kernel).
 fn shade(s: Setup, t: u32, x: u32, y: u32, base: u32, ks: KeyScale) {
-    let w = s.w0 + s.dw_dx * (f32(x) - s.lo.x) + s.dw_dy * (f32(y) - s.lo.y);
+    let w = (s.w0 + s.dw_dy * (f32(y) - s.lo.y)) + s.dw_dx * (f32(x) - s.lo.x);
     if (min(w.x, min(w.y, w.z)) < 0.0) {
         return;
     }

@@ -163,6 +163,41 @@ fn gpu_lanes_and_workgroup_score_kernels_agree() {
     }
 }
 
+/// Triangles of more than 256 pixels are filled by the workgroup kernel's
+/// whole workgroup (`shade` in raster.wgsl), which summed the barycentric
+/// weights in another order than the twin and the lanes kernel: on this
+/// pose pixel centres lie exactly on the cylinder's edges, and 2 pixels
+/// fell on the other side (found by helper-34). Every kernel now draws
+/// the twin's pixels.
+#[test]
+fn gpu_big_triangles_draw_the_twins_pixels_with_either_kernel() {
+    let ctx = test_context();
+    let mesh = RenderMesh::new(&shapes::cylinder(0.06, 0.1, 16)).unwrap();
+    let k = Intrinsics { fx: 90.0, fy: 90.0, cx: 31.5, cy: 31.5, width: 64, height: 64 };
+    let seen = Pose::new(axis_angle(DVec3::new(0.2, 1.0, 0.4), 0.7), DVec3::new(0.005, -0.004, 0.2));
+    let (obs, mask) = observe(&mesh, &seen, &k, SensorNoise::default(), 5);
+    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
+    let poses = [Pose::new(glam::DMat3::IDENTITY, DVec3::new(0.0, 0.0, 0.21556337721897109)), seen];
+    let params = ScoreParams::default();
+    let cpu = score_cpu(&mesh, &target, &poses, &params);
+    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
+        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
+        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
+            continue;
+        }
+        scorer.set_kernel(kernel).unwrap();
+        for (i, (g, c)) in scorer.score(&poses).unwrap().0.iter().zip(&cpu).enumerate() {
+            let counts = |r: &plausible::kernels::score::ScoreRecord| (r.valid, r.rendered, r.front, r.behind);
+            assert_eq!(counts(g), counts(c), "{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
+            assert!((g.score - c.score).abs() < 1e-5, "{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
+        }
+    }
+    let img = render_gpu(&ctx, &mesh, &poses, &target.intrinsics).unwrap();
+    for (p, g) in poses.iter().zip(&img) {
+        assert_eq!(g.depth.iter().filter(|d| **d > 0.0).count(), render_cpu(&mesh, p, &target.intrinsics).depth.iter().filter(|d| **d > 0.0).count());
+    }
+}
+
 #[test]
 fn gpu_sheared_poses_score_as_the_deformed_mesh() {
     // A pose whose linear part A = R·M is not a rotation (a scaled or
