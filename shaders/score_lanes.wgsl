@@ -105,16 +105,16 @@ fn grow(lo: ptr<function, vec2<i32>>, hi: ptr<function, vec2<i32>>, tri: LaneTri
     }
 }
 
-// Rasterizes pose p into the slot at `corner` (a lane that is not `live`
-// draws nothing but takes part: the subgroup operations need every lane).
+// Rasterizes pose p (screen rectangle `rect`) into the slot at `corner`
+// (a lane that is not `live` draws nothing but takes part: the subgroup
+// operations need every lane).
 // `reserved` loop iterations are kept for the consumer.
 //
 // Triangles go four at a time: each of their pixel loops runs as long as
 // its busiest lane, at most the group's largest trip count, one
 // subgroupMax for the four (gallivm runs a subgroup operation as a loop
 // over the lanes: one per triangle cost 12 %).
-fn lane_raster(p: GpuPose, du: Dual, live: bool, corner: vec2<u32>, reserved: u32) -> LaneDrawn {
-    let rect = screen_rect(p, du);
+fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u32>, reserved: u32) -> LaneDrawn {
     let ks = key_scale(p, du);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
@@ -219,12 +219,13 @@ fn lanes(slot: u32, score: bool) {
     let p = poses[min(h, params.n_hyp - 1u)];
     let du = dual(p);
     let corner = slot_corner(slot);
+    let rect = screen_rect(p, du);
     // The consumer visits at most the screen rectangle.
     var own = 0u;
     if (live) {
-        own = (rect_pixels(screen_rect(p, du)) + TAKE - 1u) / TAKE;
+        own = (rect_pixels(rect) + TAKE - 1u) / TAKE;
     }
-    let drawn = lane_raster(p, du, live, corner, subgroupMax(own));
+    let drawn = lane_raster(p, du, rect, live, corner, subgroupMax(own));
     var tight = drawn.rect;
     if (!live || tight.z < 0) {
         tight = vec4<i32>(0, 0, -1, -1);

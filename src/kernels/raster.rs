@@ -374,8 +374,8 @@ pub(crate) enum WaveLayout {
 }
 
 /// Loop iterations a vector of `score_lanes.wgsl` may spend in all: the
-/// software cap less a margin (the kernel counts its vector's iterations
-/// exactly, each loop's entry included).
+/// software cap less a margin (the kernel adds up a bound of its vector's
+/// iterations, each loop's entry included).
 pub const LANES_LOOP_BUDGET: u32 = SOFTWARE_LOOP_CAP - 1_000;
 
 /// Pixel-loop iterations one invocation may spend drawing a hypothesis

@@ -531,6 +531,10 @@ impl GpuScorer {
     /// The kernel `kernel` asks for; `Lanes` where it cannot run is an
     /// error, `Auto` falls back to `Workgroups`.
     pub fn set_kernel(&mut self, kernel: ScoreKernel) -> Result<()> {
+        // A lanes stage already built is kept (its texture and pipelines).
+        if kernel == ScoreKernel::Lanes && self.lanes.is_some() {
+            return Ok(());
+        }
         self.lanes = None;
         if kernel == ScoreKernel::Workgroups {
             return Ok(());
