@@ -39,58 +39,119 @@ fn slot_corner(slot: u32) -> vec2<u32> {
     return vec2<u32>((slot % cols) * params.width, (slot / cols) * params.height);
 }
 
-// The depth test of the triangle's pixel i of the row starting at texel
-// `row` (i may run past the bounds' nx columns on the row's last block).
-fn lane_plot(s: Setup, ks: KeyScale, t: u32, w_row: vec3<f32>, row: vec2<u32>, i: u32, nx: u32) {
-    // Stores unconditionally (what was there where the triangle is farther
-    // or misses the pixel; past the row's end, the row's last pixel):
-    // gallivm branches on each lane's mask around a store, and those
-    // branches mispredict (measured 1.2x slower). The texel is in the
-    // lane's own slot, which no other invocation touches.
-    let w = w_row + s.dw_dx * f32(i);
-    let inside = i < nx && min(w.x, min(w.y, w.z)) >= 0.0;
-    let at = vec2<u32>(row.x + min(i, nx - 1u), row.y);
-    let old = textureLoad(keys, at).x;
-    let key = select(0u, depth_key(ks, dot(w, s.iz), t), inside);
-    textureStore(keys, at, vec4<u32>(max(old, key), 0u, 0u, 0u));
-}
-
-// A triangle set up by one lane: its set-up and the pixel-loop
-// iterations it needs (0 where the lane does not draw it).
-struct LaneTri { s: Setup, t: u32, nx: u32, trips: u32 }
+// A triangle set up by one lane: its set-up, the size of its pixel bounds
+// and the pixel-loop iterations it needs, four pixels each (0 where the
+// lane does not draw it).
+struct LaneTri { s: Setup, t: u32, nx: u32, ny: u32, trips: u32 }
 
 fn lane_setup(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>, draws: bool) -> LaneTri {
     let s = setup_triangle(p, t, cam, first, last);
     if (!draws || !s.ok) {
-        return LaneTri(s, t, 0u, 0u);
+        return LaneTri(s, t, 1u, 1u, 0u);
     }
     let nx = u32(s.hi.x - s.lo.x) + 1u;
     let ny = u32(s.hi.y - s.lo.y) + 1u;
-    return LaneTri(s, t, nx, ((nx + 3u) / 4u) * ny);
+    return LaneTri(s, t, nx, ny, (nx * ny + 3u) / 4u);
 }
 
-// Draws a set-up triangle into the slot at `corner`, four pixels of a row
-// per iteration.
-fn lane_draw(tri: LaneTri, ks: KeyScale, corner: vec2<u32>) {
+// Whether triangle t faces the camera at `cam` (model space), the test
+// setup_triangle starts with; every triangle of an open mesh does.
+fn lane_faces(t: u32, cam: vec3<f32>) -> bool {
+    let plane = tri_texel(t, 3u);
+    return params.cull == 0u || dot(plane.xyz, cam) > plane.w;
+}
+
+// The groups of four triangles of meshlet `ml` (bit g: triangles 4g ..
+// 4g + 3) that face the camera of some lane of the subgroup where `visible`.
+// gallivm runs every instruction of both sides of a branch, so a lane
+// cannot skip a back face; only the subgroup can, by leaving the group out
+// of the drawing loop's trips. MESHLET_TRIANGLES <= 128 (host) keeps the
+// bits in a u32.
+fn lane_facing_groups(ml: GpuMeshlet, cam: vec3<f32>, visible: bool) -> u32 {
+    var bits = 0u;
+    let groups = (ml.count + 3u) / 4u;
+    for (var g = 0u; g < groups; g++) {
+        let t = ml.first + 4u * g;
+        let left = ml.count - 4u * g;
+        // Non-short-circuit `|` and `&`: all four tests run anyway.
+        let f = lane_faces(t, cam) | (left > 1u & lane_faces(t + 1u, cam)) | (left > 2u & lane_faces(t + 2u, cam)) | (left > 3u & lane_faces(t + 3u, cam));
+        bits |= select(0u, 1u << g, f & visible);
+    }
+    return subgroupOr(bits);
+}
+
+// Triangle k (0-3) of a group of four.
+fn lane_pick(a: LaneTri, b: LaneTri, c: LaneTri, d: LaneTri, k: u32) -> LaneTri {
+    var r = d;
+    if (k == 0u) {
+        r = a;
+    }
+    if (k == 1u) {
+        r = b;
+    }
+    if (k == 2u) {
+        r = c;
+    }
+    return r;
+}
+
+// The depth test of pixel (x, y) of the triangle's bounds (`live`: the lane
+// still has pixels to draw this iteration).
+fn lane_plot(tri: LaneTri, ks: KeyScale, corner: vec2<u32>, x: u32, y: u32, live: bool) {
+    // Summed in the twin's order (raster.rs, and shade in raster.wgsl).
     let s = tri.s;
-    let nb = (tri.nx + 3u) / 4u;
-    var b = 0u;
-    var j = 0u;
-    var w_row = s.w0;
-    var row = corner + vec2<u32>(s.lo);
-    for (var q = 0u; q < tri.trips; q++) {
-        let i = b * 4u;
-        lane_plot(s, ks, tri.t, w_row, row, i, tri.nx);
-        lane_plot(s, ks, tri.t, w_row, row, i + 1u, tri.nx);
-        lane_plot(s, ks, tri.t, w_row, row, i + 2u, tri.nx);
-        lane_plot(s, ks, tri.t, w_row, row, i + 3u, tri.nx);
-        b += 1u;
-        if (b == nb) {
-            b = 0u;
-            j += 1u;
-            w_row = s.w0 + s.dw_dy * f32(j);
-            row.y += 1u;
-        }
+    let w = (s.w0 + s.dw_dy * f32(y)) + s.dw_dx * f32(x);
+    let inside = live && y < tri.ny && min(w.x, min(w.y, w.z)) >= 0.0;
+    // Stores unconditionally (what was there where the triangle is farther
+    // or misses the pixel; past the bounds' last row, a pixel of it; a lane
+    // with nothing left, its slot's first texel, as its triangle's bounds
+    // may lie outside the slot): gallivm branches on each lane's mask
+    // around a store, and those branches mispredict (measured 1.2x
+    // slower). The texel is in the lane's own slot, which no other
+    // invocation touches.
+    let at = select(corner, corner + vec2<u32>(s.lo) + vec2<u32>(x, min(y, tri.ny - 1u)), live);
+    let old = textureLoad(keys, at).x;
+    let key = select(0u, depth_key(ks, dot(w, s.iz), tri.t), inside);
+    textureStore(keys, at, vec4<u32>(max(old, key), 0u, 0u, 0u));
+}
+
+// Plots the pixel at (x, y) of the triangle's bounds and steps to the next
+// one, row after row.
+fn lane_step(tri: LaneTri, ks: KeyScale, corner: vec2<u32>, x: ptr<function, u32>, y: ptr<function, u32>, live: bool) {
+    lane_plot(tri, ks, corner, *x, *y, live);
+    *x += 1u;
+    let wrap = *x == tri.nx;
+    *x = select(*x, 0u, wrap);
+    *y += u32(wrap);
+}
+
+// Draws four set-up triangles into the slot at `corner`, one after the
+// other, four pixels of their bounds per iteration, in `trips` iterations
+// (the subgroup's most). One loop for the four: a loop runs its body at
+// least once whatever its trip count, and as often as its busiest lane, so
+// a loop per triangle paid for triangles no lane draws and for each
+// triangle's busiest lane apart (+30 % on the duck, see the README).
+fn lane_draw4(a: LaneTri, b: LaneTri, c: LaneTri, d: LaneTri, trips: u32, ks: KeyScale, corner: vec2<u32>) {
+    let end_a = a.trips;
+    let end_b = end_a + b.trips;
+    let end_c = end_b + c.trips;
+    let end_d = end_c + d.trips;
+    var k = 4u;
+    var x = 0u;
+    var y = 0u;
+    for (var q = 0u; q < trips; q++) {
+        // The triangle of iteration q: triangles with no trips are passed.
+        let kq = u32(q >= end_a) + u32(q >= end_b) + u32(q >= end_c);
+        let fresh = kq != k;
+        k = kq;
+        let tri = lane_pick(a, b, c, d, kq);
+        x = select(x, 0u, fresh);
+        y = select(y, 0u, fresh);
+        let live = q < end_d;
+        lane_step(tri, ks, corner, &x, &y, live);
+        lane_step(tri, ks, corner, &x, &y, live);
+        lane_step(tri, ks, corner, &x, &y, live);
+        lane_step(tri, ks, corner, &x, &y, live);
     }
 }
 
@@ -110,10 +171,11 @@ fn grow(lo: ptr<function, vec2<i32>>, hi: ptr<function, vec2<i32>>, tri: LaneTri
 // operations need every lane).
 // `reserved` loop iterations are kept for the consumer.
 //
-// Triangles go four at a time: each of their pixel loops runs as long as
-// its busiest lane, at most the group's largest trip count, one
-// subgroupMax for the four (gallivm runs a subgroup operation as a loop
-// over the lanes: one per triangle cost 12 %).
+// Per meshlet some lane sees: the groups of four triangles that face some
+// lane (lane_facing_groups), then for each such group its four set-ups and
+// one pixel loop as long as the busiest lane's four triangles (one
+// subgroupMax per group: gallivm runs a subgroup operation as a loop over
+// the lanes, and one per triangle cost 12 %).
 fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u32>, reserved: u32) -> LaneDrawn {
     let ks = key_scale(p, du);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
@@ -130,34 +192,36 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
         if (!subgroupAny(visible)) {
             continue;
         }
+        // The facing test's loop and the group loop, at most a trip per
+        // group each, and their entries.
         let groups = (ml.count + 3u) / 4u;
-        if (spent + groups + 1u > params.draw_budget) {
+        if (spent + 2u * groups + 2u > params.draw_budget) {
             over = true;
             break;
         }
-        spent += groups + 1u;
-        for (var g = 0u; g < groups; g++) {
+        var todo = lane_facing_groups(ml, cam, visible);
+        spent += groups + countOneBits(todo) + 2u;
+        while (todo != 0u) {
+            let g = firstTrailingBit(todo);
+            todo &= todo - 1u;
             let t = ml.first + 4u * g;
             let left = ml.count - 4u * g;
             let a = lane_setup(p, t, cam, first, last, visible);
             let b = lane_setup(p, t + 1u, cam, first, last, visible && left > 1u);
             let c = lane_setup(p, t + 2u, cam, first, last, visible && left > 2u);
             let d = lane_setup(p, t + 3u, cam, first, last, visible && left > 3u);
-            // Each pixel loop and its entry.
-            let most = subgroupMax(max(max(a.trips, b.trips), max(c.trips, d.trips)));
-            if (spent + 4u * (most + 1u) > params.draw_budget) {
+            // The pixel loop and its entry.
+            let most = subgroupMax(a.trips + b.trips + c.trips + d.trips);
+            if (spent + most + 1u > params.draw_budget) {
                 over = true;
                 break;
             }
-            spent += 4u * (most + 1u);
+            spent += most + 1u;
             grow(&lo_all, &hi_all, a);
             grow(&lo_all, &hi_all, b);
             grow(&lo_all, &hi_all, c);
             grow(&lo_all, &hi_all, d);
-            lane_draw(a, ks, corner);
-            lane_draw(b, ks, corner);
-            lane_draw(c, ks, corner);
-            lane_draw(d, ks, corner);
+            lane_draw4(a, b, c, d, most, ks, corner);
         }
         if (over) {
             break;

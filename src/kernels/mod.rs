@@ -269,6 +269,8 @@ const _: () = assert!(std::mem::size_of::<GpuMeshlet>() == 48);
 /// Most triangles of a meshlet: the rasterizer's workgroup takes one
 /// meshlet per step, one triangle per invocation.
 pub const MESHLET_TRIANGLES: usize = 64;
+// score_lanes.wgsl keeps a meshlet's groups of four triangles as the bits of a u32.
+const _: () = assert!(MESHLET_TRIANGLES <= 128);
 /// Most vertices of a meshlet (meshoptimizer allows 256): three per
 /// triangle, so meshlets fill up even on meshes whose faces share no
 /// vertices.

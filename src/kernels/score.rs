@@ -210,8 +210,6 @@ pub struct GpuScorer {
     staging: wgpu::Buffer,
     /// The observation as a texture (`observed` in score.wgsl) and its view.
     observed: (wgpu::Texture, wgpu::TextureView),
-    pipeline: std::sync::Arc<wgpu::ComputePipeline>,
-    raster_pipeline: std::sync::Arc<wgpu::ComputePipeline>,
     /// Timestamp query set and its resolve buffer, when enabled.
     timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
     /// The fused physical stage against a support plane, when asked for.
@@ -247,10 +245,11 @@ pub enum ScoreKernel {
 /// ([`LANES_LOOP_BUDGET`](super::raster::LANES_LOOP_BUDGET)); `Auto` keeps
 /// the workgroup kernel otherwise, as hypotheses past the budget are drawn
 /// twice. A vector spends a quarter of the region's pixels emptying its
-/// slots, one iteration per meshlet and, per triangle, one plus the pixel
-/// rows of four pixels its busiest lane draws: about 3 for small
+/// slots, one iteration per meshlet and, per group of four triangles that
+/// faces some lane, two plus the busiest lane's pixels of their four
+/// bounds over four: about 3 per triangle is a safe estimate for small
 /// triangles (the duck: 16,800 estimated at 128x128 and none of the
-/// demo's 4,096 poses over budget; 29,000 at 256x256 and 3 % over).
+/// demo's 4,096 poses over budget).
 fn lanes_fit(mesh: &RenderMesh, pixels: usize) -> bool {
     pixels / 4 + mesh.meshlets.len() + 3 * mesh.triangles.len() <= super::raster::LANES_LOOP_BUDGET as usize / 2
 }
@@ -260,8 +259,20 @@ fn lanes_fit(mesh: &RenderMesh, pixels: usize) -> bool {
 struct LaneStage {
     lanes: u32,
     keys: wgpu::TextureView,
-    score: std::sync::Arc<wgpu::ComputePipeline>,
-    raster: std::sync::Arc<wgpu::ComputePipeline>,
+}
+
+impl LaneStage {
+    /// The scoring pipeline, or with `raster_only` the one that only draws
+    /// (for `bench`), compiled on first use: lavapipe compiles a pipeline
+    /// in tens of milliseconds, a visible part of scoring a few thousand
+    /// hypotheses.
+    fn pipeline(&self, ctx: &Context, raster_only: bool) -> std::sync::Arc<wgpu::ComputePipeline> {
+        let constants = [("LANES", self.lanes as f64)];
+        match raster_only {
+            true => ctx.pipeline_with("score/lanes raster", SCORE_LANES_WGSL, "raster_lanes_main", &constants),
+            false => ctx.pipeline_with("score/lanes", SCORE_LANES_WGSL, "score_lanes_main", &constants),
+        }
+    }
 }
 
 /// The lanes kernel's module: the rasterizer and score helpers, then its
@@ -299,13 +310,7 @@ impl LaneStage {
             usage: wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
         });
-        let constants = [("LANES", lanes as f64)];
-        Ok(LaneStage {
-            lanes,
-            keys: keys.create_view(&Default::default()),
-            score: ctx.pipeline_with("score/lanes", SCORE_LANES_WGSL, "score_lanes_main", &constants),
-            raster: ctx.pipeline_with("score/lanes raster", SCORE_LANES_WGSL, "raster_lanes_main", &constants),
-        })
+        Ok(LaneStage { lanes, keys: keys.create_view(&Default::default()) })
     }
 }
 
@@ -504,8 +509,6 @@ impl GpuScorer {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let pipeline = ctx.pipeline("score", SCORE_WGSL, "score_main");
-        let raster_pipeline = ctx.pipeline("score/raster", SCORE_WGSL, "raster_main");
         let plane = physics.map(|(p, samples)| plane_stage(ctx, p, samples, bufs.chunk)).transpose()?;
         GpuScorer {
             ctx: ctx.clone(),
@@ -518,8 +521,6 @@ impl GpuScorer {
             records,
             staging,
             observed,
-            pipeline,
-            raster_pipeline,
             timestamps: None,
             plane,
             traced,
@@ -802,11 +803,12 @@ impl GpuScorer {
         if let (Some((l, keys)), None) = (&lane_keys, traced) {
             // Both entry points bind the observation and records (the
             // raster one only empties its slots, but shares the code).
-            let pipeline = if raster_only { &l.raster } else { &l.score };
+            let pipeline = l.pipeline(ctx, raster_only);
             let extra: Vec<wgpu::BindGroupEntry> = scored.iter().chain(keys).cloned().collect();
-            self.bufs.dispatch_waves(ctx, &mut enc, (pipeline, WaveLayout::Lanes(l.lanes)), &extra, params, chunk.len(), timestamp_writes);
+            self.bufs.dispatch_waves(ctx, &mut enc, (&pipeline, WaveLayout::Lanes(l.lanes)), &extra, params, chunk.len(), timestamp_writes);
         } else if raster_only {
-            self.bufs.dispatch_waves(ctx, &mut enc, (&self.raster_pipeline, WaveLayout::Workgroups), &[], params, chunk.len(), timestamp_writes);
+            let pipeline = ctx.pipeline("score/raster", SCORE_WGSL, "raster_main");
+            self.bufs.dispatch_waves(ctx, &mut enc, (&pipeline, WaveLayout::Workgroups), &[], params, chunk.len(), timestamp_writes);
         } else if let Some(st) = traced {
             ctx.queue.write_buffer(&st.overflow, 0, bytemuck::bytes_of(&0u32));
             let traced_entries = [
@@ -834,11 +836,12 @@ impl GpuScorer {
                         wgpu::BindGroupEntry { binding: 8, resource: st.records.as_entire_binding() },
                         wgpu::BindGroupEntry { binding: 9, resource: st.bits.as_entire_binding() },
                     ]);
-                    &st.pipeline
+                    st.pipeline.clone()
                 }
-                None => &self.pipeline,
+                // Compiled on first use, as the lanes kernel's (LaneStage::pipeline).
+                None => ctx.pipeline("score", SCORE_WGSL, "score_main"),
             };
-            self.bufs.dispatch_waves(ctx, &mut enc, (pipeline, WaveLayout::Workgroups), &extra, params, chunk.len(), timestamp_writes);
+            self.bufs.dispatch_waves(ctx, &mut enc, (&pipeline, WaveLayout::Workgroups), &extra, params, chunk.len(), timestamp_writes);
         }
         if let Some((set, buf)) = timestamps {
             enc.resolve_query_set(set, 0..2, buf, 0);
