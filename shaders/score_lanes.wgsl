@@ -26,17 +26,36 @@
 // image.
 
 // Visibility keys, one texel per pixel: slot s (hypothesis first + s of the
-// wave) is the params.width x params.height block at slot_corner(s).
+// wave) is the block at slot_corner(s), its pixels in tiles of 4x4
+// (key_texel).
 @group(0) @binding(14) var keys: texture_storage_2d<r32uint, read_write>;
 
 // Invocations per workgroup: the adapter's subgroup size (set by the host).
 override LANES: u32 = 8u;
 
+// A slot's block of texels: the region rounded up to whole 4x4 tiles, each
+// tile one run of 16 texels (64 bytes, a cache line), so four tile rows
+// make a texture row (the host sizes the texture the same way:
+// LaneStage::new).
+fn slot_size() -> vec2<u32> {
+    return vec2<u32>(4u * ((params.width + 3u) & ~3u), (params.height + 3u) / 4u);
+}
+
 // Top-left texel of slot `slot`: slots side by side, as many per row of the
 // texture as fit.
 fn slot_corner(slot: u32) -> vec2<u32> {
-    let cols = max(textureDimensions(keys).x / params.width, 1u);
-    return vec2<u32>((slot % cols) * params.width, (slot / cols) * params.height);
+    let size = slot_size();
+    let cols = max(textureDimensions(keys).x / size.x, 1u);
+    return vec2<u32>((slot % cols) * size.x, (slot / cols) * size.y);
+}
+
+// The texel of pixel `p` (region coordinates) in the slot at `corner`: tile
+// (p.x / 4, p.y / 4) is texels 16 (p.x / 4) .. + 15 of texture row p.y / 4,
+// row by row. A small triangle's pixels then share one or a few cache lines
+// where rows of the region lie a texture row apart (measured +7 % on the
+// duck: the texel gathers were the kernel's largest stall).
+fn key_texel(corner: vec2<u32>, p: vec2<u32>) -> vec2<u32> {
+    return corner + vec2<u32>(4u * (p.x & ~3u) + 4u * (p.y & 3u) + (p.x & 3u), p.y >> 2u);
 }
 
 // A triangle set up by one lane: its set-up, the size of its pixel bounds
@@ -109,7 +128,7 @@ fn lane_plot(tri: LaneTri, ks: KeyScale, corner: vec2<u32>, x: u32, y: u32, live
     // around a store, and those branches mispredict (measured 1.2x
     // slower). The texel is in the lane's own slot, which no other
     // invocation touches.
-    let at = select(corner, corner + vec2<u32>(s.lo) + vec2<u32>(x, min(y, tri.ny - 1u)), live);
+    let at = select(corner, key_texel(corner, vec2<u32>(s.lo) + vec2<u32>(x, min(y, tri.ny - 1u))), live);
     let old = textureLoad(keys, at).x;
     let key = select(0u, depth_key(ks, dot(w, s.iz), tri.t), inside);
     textureStore(keys, at, vec4<u32>(max(old, key), 0u, 0u, 0u));
@@ -242,7 +261,7 @@ fn lane_take(acc: ptr<function, PixelSums>, w: ptr<function, LaneWalk>, p: GpuPo
     }
     let x = (*w).x;
     let y = (*w).y;
-    let at = corner + vec2<u32>(x, y);
+    let at = key_texel(corner, vec2<u32>(x, y));
     let key = textureLoad(keys, at).x;
     // Unconditionally, as in lane_plot.
     textureStore(keys, at, vec4<u32>(0u));

@@ -295,14 +295,17 @@ impl LaneStage {
             _ => return Err("the adapter has no subgroups of one fixed size".into()),
         };
         let max = ctx.max_texture_dim;
-        let cols = (max / k.width.max(1)).min(slots).max(1);
+        // A slot's block: the region in 4x4 tiles of 16 texels, four tile
+        // rows to a texture row (`slot_size` in score_lanes.wgsl).
+        let (slot_w, slot_h) = (4 * k.width.div_ceil(4) * 4, k.height.div_ceil(4));
+        let cols = (max / slot_w.max(1)).min(slots).max(1);
         let rows = slots.div_ceil(cols);
-        if k.width > max || rows as u64 * k.height as u64 > max as u64 {
+        if slot_w > max || rows as u64 * slot_h as u64 > max as u64 {
             return Err(format!("{slots} slots of {}x{} pixels do not fit a {max}-texel texture", k.width, k.height));
         }
         let keys = ctx.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("lane keys"),
-            size: wgpu::Extent3d { width: cols * k.width, height: rows * k.height, depth_or_array_layers: 1 },
+            size: wgpu::Extent3d { width: cols * slot_w, height: rows * slot_h, depth_or_array_layers: 1 },
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
