@@ -163,6 +163,43 @@ fn gpu_lanes_and_workgroup_score_kernels_agree() {
     }
 }
 
+/// The lanes kernel keeps a slot's keys in 4x4 tiles (`key_texel` in
+/// score_lanes.wgsl), so regions whose sides are not multiples of 4 end in
+/// part-filled tiles: on such regions, tiny to wide, it draws the same keys
+/// as the workgroup kernel and the twin, also for poses partly off the
+/// region.
+#[test]
+fn gpu_lanes_kernel_agrees_on_regions_of_any_size() {
+    let ctx = test_context();
+    if !lanes_available(&ctx) {
+        return;
+    }
+    let mesh = RenderMesh::new(&duck()).unwrap();
+    let params = ScoreParams::default();
+    for (width, height) in [(5, 3), (37, 23), (61, 130), (130, 71), (250, 9)] {
+        let f = 2.2 * width.max(height) as f64;
+        let k = Intrinsics { fx: f, fy: f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0, width, height };
+        let seen = Pose::new(axis_angle(DVec3::new(0.3, 1.0, -0.2), 2.1), DVec3::new(0.004, -0.003, 0.5));
+        let (obs, mask) = observe(&mesh, &seen, &k, SensorNoise::default(), 9);
+        let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
+        let mut poses = around_and_random(&seen, 60, 31);
+        poses.push(Pose::new(seen.r, seen.t + DVec3::new(0.05, 0.0, 0.0)));
+        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
+        scorer.set_kernel(ScoreKernel::Lanes).unwrap();
+        let lanes = scorer.score(&poses).unwrap().0;
+        scorer.set_kernel(ScoreKernel::Workgroups).unwrap();
+        let groups = scorer.score(&poses).unwrap().0;
+        let cpu = score_cpu(&mesh, &target, &poses, &params);
+        assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{width}x{height}");
+        for (i, ((l, g), c)) in lanes.iter().zip(&groups).zip(&cpu).enumerate() {
+            let counts = |r: &plausible::kernels::score::ScoreRecord| (r.valid, r.rendered, r.observed, r.front, r.behind);
+            assert_eq!(counts(l), counts(g), "{width}x{height} hypothesis {i}: lanes {l:?} workgroups {g:?}");
+            assert!((l.score - g.score).abs() <= 1e-5, "{width}x{height} hypothesis {i}: lanes {l:?} workgroups {g:?}");
+            assert!((l.score - c.score).abs() < 1e-3, "{width}x{height} hypothesis {i}: lanes {l:?} cpu {c:?}");
+        }
+    }
+}
+
 /// Triangles of more than 256 pixels are filled by the workgroup kernel's
 /// whole workgroup (`shade` in raster.wgsl), which summed the barycentric
 /// weights in another order than the twin and the lanes kernel: on this
