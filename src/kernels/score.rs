@@ -261,20 +261,6 @@ struct LaneStage {
     keys: wgpu::TextureView,
 }
 
-impl LaneStage {
-    /// The scoring pipeline, or with `raster_only` the one that only draws
-    /// (for `bench`), compiled on first use: lavapipe compiles a pipeline
-    /// in tens of milliseconds, a visible part of scoring a few thousand
-    /// hypotheses.
-    fn pipeline(&self, ctx: &Context, raster_only: bool) -> std::sync::Arc<wgpu::ComputePipeline> {
-        let constants = [("LANES", self.lanes as f64)];
-        match raster_only {
-            true => ctx.pipeline_with("score/lanes raster", SCORE_LANES_WGSL, "raster_lanes_main", &constants),
-            false => ctx.pipeline_with("score/lanes", SCORE_LANES_WGSL, "score_lanes_main", &constants),
-        }
-    }
-}
-
 /// The lanes kernel's module: the rasterizer and score helpers, then its
 /// entry points (compiled apart from [`SCORE_WGSL`]: it needs subgroup
 /// operations, which hardware adapters may lack).
@@ -314,6 +300,18 @@ impl LaneStage {
             view_formats: &[],
         });
         Ok(LaneStage { lanes, keys: keys.create_view(&Default::default()) })
+    }
+
+    /// The scoring pipeline, or with `raster_only` the one that only draws
+    /// (for `bench`), compiled on first use: lavapipe compiles a pipeline
+    /// in tens of milliseconds, a visible part of scoring a few thousand
+    /// hypotheses.
+    fn pipeline(&self, ctx: &Context, raster_only: bool) -> std::sync::Arc<wgpu::ComputePipeline> {
+        let constants = [("LANES", self.lanes as f64)];
+        match raster_only {
+            true => ctx.pipeline_with("score/lanes raster", SCORE_LANES_WGSL, "raster_lanes_main", &constants),
+            false => ctx.pipeline_with("score/lanes", SCORE_LANES_WGSL, "score_lanes_main", &constants),
+        }
     }
 }
 
