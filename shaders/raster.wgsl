@@ -259,11 +259,18 @@ struct Setup {
     iz: vec3<f32>,
 }
 
+// Whether triangle t may face the camera at `cam` (model space): not a
+// back face of a closed mesh (the twin's test, raster.rs: culled where the
+// plane's side is <= 0, so a NaN is drawn, not culled).
+fn faces_camera(t: u32, cam: vec3<f32>) -> bool {
+    let plane = tri_texel(t, 3u);
+    return params.cull == 0u || !(dot(plane.xyz, cam) <= plane.w);
+}
+
 fn setup_triangle(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
     var s: Setup;
     s.ok = false;
-    let plane = tri_texel(t, 3u);
-    if (params.cull != 0u && dot(plane.xyz, cam) <= plane.w) {
+    if (!faces_camera(t, cam)) {
         return s; // back face of a closed mesh
     }
     let a = transform(p, tri_texel(t, 0u).xyz);

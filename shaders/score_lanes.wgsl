@@ -73,13 +73,6 @@ fn lane_setup(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f
     return LaneTri(s, t, nx, ny, (nx * ny + 3u) / 4u);
 }
 
-// Whether triangle t faces the camera at `cam` (model space), the test
-// setup_triangle starts with; every triangle of an open mesh does.
-fn lane_faces(t: u32, cam: vec3<f32>) -> bool {
-    let plane = tri_texel(t, 3u);
-    return params.cull == 0u || dot(plane.xyz, cam) > plane.w;
-}
-
 // The groups of four triangles of meshlet `ml` (bit g: triangles 4g ..
 // 4g + 3) that face the camera of some lane of the subgroup where `visible`.
 // gallivm runs every instruction of both sides of a branch, so a lane
@@ -93,7 +86,7 @@ fn lane_facing_groups(ml: GpuMeshlet, cam: vec3<f32>, visible: bool) -> u32 {
         let t = ml.first + 4u * g;
         let left = ml.count - 4u * g;
         // Non-short-circuit `|` and `&`: all four tests run anyway.
-        let f = lane_faces(t, cam) | (left > 1u & lane_faces(t + 1u, cam)) | (left > 2u & lane_faces(t + 2u, cam)) | (left > 3u & lane_faces(t + 3u, cam));
+        let f = faces_camera(t, cam) | (left > 1u & faces_camera(t + 1u, cam)) | (left > 2u & faces_camera(t + 2u, cam)) | (left > 3u & faces_camera(t + 3u, cam));
         bits |= select(0u, 1u << g, f & visible);
     }
     return subgroupOr(bits);
