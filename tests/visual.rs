@@ -7,7 +7,7 @@ use plausible::camera::Intrinsics;
 use plausible::gpu::{test_context, BatchLimits, Context, GpuOptions};
 use plausible::hypotheses::around_and_random;
 use plausible::kernels::raster::{render_cpu, render_gpu, RenderImage};
-use plausible::kernels::score::{score_cpu, score_image, GpuScorer, ScoreKernel, ScoreParams};
+use plausible::kernels::score::{score_cpu, score_image, GpuScorer, ScoreKernel, ScoreParams, ScoreRecord};
 use plausible::kernels::RenderMesh;
 use plausible::mesh::{Mesh, MeshUnits};
 use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
@@ -106,6 +106,20 @@ fn lanes_available(ctx: &Context) -> bool {
     ok
 }
 
+/// The lanes kernel's records against the workgroup kernel's (equal
+/// counts, means within the order of f32 sums) and the twin's scores, each
+/// failure naming `what` and the hypothesis.
+fn assert_kernels_agree(what: &str, lanes: &[ScoreRecord], groups: &[ScoreRecord], cpu: &[ScoreRecord]) {
+    for (i, ((l, g), c)) in lanes.iter().zip(groups).zip(cpu).enumerate() {
+        let counts = |r: &ScoreRecord| (r.valid, r.rendered, r.observed, r.front, r.behind);
+        assert_eq!(counts(l), counts(g), "{what}hypothesis {i}: lanes {l:?} workgroups {g:?}");
+        for (a, b) in [(l.score, g.score), (l.mean_ad, g.mean_ad), (l.mean_an, g.mean_an)] {
+            assert!((a - b).abs() <= 1e-5, "{what}hypothesis {i}: lanes {l:?} workgroups {g:?}");
+        }
+        assert!((l.score - c.score).abs() < 1e-3, "{what}hypothesis {i}: lanes {l:?} cpu {c:?}");
+    }
+}
+
 /// The two score kernels draw the same visibility keys, so their records
 /// agree: the counts exactly, the means up to the order of f32 sums (the
 /// workgroup kernel adds in a tree, the lanes kernel pixel by pixel).
@@ -142,14 +156,7 @@ fn gpu_lanes_and_workgroup_score_kernels_agree() {
         let (lanes, groups) = (run(ScoreKernel::Lanes), run(ScoreKernel::Workgroups));
         let cpu = score_cpu(&mesh, target, &poses, &params);
         assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 400);
-        for (i, ((l, g), c)) in lanes.iter().zip(&groups).zip(&cpu).enumerate() {
-            let counts = |r: &plausible::kernels::score::ScoreRecord| (r.valid, r.rendered, r.observed, r.front, r.behind);
-            assert_eq!(counts(l), counts(g), "hypothesis {i}: lanes {l:?} workgroups {g:?}");
-            for (a, b) in [(l.score, g.score), (l.mean_ad, g.mean_ad), (l.mean_an, g.mean_an)] {
-                assert!((a - b).abs() <= 1e-5, "hypothesis {i}: lanes {l:?} workgroups {g:?}");
-            }
-            assert!((l.score - c.score).abs() < 1e-3, "hypothesis {i}: lanes {l:?} cpu {c:?}");
-        }
+        assert_kernels_agree("", &lanes, &groups, &cpu);
         // Chunks of 100 (waves that end mid-vector, view order per chunk),
         // one hypothesis, nine: the same records in input order.
         let mut small = GpuScorer::with_max_chunk(&ctx, &mesh, target, params, 100, 100).unwrap();
@@ -166,8 +173,8 @@ fn gpu_lanes_and_workgroup_score_kernels_agree() {
 /// The lanes kernel keeps a slot's keys in 4x4 tiles (`key_texel` in
 /// score_lanes.wgsl), so regions whose sides are not multiples of 4 end in
 /// part-filled tiles: on such regions, tiny to wide, it draws the same keys
-/// as the workgroup kernel and the twin, also for poses partly off the
-/// region.
+/// as the workgroup kernel and the twin, also for a pose shifted
+/// sideways.
 #[test]
 fn gpu_lanes_kernel_agrees_on_regions_of_any_size() {
     let ctx = test_context();
@@ -191,12 +198,7 @@ fn gpu_lanes_kernel_agrees_on_regions_of_any_size() {
         let groups = scorer.score(&poses).unwrap().0;
         let cpu = score_cpu(&mesh, &target, &poses, &params);
         assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{width}x{height}");
-        for (i, ((l, g), c)) in lanes.iter().zip(&groups).zip(&cpu).enumerate() {
-            let counts = |r: &plausible::kernels::score::ScoreRecord| (r.valid, r.rendered, r.observed, r.front, r.behind);
-            assert_eq!(counts(l), counts(g), "{width}x{height} hypothesis {i}: lanes {l:?} workgroups {g:?}");
-            assert!((l.score - g.score).abs() <= 1e-5, "{width}x{height} hypothesis {i}: lanes {l:?} workgroups {g:?}");
-            assert!((l.score - c.score).abs() < 1e-3, "{width}x{height} hypothesis {i}: lanes {l:?} cpu {c:?}");
-        }
+        assert_kernels_agree(&format!("{width}x{height} "), &lanes, &groups, &cpu);
     }
 }
 
@@ -224,7 +226,7 @@ fn gpu_big_triangles_draw_the_twins_pixels_with_either_kernel() {
         }
         scorer.set_kernel(kernel).unwrap();
         for (i, (g, c)) in scorer.score(&poses).unwrap().0.iter().zip(&cpu).enumerate() {
-            let counts = |r: &plausible::kernels::score::ScoreRecord| (r.valid, r.rendered, r.front, r.behind);
+            let counts = |r: &ScoreRecord| (r.valid, r.rendered, r.front, r.behind);
             assert_eq!(counts(g), counts(c), "{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
             assert!((g.score - c.score).abs() < 1e-5, "{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
         }
