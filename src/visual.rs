@@ -117,13 +117,34 @@ const CPU_PROGRESS_CHUNK: usize = 1024;
 
 impl Scorer {
     /// Prepares scoring of `mesh` against `target` on `device`; `n_hint`
-    /// sizes the GPU buffers (larger batches are split).
+    /// sizes the GPU buffers (larger batches are split). On the GPU the
+    /// mesh and observation are uploaded and the score kernel compiled
+    /// (or a [`precompile`](Self::precompile) of it waited for) here, so
+    /// [`score`](Self::score) only scores.
     pub fn new(device: &Device, mesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, n_hint: usize) -> Result<Scorer> {
         let inner = match device {
-            Device::Gpu(ctx) => ScorerImpl::Gpu(Box::new(GpuScorer::new(ctx, mesh, target, params, n_hint)?)),
+            Device::Gpu(ctx) => {
+                let scorer = GpuScorer::new(ctx, mesh, target, params, n_hint)?;
+                scorer.compile();
+                ScorerImpl::Gpu(Box::new(scorer))
+            }
             Device::Cpu => ScorerImpl::Cpu { mesh: mesh.clone(), target: target.clone(), params },
         };
         Ok(Scorer { inner })
+    }
+
+    /// Starts compiling the GPU score kernel a scorer on `device` will most
+    /// likely use, on a thread of its own, and returns at once (nothing to
+    /// do on the CPU). Call it as soon as the device is open, before
+    /// preparing the mesh and observation: the compile then overlaps that
+    /// work instead of delaying the first scores
+    /// ([`GpuScorer::precompile`]). Keep the handle while preparing:
+    /// dropping it waits for the compile.
+    pub fn precompile(device: &Device) -> crate::gpu::Compiling {
+        match device {
+            Device::Gpu(ctx) => GpuScorer::precompile(ctx),
+            Device::Cpu => crate::gpu::Compiling::none(),
+        }
     }
 
     /// Replaces the observation with `target`'s (the same region and

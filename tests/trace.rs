@@ -141,7 +141,7 @@ fn gpu_score_trace_has_the_passes() {
     let trace = dir.path().join("trace.json");
     let o = score(&out).args(["--device", "gpu", "--trace"]).arg(&trace).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let expected = ["load", "setup", "scoring", "gpu_setup", "cull", "upload", "dispatch", "readback", "ranking", "report"];
+    let expected = ["load", "setup", "compile", "gpu_setup", "scoring", "cull", "upload", "dispatch", "readback", "ranking", "report"];
     let events = check_score_trace(&trace, &expected);
     // With timestamp queries, the GPU time of the pass is in the trace,
     // marked not reliable on a software adapter.

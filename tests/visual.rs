@@ -4,7 +4,7 @@
 
 use glam::{DVec3, Vec3};
 use plausible::camera::Intrinsics;
-use plausible::gpu::{test_context, BatchLimits, Context, GpuOptions};
+use plausible::gpu::{test_context, BatchLimits, Context, Device, GpuOptions};
 use plausible::hypotheses::around_and_random;
 use plausible::kernels::raster::{render_cpu, render_gpu, RenderImage};
 use plausible::kernels::score::{score_cpu, score_image, GpuScorer, ScoreKernel, ScoreParams, ScoreRecord};
@@ -14,7 +14,7 @@ use plausible::observation::{RoiSampling, ScoreTarget, DEFAULT_ROI_MARGIN};
 use plausible::pose::{axis_angle, Pose};
 use plausible::shapes;
 use plausible::synth::{linemod_camera, observe, SensorNoise};
-use plausible::visual::ranks;
+use plausible::visual::{ranks, Scorer};
 
 fn duck() -> Mesh {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/pybullet/duck.obj");
@@ -92,6 +92,28 @@ fn score_gpu_matches_cpu_twin() {
         assert!((c.score - g.score).abs() < 1e-3, "hypothesis {i}: cpu {c:?} gpu {g:?}");
         assert!((c.mean_ad - g.mean_ad).abs() < 1e-3 && (c.mean_an - g.mean_an).abs() < 1e-3);
         assert_eq!(c.observed, g.observed);
+    }
+}
+
+/// A scorer made while its kernel compiles on another thread
+/// (`Scorer::precompile`), here by three threads at once, waits for that
+/// compile and scores exactly as one on a fresh device.
+#[test]
+fn gpu_scorers_made_during_a_precompile_score_as_a_fresh_one() {
+    let mesh = RenderMesh::new(&duck()).unwrap();
+    let target = demo_target(&mesh, SensorNoise::default());
+    let poses = around_and_random(&true_pose(), 40, 5);
+    let params = ScoreParams::default();
+    let score = |device: &Device| Scorer::new(device, &mesh, &target, params, poses.len()).unwrap().score(&poses, &mut |_| {}).unwrap().0;
+    let fresh = score(&Device::Gpu(Box::new(test_context())));
+    let device = Device::Gpu(Box::new(test_context()));
+    let _compiling = Scorer::precompile(&device);
+    let racing: Vec<Vec<ScoreRecord>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..3).map(|_| s.spawn(|| score(&device))).collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for records in racing {
+        assert_eq!(records, fresh);
     }
 }
 

@@ -157,6 +157,8 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     a.run.check_masks(&masks, &mask_keys, "those objects are not estimated")?;
     let scenes = load_scenes(&ds, jobs.iter().map(|(k, _)| *k))?;
     let device = a.run.dev.open(verbose)?;
+    // Compiled while the models load (Scorer::precompile).
+    let _compiling = plausible::visual::Scorer::precompile(&device);
     let source = match &a.stable {
         Some(p) => format!("{} (--stable)", p.display()),
         None => "the quasi-static analysis of each hull".to_string(),

@@ -557,6 +557,8 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     a.run.check_masks(&masks, &mask_keys, "those objects' estimates are written as they were")?;
     let scenes = load_scenes(&ds, jobs.iter().map(|j| (j.scene_id, j.im_id)))?;
     let device = a.run.dev.open(verbose)?;
+    // Compiled while the models load (Scorer::precompile).
+    let _compiling = plausible::visual::Scorer::precompile(&device);
     eprintln!("refining {} images ({}, {} step(s) per hypothesis) with {}", jobs.len(), params.method.name(), params.steps, masks.describe());
     let models = load_models(&ds, &objs, &params).context("loading the models")?;
     let mut file = ResultsAppender::open(&a.out)?;

@@ -98,6 +98,14 @@ pub struct ScoreArgs {
 pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     let (mesh, obs, mask, poses) = tracing::trace_span!("load").in_scope(|| load(&a))?;
     let setup = tracing::trace_span!("setup").entered();
+    let setup_start = Instant::now();
+    // The device first, so that the score kernel compiles while the
+    // observation, mesh and meshlets are prepared.
+    let device = a.device.open(verbose)?;
+    let compiling = match a.physics && a.plane.is_some() {
+        false => Scorer::precompile(&device),
+        true => plausible::gpu::Compiling::none(),
+    };
     let sampling = if a.res == 0 { RoiSampling::Native } else { RoiSampling::Square(a.res) };
     let target = ScoreTarget::new(&obs, mask.as_deref(), sampling, a.margin)?;
     target.check_observed().context("--res (0 scores native pixels)")?;
@@ -110,7 +118,6 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
     }
     let rmesh = RenderMesh::new(&scoring.mesh)?;
     let params = ScoreParams { tau: a.tau, alpha: a.alpha };
-    let device = a.device.open(verbose)?;
     let choice: plausible::gpu::DeviceChoice = a.device.device.parse()?;
     let (device, too_big) = device.for_mesh(choice, &rmesh, target.intrinsics.pixels());
     if let Some(note) = too_big {
@@ -137,6 +144,14 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         }
         _ => None,
     };
+    // The scorer too (its buffers uploaded, its kernel compiled), so that
+    // the throughput printed is the scoring's.
+    let scorer = match physics {
+        None => Some(Scorer::new(&device, &rmesh, &target, params, poses.len())?),
+        Some(_) => None,
+    };
+    drop(compiling);
+    let setup_secs = setup_start.elapsed().as_secs_f64();
     drop(setup);
 
     let t0 = Instant::now();
@@ -152,7 +167,7 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         let secs = t0.elapsed().as_secs_f64();
         let rank = tracing::trace_span!("ranking").in_scope(|| ranks_with_physics(&records, &evals));
         tracing::trace_span!("report").in_scope(|| {
-            print_throughput(&device, &target, poses.len(), secs);
+            print_throughput(&device, &target, poses.len(), secs, setup_secs);
             let plane = physics.kernel_params().plane;
             println!(
                 "physics against the plane n = ({:.3}, {:.3}, {:.3}), {:.1} mm from the camera: {} samples, ε = {:.2} mm; {}",
@@ -171,15 +186,13 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         release(device);
         return written;
     }
-    let records = tracing::trace_span!("scoring").in_scope(|| -> Result<_> {
-        let scorer = Scorer::new(&device, &rmesh, &target, params, poses.len())?;
-        Ok(scorer.score(&poses, &mut |n| pb.set_position(n as u64))?.0)
-    })?;
+    let scorer = scorer.expect("made in set-up without physics");
+    let records = tracing::trace_span!("scoring").in_scope(|| scorer.score(&poses, &mut |n| pb.set_position(n as u64)))?.0;
     pb.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
     let rank = tracing::trace_span!("ranking").in_scope(|| ranks(&records));
     tracing::trace_span!("report").in_scope(|| {
-        print_throughput(&device, &target, poses.len(), secs);
+        print_throughput(&device, &target, poses.len(), secs, setup_secs);
         print_table(&records, None, &rank, a.top);
     });
     let written = write_outputs(&a, &records, None, &rank, &poses, &rmesh, &target, &params, None);
@@ -343,13 +356,14 @@ fn plausible_picture_index(name: &str) -> Option<usize> {
     name.strip_prefix("hypothesis_")?.strip_suffix(".png")?.parse().ok()
 }
 
-fn print_throughput(device: &Device, target: &ScoreTarget, n: usize, secs: f64) {
+fn print_throughput(device: &Device, target: &ScoreTarget, n: usize, secs: f64, setup_secs: f64) {
     println!(
-        "{} hypotheses scored in {:.3} s ({:.0} hypotheses/s) on {}; region {}x{}, {} observed pixels",
+        "{} hypotheses scored in {:.3} s ({:.0} hypotheses/s) on {} after {:.3} s of set-up; region {}x{}, {} observed pixels",
         n,
         secs,
         n as f64 / secs,
         device.describe(),
+        setup_secs,
         target.intrinsics.width,
         target.intrinsics.height,
         target.observed_pixels()

@@ -171,6 +171,27 @@ fn simd_lanes(name: &str) -> u32 {
 }
 
 #[cfg(test)]
+mod cache_tests {
+    use std::sync::Arc;
+
+    const EMPTY: &str = "@compute @workgroup_size(1) fn main() {}";
+
+    /// A pipeline compiled in the background and asked for by several
+    /// threads at once is compiled once: every caller gets the same one.
+    #[test]
+    fn gpu_pipeline_compiles_once_across_threads() {
+        let ctx = super::test_context();
+        let _compiling = ctx.compile_in_background("test/empty", EMPTY, "main", Vec::new());
+        let got: Vec<_> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..4).map(|_| s.spawn(|| ctx.pipeline("test/empty", EMPTY, "main"))).collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        assert!(got.windows(2).all(|w| Arc::ptr_eq(&w[0], &w[1])));
+        assert!(Arc::ptr_eq(&got[0], &ctx.pipeline("test/empty", EMPTY, "main")));
+    }
+}
+
+#[cfg(test)]
 mod lanes_tests {
     #[test]
     fn simd_lanes_read_from_the_adapter_name() {
@@ -197,9 +218,41 @@ pub struct Context {
     /// one fixed subgroup size (lavapipe: its SIMD vector); the one-lane-per-
     /// hypothesis score kernel (`shaders/score_lanes.wgsl`) needs both.
     pub subgroup_lanes: Option<u32>,
-    /// Pipelines are compiled once per context and kept here.
-    pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, Arc<wgpu::ComputePipeline>>>>,
+    /// Pipelines are compiled once per context and kept here, one cell per
+    /// key: a thread asking for a pipeline another thread is compiling
+    /// ([`compile_in_background`](Self::compile_in_background)) waits for
+    /// that compile instead of starting its own.
+    pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, PipelineCell>>>,
 }
+
+/// A pipeline compiling on a thread of its own
+/// ([`visual::Scorer::precompile`](crate::visual::Scorer::precompile)).
+/// Dropping it waits for the compile: a command that fails or ends early
+/// must not exit while a driver thread still compiles (the driver's
+/// clean-up at exit would race it).
+#[must_use = "dropping it waits for the compile at once; keep it while preparing the rest"]
+pub struct Compiling(Option<std::thread::JoinHandle<()>>);
+
+impl Compiling {
+    /// Nothing compiling (the CPU twins need no compile).
+    pub fn none() -> Compiling {
+        Compiling(None)
+    }
+}
+
+impl Drop for Compiling {
+    fn drop(&mut self) {
+        if let Some(handle) = self.0.take() {
+            // A compile that panicked left its cell empty: the next caller
+            // compiles again and meets the same error in its own thread.
+            let _ = handle.join();
+        }
+    }
+}
+
+/// A pipeline of the context's cache, compiled once by whichever thread
+/// asks first.
+pub(crate) type PipelineCell = Arc<std::sync::OnceLock<Arc<wgpu::ComputePipeline>>>;
 
 impl std::fmt::Debug for Context {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -323,24 +376,48 @@ impl Context {
     /// [`pipeline`](Self::pipeline) with values for the module's `override`
     /// constants (`key` must name the values too: the cache goes by it).
     pub(crate) fn pipeline_with(&self, key: &'static str, source: &str, entry: &str, constants: &[(&str, f64)]) -> Arc<wgpu::ComputePipeline> {
-        let mut cache = self.cache.lock().unwrap();
-        if let Some(p) = cache.get(key) {
-            return p.clone();
-        }
-        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(key),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
+        // The lock is held only to find the cell, never over a compile.
+        let cell = self.cache.lock().unwrap_or_else(|e| e.into_inner()).entry(key).or_default().clone();
+        cell.get_or_init(|| {
+            // Naga's translation and the driver's compilation (lavapipe:
+            // NIR, then LLVM unless Mesa's shader cache has the code): a
+            // fixed cost of the first dispatch, which a trace shows apart.
+            let _span = tracing::trace_span!("compile", pipeline = key).entered();
+            let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(key),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+            Arc::new(self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(key),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+                cache: None,
+            }))
+        })
+        .clone()
+    }
+
+    /// Starts compiling a pipeline ([`pipeline_with`](Self::pipeline_with))
+    /// on a thread of its own and returns at once, so that the compile
+    /// overlaps the caller's own preparation; whoever asks for the pipeline
+    /// meanwhile waits for this compile. lavapipe spends 30-50 ms on the
+    /// score kernel's NIR even when Mesa's shader cache holds its machine
+    /// code. Where no thread can be made, the pipeline is compiled on first
+    /// use as usual.
+    pub(crate) fn compile_in_background(&self, key: &'static str, source: &'static str, entry: &'static str, constants: Vec<(&'static str, f64)>) -> Compiling {
+        let ctx = self.clone();
+        let spawned = std::thread::Builder::new().name(format!("compile {key}")).spawn(move || {
+            ctx.pipeline_with(key, source, entry, &constants);
         });
-        let p = Arc::new(self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(key),
-            layout: None,
-            module: &module,
-            entry_point: Some(entry),
-            compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
-            cache: None,
-        }));
-        cache.insert(key, p.clone());
-        p
+        match spawned {
+            Ok(handle) => Compiling(Some(handle)),
+            Err(e) => {
+                tracing::debug!("no thread to compile {key} on ({e}): compiled on first use");
+                Compiling(None)
+            }
+        }
     }
 
     /// Blocks until all submitted work is done.

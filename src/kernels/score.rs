@@ -276,10 +276,7 @@ impl LaneStage {
     /// The stage for `slots` slots of a `k`-sized region, or why it cannot
     /// run on this adapter.
     fn new(ctx: &Context, k: &crate::camera::Intrinsics, slots: u32) -> std::result::Result<Self, String> {
-        let lanes = match ctx.subgroup_lanes {
-            Some(l) if (1..=256).contains(&l) => l,
-            _ => return Err("the adapter has no subgroups of one fixed size".into()),
-        };
+        let lanes = lane_count(ctx)?;
         let max = ctx.max_texture_dim;
         // A slot's block: the region in 4x4 tiles of 16 texels, four tile
         // rows to a texture row (`slot_size` in score_lanes.wgsl).
@@ -310,8 +307,24 @@ impl LaneStage {
         let constants = [("LANES", self.lanes as f64)];
         match raster_only {
             true => ctx.pipeline_with("score/lanes raster", SCORE_LANES_WGSL, "raster_lanes_main", &constants),
-            false => ctx.pipeline_with("score/lanes", SCORE_LANES_WGSL, "score_lanes_main", &constants),
+            false => ctx.pipeline_with(LANES_SCORE.0, SCORE_LANES_WGSL, LANES_SCORE.1, &constants),
         }
+    }
+}
+
+/// The lanes kernel's scoring pipeline: its cache key and entry point (the
+/// key need not name LANES, which is fixed per context).
+const LANES_SCORE: (&str, &str) = ("score/lanes", "score_lanes_main");
+
+/// The workgroup kernel's scoring pipeline without a plane stage.
+const WORKGROUP_SCORE: (&str, &str) = ("score", "score_main");
+
+/// Invocations of the lanes kernel's workgroup: the adapter's one fixed
+/// subgroup size, or why it has none.
+fn lane_count(ctx: &Context) -> std::result::Result<u32, String> {
+    match ctx.subgroup_lanes {
+        Some(l) if (1..=256).contains(&l) => Ok(l),
+        _ => Err("the adapter has no subgroups of one fixed size".into()),
     }
 }
 
@@ -469,6 +482,23 @@ impl GpuScorer {
         Self::build(ctx, mesh, target, params, n_hint, DEFAULT_MAX_CHUNK, Some((plane, samples)))
     }
 
+    /// Starts compiling, on a thread of its own, the score pipeline that
+    /// [`ScoreKernel::Auto`] would pick on `ctx` for a rasterized mesh
+    /// without a plane stage (the lanes kernel on a software adapter with
+    /// subgroups of one fixed size, else the workgroup kernel), and returns
+    /// at once. Called before the mesh and observation are prepared, the
+    /// compile (30-50 ms on lavapipe) overlaps that work; a scorer made
+    /// meanwhile waits for it, and one that uses another kernel compiles
+    /// its own as usual. Dropping the handle waits for the compile.
+    pub fn precompile(ctx: &Context) -> crate::gpu::Compiling {
+        match lane_count(ctx) {
+            Ok(lanes) if ctx.is_software() => {
+                ctx.compile_in_background(LANES_SCORE.0, SCORE_LANES_WGSL, LANES_SCORE.1, vec![("LANES", lanes as f64)])
+            }
+            _ => ctx.compile_in_background(WORKGROUP_SCORE.0, SCORE_WGSL, WORKGROUP_SCORE.1, Vec::new()),
+        }
+    }
+
     fn build(
         ctx: &Context,
         mesh: &RenderMesh,
@@ -569,6 +599,19 @@ impl GpuScorer {
             ScoreKernel::Lanes
         } else {
             ScoreKernel::Workgroups
+        }
+    }
+
+    /// Compiles the score pipeline this scorer dispatches, or waits for a
+    /// [`precompile`](Self::precompile) of it, so that the first scores
+    /// wait for no compile and a caller timing its scoring times the
+    /// kernel. The ray caster's and the plane stage's pipelines were
+    /// compiled with their stages.
+    pub fn compile(&self) {
+        if let (Some(l), None) = (&self.lanes, &self.traced) {
+            l.pipeline(&self.ctx, false);
+        } else if self.traced.is_none() && self.plane.is_none() {
+            self.ctx.pipeline(WORKGROUP_SCORE.0, SCORE_WGSL, WORKGROUP_SCORE.1);
         }
     }
 
@@ -840,7 +883,7 @@ impl GpuScorer {
                     st.pipeline.clone()
                 }
                 // Compiled on first use, as the lanes kernel's (LaneStage::pipeline).
-                None => ctx.pipeline("score", SCORE_WGSL, "score_main"),
+                None => ctx.pipeline(WORKGROUP_SCORE.0, SCORE_WGSL, WORKGROUP_SCORE.1),
             };
             self.bufs.dispatch_waves(ctx, &mut enc, (&pipeline, WaveLayout::Workgroups), &extra, params, chunk.len(), timestamp_writes);
         }
