@@ -92,6 +92,8 @@ impl Scorer {
         // millions of triangles spends seconds in each).
         crate::interruptible(py, move |stop| {
             let opened = Device::open(choice, adapter.as_deref(), false)?;
+            // The kernel compiles while the mesh is prepared.
+            let _compiling = plausible::visual::Scorer::precompile(&opened.device);
             stop.check()?;
             let scoring = scoring_mesh(&mesh, lod, &target)?;
             stop.check()?;
