@@ -381,7 +381,7 @@ impl Context {
         cell.get_or_init(|| {
             // Naga's translation and the driver's compilation (lavapipe:
             // NIR, then LLVM unless Mesa's shader cache has the code): a
-            // fixed cost of the first dispatch, which a trace shows apart.
+            // fixed cost of the first use, which a trace shows apart.
             let _span = tracing::trace_span!("compile", pipeline = key).entered();
             let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(key),

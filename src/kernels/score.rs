@@ -882,7 +882,7 @@ impl GpuScorer {
                     ]);
                     st.pipeline.clone()
                 }
-                // Compiled on first use, as the lanes kernel's (LaneStage::pipeline).
+                // Compiled on first use (or by `compile`/`precompile`), as the lanes kernel's.
                 None => ctx.pipeline(WORKGROUP_SCORE.0, SCORE_WGSL, WORKGROUP_SCORE.1),
             };
             self.bufs.dispatch_waves(ctx, &mut enc, (&pipeline, WaveLayout::Workgroups), &extra, params, chunk.len(), timestamp_writes);
