@@ -304,17 +304,22 @@ impl LaneStage {
     /// in tens of milliseconds, a visible part of scoring a few thousand
     /// hypotheses.
     fn pipeline(&self, ctx: &Context, raster_only: bool) -> std::sync::Arc<wgpu::ComputePipeline> {
-        let constants = [("LANES", self.lanes as f64)];
-        match raster_only {
-            true => ctx.pipeline_with("score/lanes raster", SCORE_LANES_WGSL, "raster_lanes_main", &constants),
-            false => ctx.pipeline_with(LANES_SCORE.0, SCORE_LANES_WGSL, LANES_SCORE.1, &constants),
-        }
+        let (key, entry, constants) = lanes_pipeline(self.lanes, raster_only);
+        ctx.pipeline_with(key, SCORE_LANES_WGSL, entry, &constants)
     }
 }
 
-/// The lanes kernel's scoring pipeline: its cache key and entry point (the
-/// key need not name LANES, which is fixed per context).
-const LANES_SCORE: (&str, &str) = ("score/lanes", "score_lanes_main");
+/// A lanes pipeline of `SCORE_LANES_WGSL`: its cache key, entry point and
+/// override constants, in one place for the stage and
+/// [`GpuScorer::precompile`], since the cache goes by the key alone (which
+/// need not name LANES: it is fixed per context).
+fn lanes_pipeline(lanes: u32, raster_only: bool) -> (&'static str, &'static str, [(&'static str, f64); 1]) {
+    let constants = [("LANES", lanes as f64)];
+    match raster_only {
+        true => ("score/lanes raster", "raster_lanes_main", constants),
+        false => ("score/lanes", "score_lanes_main", constants),
+    }
+}
 
 /// The workgroup kernel's scoring pipeline without a plane stage.
 const WORKGROUP_SCORE: (&str, &str) = ("score", "score_main");
@@ -493,7 +498,8 @@ impl GpuScorer {
     pub fn precompile(ctx: &Context) -> crate::gpu::Compiling {
         match lane_count(ctx) {
             Ok(lanes) if ctx.is_software() => {
-                ctx.compile_in_background(LANES_SCORE.0, SCORE_LANES_WGSL, LANES_SCORE.1, vec![("LANES", lanes as f64)])
+                let (key, entry, constants) = lanes_pipeline(lanes, false);
+                ctx.compile_in_background(key, SCORE_LANES_WGSL, entry, constants.to_vec())
             }
             _ => ctx.compile_in_background(WORKGROUP_SCORE.0, SCORE_WGSL, WORKGROUP_SCORE.1, Vec::new()),
         }
