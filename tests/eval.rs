@@ -582,7 +582,10 @@ fn gpu_depth_kernel_matches_its_cpu_twin() {
             if (*a > 0.0) != (*b > 0.0) {
                 differ += 1;
             } else if *a > 0.0 {
-                assert!((a - b).abs() < 1e-5, "depth {a} vs {b}");
+                // 0.1 mm (VSD compares depths at δ = 15 mm): lavapipe stays
+                // within 1e-5 m of the twin, an H200 differed by 2e-5 m where
+                // it fuses the depth plane's multiply-adds.
+                assert!((a - b).abs() < 1e-4, "depth {a} vs {b}");
             }
         }
     }

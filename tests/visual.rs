@@ -117,6 +117,20 @@ fn gpu_scorers_made_during_a_precompile_score_as_a_fresh_one() {
     }
 }
 
+/// Whether GPU pixels must be the twin's exactly. A software adapter
+/// (lavapipe) runs the kernels' f32 arithmetic as written, so it draws the
+/// twin's pixels and depths bit for bit. A hardware GPU may fuse `a * b + c`
+/// into one rounding (WGSL allows it, and the SPIR-V that naga writes has no
+/// `NoContraction`), which moves pixel centres lying within rounding of an
+/// edge to the other side and depths by a few ulps: on an NVIDIA H200, 6 of
+/// 3,234 pixels of the big-triangle test, and depths one ulp apart in the
+/// loop-budget test. There the tests hold the GPU to
+/// [`assert_renders_match`]'s tolerance instead (1 % of the covered pixels,
+/// 0.1 mm).
+fn exact_twin(ctx: &Context) -> bool {
+    ctx.is_software()
+}
+
 /// Whether the adapter runs the lanes score kernel (subgroups of one fixed
 /// size: lavapipe's are its SIMD vector). Where it cannot, says so.
 fn lanes_available(ctx: &Context) -> bool {
@@ -248,14 +262,27 @@ fn gpu_big_triangles_draw_the_twins_pixels_with_either_kernel() {
         }
         scorer.set_kernel(kernel).unwrap();
         for (i, (g, c)) in scorer.score(&poses).unwrap().0.iter().zip(&cpu).enumerate() {
-            let counts = |r: &ScoreRecord| (r.valid, r.rendered, r.front, r.behind);
-            assert_eq!(counts(g), counts(c), "{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
-            assert!((g.score - c.score).abs() < 1e-5, "{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
+            let what = format!("{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
+            let counts = |r: &ScoreRecord| [r.valid, r.rendered, r.front, r.behind];
+            if exact_twin(&ctx) {
+                assert_eq!(counts(g), counts(c), "{what}");
+                assert!((g.score - c.score).abs() < 1e-5, "{what}");
+            } else {
+                // Hardware: at most 1 % of the rendered pixels move.
+                for (a, b) in counts(g).into_iter().zip(counts(c)) {
+                    assert!(a.abs_diff(b) as f64 <= 0.01 * c.rendered as f64, "{what}");
+                }
+                assert!((g.score - c.score).abs() < 1e-3, "{what}");
+            }
         }
     }
     let img = render_gpu(&ctx, &mesh, &poses, &target.intrinsics).unwrap();
     for (p, g) in poses.iter().zip(&img) {
-        assert_eq!(g.depth.iter().filter(|d| **d > 0.0).count(), render_cpu(&mesh, p, &target.intrinsics).depth.iter().filter(|d| **d > 0.0).count());
+        let c = render_cpu(&mesh, p, &target.intrinsics);
+        match exact_twin(&ctx) {
+            true => assert_eq!(g.depth.iter().filter(|d| **d > 0.0).count(), c.depth.iter().filter(|d| **d > 0.0).count()),
+            false => assert_renders_match(&c, g),
+        }
     }
 }
 
@@ -894,10 +921,25 @@ fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
         }
     }
     for (p, img) in poses.iter().zip(render_gpu(&ctx, &raster, &poses, &ti).unwrap()) {
-        assert_eq!(img, render_cpu(&raster, p, &ti));
+        match exact_twin(&ctx) {
+            true => assert_eq!(img, render_cpu(&raster, p, &ti)),
+            false => assert_renders_match(&render_cpu(&raster, p, &ti), &img),
+        }
     }
     let tiles = GpuDepth::new(&ctx, &raster, &k).unwrap().render(&poses).unwrap();
-    assert_eq!(tiles, depth_tiles_cpu(&raster, &poses, &k));
+    let cpu_tiles = depth_tiles_cpu(&raster, &poses, &k);
+    if exact_twin(&ctx) {
+        assert_eq!(tiles, cpu_tiles);
+    }
+    for (g, c) in tiles.iter().zip(&cpu_tiles) {
+        let (Some(g), Some(c)) = (g, c) else {
+            assert!(g.is_none() && c.is_none(), "a tile on one side only");
+            continue;
+        };
+        assert_eq!(g.rect, c.rect);
+        let image = |t: &plausible::kernels::depth::DepthTile| RenderImage { width: t.width() as u32, height: (t.depth.len() / t.width()) as u32, depth: t.depth.clone(), normals: vec![] };
+        assert_renders_match(&image(c), &image(g));
+    }
 
     // Past the rasterizer's meshlet budget too (530,000 stacked triangles,
     // ray-cast by default): rays out of budget, no rasterizer to fall back
