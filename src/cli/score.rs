@@ -196,15 +196,17 @@ pub fn run(a: ScoreArgs, verbose: u8) -> Result<()> {
         print_table(&records, None, &rank, a.top);
     });
     let written = write_outputs(&a, &records, None, &rank, &poses, &rmesh, &target, &params, None);
-    release(device);
+    release((scorer, device));
     written
 }
 
-/// Drops the device in a stage of its own: tearing a GPU device down takes
-/// tens of milliseconds on lavapipe, which would otherwise be time in the
-/// trace's root that no stage covers.
-fn release(device: Device) {
-    tracing::trace_span!("release").in_scope(|| drop(device));
+/// Drops the GPU objects (the scorer's buffers, the context) in a stage of
+/// their own, so that freeing them is not time in the trace's root that no
+/// stage covers. The device itself stays open for the process
+/// (`gpu::shared`); before it did, its teardown (64 ms on an H200) came when
+/// the scorer, its last user, was dropped after this stage.
+fn release<T>(gpu: T) {
+    tracing::trace_span!("release").in_scope(|| drop(gpu));
 }
 
 /// The checked arguments and the inputs: mesh, observation (depth, mask)
