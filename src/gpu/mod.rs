@@ -5,6 +5,8 @@ use std::sync::Arc;
 
 use crate::error::{Error, Result};
 
+mod shared;
+
 /// How to pick the adapter.
 #[derive(Clone, Debug, Default)]
 pub struct GpuOptions {
@@ -189,6 +191,35 @@ mod cache_tests {
         assert!(got.windows(2).all(|w| Arc::ptr_eq(&w[0], &w[1])));
         assert!(Arc::ptr_eq(&got[0], &ctx.pipeline("test/empty", EMPTY, "main")));
     }
+
+    /// Contexts opened and dropped on many threads at once, clones and
+    /// background compiles among them, share one device and its pipelines
+    /// (NVIDIA's driver crashed on this while each context opened its own
+    /// device, see `shared`), and each keeps its own batch limits.
+    #[test]
+    fn gpu_contexts_opened_on_many_threads_share_one_device() {
+        let first = super::test_context();
+        let pipeline = first.pipeline("test/empty", EMPTY, "main");
+        std::thread::scope(|s| {
+            for _ in 0..6 {
+                s.spawn(|| {
+                    for _ in 0..3 {
+                        let ctx = super::test_context();
+                        assert!(ctx.device == first.device);
+                        let compiling = ctx.clone().compile_in_background("test/empty", EMPTY, "main", Vec::new());
+                        drop(ctx);
+                        drop(compiling);
+                    }
+                });
+            }
+        });
+        assert!(Arc::ptr_eq(&pipeline, &super::test_context().pipeline("test/empty", EMPTY, "main")));
+        let small = super::BatchLimits { max_storage_binding: 1 << 20, ..first.limits };
+        let limited = super::Context::new(&super::GpuOptions { adapter: None, limits: Some(small) }).unwrap();
+        assert!(limited.device == first.device);
+        assert_eq!(limited.limits.max_storage_binding, 1 << 20);
+        assert!(first.limits.max_storage_binding > 1 << 20);
+    }
 }
 
 #[cfg(test)]
@@ -218,8 +249,9 @@ pub struct Context {
     /// one fixed subgroup size (lavapipe: its SIMD vector); the one-lane-per-
     /// hypothesis score kernel (`shaders/score_lanes.wgsl`) needs both.
     pub subgroup_lanes: Option<u32>,
-    /// Pipelines are compiled once per context and kept here, one cell per
-    /// key: a thread asking for a pipeline another thread is compiling
+    /// Pipelines are compiled once per device and kept here, shared by the
+    /// contexts on it ([`shared`]), one cell per key: a thread asking for a
+    /// pipeline another thread is compiling
     /// ([`compile_in_background`](Self::compile_in_background)) waits for
     /// that compile instead of starting its own.
     pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, PipelineCell>>>,
@@ -268,86 +300,36 @@ impl std::fmt::Debug for Context {
 const STORAGE_BUFFERS: u32 = 5;
 
 impl Context {
-    /// Opens a device. Backends: `WGPU_BACKEND` when set, otherwise the
-    /// primary ones (Vulkan, Metal, DX12): probing GL on a headless server
-    /// only prints noise, so GL is used only when asked for. Power
-    /// preference: `WGPU_POWER_PREF` or the default.
+    /// A context on the adapter `opts` names (or the default one). Backends:
+    /// `WGPU_BACKEND` when set, otherwise the primary ones (Vulkan, Metal,
+    /// DX12): probing GL on a headless server only prints noise, so GL is
+    /// used only when asked for. Power preference: `WGPU_POWER_PREF` or the
+    /// default. The device is opened once per process and shared by every
+    /// context on it ([`shared`]); `opts.limits` applies to this context.
     pub fn new(opts: &GpuOptions) -> Result<Context> {
-        // The process environment is never changed here (unsound with
-        // threads); the binary switches Mesa's device-select layer off at
-        // start-up.
-        let desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        let mut desc = desc.with_env();
-        desc.backends = backends_from_env()?.unwrap_or(wgpu::Backends::PRIMARY);
-        let backends = desc.backends;
-        let instance = wgpu::Instance::new(desc);
-        let adapter = match &opts.adapter {
-            Some(name) => {
-                let all = pollster::block_on(instance.enumerate_adapters(backends));
-                let names: Vec<String> = all.iter().map(|a| a.get_info().name).collect();
-                let needle = name.to_lowercase();
-                all.into_iter()
-                    .find(|a| a.get_info().name.to_lowercase().contains(&needle))
-                    .ok_or_else(|| Error::NoAdapter {
-                        detail: format!(
-                            " matching '{name}' (available: {})",
-                            if names.is_empty() { "none".to_string() } else { names.join(", ") }
-                        ),
-                    })?
-            }
-            None => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-                power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
-                force_fallback_adapter: false,
-                compatible_surface: None,
-                apply_limit_buckets: false,
-            }))
-            .map_err(|e| Error::NoAdapter { detail: format!(" ({e}; backends tried: {backends:?})") })?,
+        let key = shared::DeviceKey {
+            adapter: opts.adapter.clone(),
+            backends: backends_from_env()?.unwrap_or(wgpu::Backends::PRIMARY),
+            power: wgpu::PowerPreference::from_env().unwrap_or_default(),
         };
-        let info = adapter.get_info();
-        let alimits = adapter.limits();
-        let mut required = wgpu::Limits::downlevel_defaults();
-        required.max_storage_buffer_binding_size = alimits.max_storage_buffer_binding_size;
-        required.max_buffer_size = alimits.max_buffer_size;
-        required.max_texture_dimension_2d = alimits.max_texture_dimension_2d;
-        required.max_compute_workgroups_per_dimension = alimits.max_compute_workgroups_per_dimension;
-        required.max_compute_invocations_per_workgroup = alimits.max_compute_invocations_per_workgroup.min(256);
-        required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
-        if alimits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
-            return Err(Error::Gpu(format!(
-                "{} binds at most {} storage buffers per shader stage; the score kernel with physics needs {STORAGE_BUFFERS}: use the CPU twin (device `cpu`)",
-                info.name, alimits.max_storage_buffers_per_shader_stage
-            )));
-        }
-        required.max_storage_buffers_per_shader_stage = STORAGE_BUFFERS;
-        required.max_compute_workgroup_storage_size = alimits.max_compute_workgroup_storage_size.min(16384);
-        let features = adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP);
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("plausible"),
-            required_features: features,
-            required_limits: required.clone(),
-            experimental_features: wgpu::ExperimentalFeatures::disabled(),
-            memory_hints: wgpu::MemoryHints::Performance,
-            trace: wgpu::Trace::Off,
-        }))
-        .map_err(|e| Error::Gpu(format!("could not open a device on {}: {e}", info.name)))?;
-        let mut limits = BatchLimits::from_wgpu(&required);
+        let open = shared::device(key.clone(), || open_device(&key))?;
+        let mut limits = BatchLimits::from_wgpu(&open.required);
         if let Some(l) = opts.limits {
             limits = limits.min(l);
         }
-        tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-        let timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
+        let info = open.info.clone();
         let subgroup_lanes =
-            (features.contains(wgpu::Features::SUBGROUP) && info.subgroup_min_size == info.subgroup_max_size && info.subgroup_min_size > 0)
+            (open.features.contains(wgpu::Features::SUBGROUP) && info.subgroup_min_size == info.subgroup_max_size && info.subgroup_min_size > 0)
                 .then_some(info.subgroup_min_size);
         Ok(Context {
-            device,
-            queue,
+            device: open.device.clone(),
+            queue: open.queue.clone(),
             info,
             limits,
-            max_texture_dim: required.max_texture_dimension_2d,
-            timestamps,
+            max_texture_dim: open.required.max_texture_dimension_2d,
+            timestamps: open.features.contains(wgpu::Features::TIMESTAMP_QUERY),
             subgroup_lanes,
-            cache: Default::default(),
+            cache: open.cache.clone(),
         })
     }
 
@@ -460,6 +442,73 @@ impl Context {
         staging.unmap();
         Ok(out)
     }
+}
+
+/// Opens the adapter `key` names on a new instance, with the limits and
+/// features the kernels use.
+fn open_device(key: &shared::DeviceKey) -> Result<shared::SharedDevice> {
+    // The process environment is never changed here (unsound with
+    // threads); the binary switches Mesa's device-select layer off at
+    // start-up.
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
+    desc.backends = key.backends;
+    let instance = wgpu::Instance::new(desc);
+    let adapter = find_adapter(&instance, key)?;
+    let info = adapter.get_info();
+    let required = required_limits(&adapter.limits(), &info.name)?;
+    let features = adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP);
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("plausible"),
+        required_features: features,
+        required_limits: required.clone(),
+        experimental_features: wgpu::ExperimentalFeatures::disabled(),
+        memory_hints: wgpu::MemoryHints::Performance,
+        trace: wgpu::Trace::Off,
+    }))
+    .map_err(|e| Error::Gpu(format!("could not open a device on {}: {e}", info.name)))?;
+    tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+    Ok(shared::SharedDevice { device, queue, info, required, features, cache: Default::default() })
+}
+
+/// The limits a device is opened with: the adapter's own for buffer and
+/// texture sizes and workgroup counts, workgroups of at most 256
+/// invocations and 16 KiB, and the storage buffers the largest kernel binds.
+fn required_limits(alimits: &wgpu::Limits, adapter: &str) -> Result<wgpu::Limits> {
+    let mut required = wgpu::Limits::downlevel_defaults();
+    required.max_storage_buffer_binding_size = alimits.max_storage_buffer_binding_size;
+    required.max_buffer_size = alimits.max_buffer_size;
+    required.max_texture_dimension_2d = alimits.max_texture_dimension_2d;
+    required.max_compute_workgroups_per_dimension = alimits.max_compute_workgroups_per_dimension;
+    required.max_compute_invocations_per_workgroup = alimits.max_compute_invocations_per_workgroup.min(256);
+    required.max_compute_workgroup_size_x = alimits.max_compute_workgroup_size_x.min(256);
+    if alimits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
+        return Err(Error::Gpu(format!(
+            "{adapter} binds at most {} storage buffers per shader stage; the score kernel with physics needs {STORAGE_BUFFERS}: use the CPU twin (device `cpu`)",
+            alimits.max_storage_buffers_per_shader_stage
+        )));
+    }
+    required.max_storage_buffers_per_shader_stage = STORAGE_BUFFERS;
+    required.max_compute_workgroup_storage_size = alimits.max_compute_workgroup_storage_size.min(16384);
+    Ok(required)
+}
+
+/// The first adapter whose name contains `key.adapter`, or the default one.
+fn find_adapter(instance: &wgpu::Instance, key: &shared::DeviceKey) -> Result<wgpu::Adapter> {
+    let Some(name) = &key.adapter else {
+        return pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: key.power,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| Error::NoAdapter { detail: format!(" ({e}; backends tried: {:?})", key.backends) });
+    };
+    let all = pollster::block_on(instance.enumerate_adapters(key.backends));
+    let names: Vec<String> = all.iter().map(|a| a.get_info().name).collect();
+    let needle = name.to_lowercase();
+    all.into_iter().find(|a| a.get_info().name.to_lowercase().contains(&needle)).ok_or_else(|| Error::NoAdapter {
+        detail: format!(" matching '{name}' (available: {})", if names.is_empty() { "none".to_string() } else { names.join(", ") }),
+    })
 }
 
 /// The backends `WGPU_BACKEND` names (comma-separated), parsed here so
