@@ -1091,7 +1091,7 @@ fn camera_key(k: &Intrinsics) -> ([u64; 4], u32, u32) {
 /// Depth tiles of `poses` on `device` (GPU kernel or CPU twin).
 pub fn render_depth(device: &Device, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsics) -> Result<Vec<Option<DepthTile>>> {
     match device {
-        Device::Gpu(ctx) => GpuDepth::new(ctx, mesh, k)?.render(poses),
+        Device::Gpu(ctx) => GpuDepth::for_poses(ctx, mesh, k, poses)?.render(poses),
         Device::Cpu => Ok(depth_tiles_cpu(mesh, poses, k)),
     }
 }

@@ -94,6 +94,11 @@ pub fn tile_rect(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics) -> Option<[usiz
     screen_rect(&GpuPose::from(pose), mesh.radius, k)
 }
 
+/// Pixels of an inclusive rectangle `[x0, y0, x1, y1]`.
+fn rect_pixels(r: &[usize; 4]) -> usize {
+    (r[2] - r[0] + 1) * (r[3] - r[1] + 1)
+}
+
 /// CPU twin: the depth of `pose` over its tile, with caller-owned z-buffer
 /// and id scratch of `k.pixels()` items each (reused across poses).
 pub fn depth_tile_cpu(mesh: &RenderMesh, pose: &Pose, k: &Intrinsics, zbuf: &mut [f32], ids: &mut [u32]) -> Option<DepthTile> {
@@ -137,9 +142,25 @@ pub struct GpuDepth<'a> {
 }
 
 impl<'a> GpuDepth<'a> {
-    /// Prepares the kernel for poses of `mesh` seen with `k`.
+    /// Prepares the kernel for poses of `mesh` seen with `k`, with buffers
+    /// for batches of up to 4,096 poses.
     pub fn new(ctx: &'a Context, mesh: &'a RenderMesh, k: &Intrinsics) -> Result<Self> {
-        let bufs = RasterBuffers::new(ctx, mesh, k, 4096, std::mem::size_of::<Tile>() as u64, 4096)?;
+        Self::sized(ctx, mesh, k, 4096, BATCH_PIXELS)
+    }
+
+    /// Like [`new`](Self::new), with buffers sized for rendering `poses`
+    /// (any poses still render, in more dispatches). The visibility buffer
+    /// holds a whole camera image per pose of a wave, up to 256 MB, and the
+    /// output 64 MB: allocating those for a few dozen poses cost an H200
+    /// 13 ms per object and camera in `eval`, more than the renders.
+    pub fn for_poses(ctx: &'a Context, mesh: &'a RenderMesh, k: &Intrinsics, poses: &[Pose]) -> Result<Self> {
+        let pixels: usize = poses.iter().filter_map(|p| tile_rect(mesh, p, k)).map(|r| rect_pixels(&r)).sum();
+        Self::sized(ctx, mesh, k, poses.len(), pixels.clamp(MAX_GPU_TILE_PIXELS, BATCH_PIXELS))
+    }
+
+    /// Buffers for batches of `n` poses and `pixels` tile pixels.
+    fn sized(ctx: &'a Context, mesh: &'a RenderMesh, k: &Intrinsics, n: usize, pixels: usize) -> Result<Self> {
+        let bufs = RasterBuffers::new(ctx, mesh, k, n, std::mem::size_of::<Tile>() as u64, 4096)?;
         let pipeline = ctx.pipeline("depth", &depth_wgsl(), "depth_main");
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
         let tiles = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -148,7 +169,7 @@ impl<'a> GpuDepth<'a> {
             usage: storage,
             mapped_at_creation: false,
         });
-        let out_pixels = (ctx.limits.max_items(4) as usize).min(BATCH_PIXELS);
+        let out_pixels = (ctx.limits.max_items(4) as usize).min(pixels);
         if out_pixels < MAX_GPU_TILE_PIXELS {
             return Err(Error::Gpu(format!(
                 "the adapter binds at most {} bytes of storage; the depth kernel needs {}",
@@ -177,14 +198,13 @@ impl<'a> GpuDepth<'a> {
             return Ok(depth_tiles_cpu(self.mesh, poses, &self.k));
         }
         let rects: Vec<Option<[usize; 4]>> = poses.iter().map(|p| tile_rect(self.mesh, p, &self.k)).collect();
-        let area = |r: &[usize; 4]| (r[2] - r[0] + 1) * (r[3] - r[1] + 1);
         let mut out: Vec<Option<DepthTile>> = vec![None; poses.len()];
         let mut batch: Vec<usize> = Vec::new();
         let mut pixels = 0usize;
         let mut cpu: Vec<usize> = Vec::new();
         for (i, r) in rects.iter().enumerate() {
             let Some(r) = r else { continue };
-            let a = area(r);
+            let a = rect_pixels(r);
             if a > MAX_GPU_TILE_PIXELS {
                 cpu.push(i);
                 continue;
@@ -219,7 +239,7 @@ impl<'a> GpuDepth<'a> {
         for &i in batch {
             let r = rects[i].expect("batched poses have tiles");
             let t = Tile { x0: r[0] as i32, y0: r[1] as i32, x1: r[2] as i32, y1: r[3] as i32, offset, pad0: 0, pad1: 0, pad2: 0 };
-            offset += ((r[2] - r[0] + 1) * (r[3] - r[1] + 1)) as u32;
+            offset += rect_pixels(&r) as u32;
             tiles.push(t);
         }
         let gp: Vec<GpuPose> = batch.iter().map(|&i| GpuPose::from(&poses[i])).collect();
@@ -238,7 +258,7 @@ impl<'a> GpuDepth<'a> {
         let mut over = Vec::new();
         for (&i, t) in batch.iter().zip(&tiles) {
             let rect = [t.x0 as usize, t.y0 as usize, t.x1 as usize, t.y1 as usize];
-            let n = (rect[2] - rect[0] + 1) * (rect[3] - rect[1] + 1);
+            let n = rect_pixels(&rect);
             let at = t.offset as usize;
             // -1 first: the pose overdraws past the rasterizer's loop
             // budget (`raster::draw_budget`); the twin renders it.
