@@ -572,6 +572,11 @@ fn gpu_depth_kernel_matches_its_cpu_twin() {
         })
         .collect();
     let gpu = GpuDepth::new(&ctx, &rm, &k).unwrap().render(&poses).unwrap();
+    // Buffers sized for the poses rendered (as `eval` makes them), or for
+    // fewer than are rendered (so more dispatches), draw the same tiles.
+    for sized_for in [&poses[..], &poses[..7]] {
+        assert!(GpuDepth::for_poses(&ctx, &rm, &k, sized_for).unwrap().render(&poses).unwrap() == gpu);
+    }
     let cpu = depth_tiles_cpu(&rm, &poses, &k);
     let (mut px, mut differ) = (0usize, 0usize);
     for (g, c) in gpu.iter().zip(&cpu) {
