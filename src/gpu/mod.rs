@@ -308,7 +308,7 @@ impl Context {
     /// context on it ([`shared`]); `opts.limits` applies to this context.
     pub fn new(opts: &GpuOptions) -> Result<Context> {
         let key = shared::DeviceKey {
-            adapter: opts.adapter.clone(),
+            adapter: opts.adapter.as_ref().map(|a| a.to_lowercase()),
             backends: backends_from_env()?.unwrap_or(wgpu::Backends::PRIMARY),
             power: wgpu::PowerPreference::from_env().unwrap_or_default(),
         };
@@ -402,10 +402,13 @@ impl Context {
         }
     }
 
-    /// Blocks until all submitted work is done.
-    pub fn wait(&self) -> Result<()> {
+    /// Blocks until the submission `index` is done (and the ones before it
+    /// on the queue). The device is shared by every context of the process
+    /// ([`shared`]), so waiting for all its work would also wait for other
+    /// threads' dispatches.
+    pub fn wait_for(&self, index: wgpu::SubmissionIndex) -> Result<()> {
         self.device
-            .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
+            .poll(wgpu::PollType::Wait { submission_index: Some(index), timeout: None })
             .map(|_| ())
             .map_err(|e| Error::Gpu(e.to_string()))
     }
@@ -428,13 +431,13 @@ impl Context {
     pub fn read_through(&self, src: &wgpu::Buffer, staging: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(src, 0, staging, 0, size);
-        self.queue.submit([enc.finish()]);
+        let index = self.queue.submit([enc.finish()]);
         let slice = staging.slice(..size);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.wait()?;
+        self.wait_for(index)?;
         rx.recv()
             .map_err(|e| Error::Gpu(e.to_string()))?
             .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
@@ -467,7 +470,7 @@ fn open_device(key: &shared::DeviceKey) -> Result<shared::SharedDevice> {
     }))
     .map_err(|e| Error::Gpu(format!("could not open a device on {}: {e}", info.name)))?;
     tracing::info!("GPU adapter: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-    Ok(shared::SharedDevice { device, queue, info, required, features, cache: Default::default() })
+    Ok(shared::SharedDevice::new(device, queue, info, required, features))
 }
 
 /// The limits a device is opened with: the adapter's own for buffer and

@@ -282,6 +282,7 @@ impl ContactsKernel {
         // continuing the records of the one before: see words_per_dispatch.
         let step = words_per_dispatch(params.n_planes as usize, params.n_grids as usize);
         let words = self.words();
+        let mut last = None;
         for begin in (0..words).step_by(step) {
             params.word_begin = begin as u32;
             params.word_end = (begin + step).min(words) as u32;
@@ -294,9 +295,11 @@ impl ContactsKernel {
                 pass.set_bind_group(0, &bind, &[]);
                 pass.dispatch_workgroups((n as u32).div_ceil(WG).min(ctx.limits.max_workgroups), 1, 1);
             }
-            ctx.queue.submit([enc.finish()]);
+            last = Some(ctx.queue.submit([enc.finish()]));
         }
-        ctx.wait()?;
+        if let Some(index) = last {
+            ctx.wait_for(index)?;
+        }
         out.compute += t0.elapsed();
         let t1 = Instant::now();
         let rec = ctx.read_buffer(&b.records, (n * 16) as u64)?;

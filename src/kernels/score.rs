@@ -830,8 +830,7 @@ impl GpuScorer {
             self.n_obs,
         );
         ctx.queue.write_buffer(&self.bufs.poses, 0, bytemuck::cast_slice(&gp));
-        ctx.queue.submit([]);
-        ctx.wait()?;
+        ctx.wait_for(ctx.queue.submit([]))?;
         times.upload = t0.elapsed();
         drop(upload);
 
@@ -896,8 +895,7 @@ impl GpuScorer {
         if let Some((set, buf)) = timestamps {
             enc.resolve_query_set(set, 0..2, buf, 0);
         }
-        ctx.queue.submit([enc.finish()]);
-        ctx.wait()?;
+        ctx.wait_for(ctx.queue.submit([enc.finish()]))?;
         times.compute = t1.elapsed();
         if let Some((_, buf)) = timestamps {
             let raw = ctx.read_buffer(buf, 16)?;
