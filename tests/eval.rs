@@ -578,6 +578,10 @@ fn gpu_depth_kernel_matches_its_cpu_twin() {
         assert!(GpuDepth::for_poses(&ctx, &rm, &k, sized_for).unwrap().render(&poses).unwrap() == gpu);
     }
     let cpu = depth_tiles_cpu(&rm, &poses, &k);
+    // lavapipe stays within 1e-5 m of the twin; an H200 differed by 2e-5 m
+    // where it fuses the depth plane's multiply-adds, so hardware GPUs get
+    // 0.1 mm (VSD compares depths at δ = 15 mm).
+    let tolerance = if ctx.is_software() { 1e-5 } else { 1e-4 };
     let (mut px, mut differ) = (0usize, 0usize);
     for (g, c) in gpu.iter().zip(&cpu) {
         let (g, c) = (g.as_ref().unwrap(), c.as_ref().unwrap());
@@ -587,10 +591,7 @@ fn gpu_depth_kernel_matches_its_cpu_twin() {
             if (*a > 0.0) != (*b > 0.0) {
                 differ += 1;
             } else if *a > 0.0 {
-                // 0.1 mm (VSD compares depths at δ = 15 mm): lavapipe stays
-                // within 1e-5 m of the twin, an H200 differed by 2e-5 m where
-                // it fuses the depth plane's multiply-adds.
-                assert!((a - b).abs() < 1e-4, "depth {a} vs {b}");
+                assert!((a - b).abs() < tolerance, "depth {a} vs {b}");
             }
         }
     }

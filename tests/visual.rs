@@ -930,15 +930,18 @@ fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
     let cpu_tiles = depth_tiles_cpu(&raster, &poses, &k);
     if exact_twin(&ctx) {
         assert_eq!(tiles, cpu_tiles);
-    }
-    for (g, c) in tiles.iter().zip(&cpu_tiles) {
-        let (Some(g), Some(c)) = (g, c) else {
-            assert!(g.is_none() && c.is_none(), "a tile on one side only");
-            continue;
-        };
-        assert_eq!(g.rect, c.rect);
-        let image = |t: &plausible::kernels::depth::DepthTile| RenderImage { width: t.width() as u32, height: (t.depth.len() / t.width()) as u32, depth: t.depth.clone(), normals: vec![] };
-        assert_renders_match(&image(c), &image(g));
+    } else {
+        for (g, c) in tiles.iter().zip(&cpu_tiles) {
+            let (Some(g), Some(c)) = (g, c) else {
+                assert!(g.is_none() && c.is_none(), "a tile on one side only");
+                continue;
+            };
+            assert_eq!(g.rect, c.rect);
+            if g.covered() + c.covered() > 0 {
+                let image = |t: &plausible::kernels::depth::DepthTile| RenderImage { width: t.width() as u32, height: (t.depth.len() / t.width()) as u32, depth: t.depth.clone(), normals: vec![] };
+                assert_renders_match(&image(c), &image(g));
+            }
+        }
     }
 
     // Past the rasterizer's meshlet budget too (530,000 stacked triangles,
