@@ -254,7 +254,7 @@ pub struct Context {
     /// pipeline another thread is compiling
     /// ([`compile_in_background`](Self::compile_in_background)) waits for
     /// that compile instead of starting its own.
-    pub(crate) cache: Arc<std::sync::Mutex<std::collections::HashMap<&'static str, PipelineCell>>>,
+    pub(crate) cache: PipelineCache,
 }
 
 /// A pipeline compiling on a thread of its own
@@ -282,9 +282,12 @@ impl Drop for Compiling {
     }
 }
 
-/// A pipeline of the context's cache, compiled once by whichever thread
-/// asks first.
+/// A pipeline of a device's cache, compiled once by whichever thread asks
+/// first.
 pub(crate) type PipelineCell = Arc<std::sync::OnceLock<Arc<wgpu::ComputePipeline>>>;
+
+/// A device's compiled pipelines by key, shared by its contexts.
+pub(crate) type PipelineCache = Arc<std::sync::Mutex<std::collections::HashMap<&'static str, PipelineCell>>>;
 
 impl std::fmt::Debug for Context {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

@@ -22,7 +22,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use super::PipelineCell;
+use super::PipelineCache;
 use crate::error::Result;
 
 /// An open device and what the contexts on it share.
@@ -33,7 +33,7 @@ pub(crate) struct SharedDevice {
     /// The limits the device was opened with.
     pub required: wgpu::Limits,
     pub features: wgpu::Features,
-    pub cache: Arc<Mutex<std::collections::HashMap<&'static str, PipelineCell>>>,
+    pub cache: PipelineCache,
     /// Set by the device-lost callback.
     lost: Arc<AtomicBool>,
     /// The process that opened it.
