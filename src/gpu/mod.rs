@@ -142,16 +142,27 @@ impl Device {
             }
             return Ok(Opened { device: Device::Cpu, note: None });
         }
+        // An adapter named by the user is used even when it is a software
+        // one: they asked for it. Otherwise `auto` looks at the adapter
+        // before opening a device on it: a software one would only be
+        // opened to be passed over (40-50 ms on lavapipe, and its threads
+        // and memory kept for the process, see `shared`).
+        if choice == DeviceChoice::Auto && adapter.is_none() {
+            match shared::adapter_info(&device_key(None)?, find_adapter) {
+                Ok(info) if info.device_type == wgpu::DeviceType::Cpu => {
+                    return Ok(Opened {
+                        device: Device::Cpu,
+                        note: Some(format!(
+                            "the only adapter is {} (software): using the CPU twin, which is faster there (device gpu uses the adapter)",
+                            info.name
+                        )),
+                    })
+                }
+                Ok(_) => {}
+                Err(e) => return Ok(Opened { device: Device::Cpu, note: Some(format!("{e}; falling back to the CPU twin")) }),
+            }
+        }
         match Context::new(&GpuOptions { adapter: adapter.map(str::to_string), limits: None }) {
-            // An adapter named by the user is used even when it is a
-            // software one: they asked for it.
-            Ok(ctx) if choice == DeviceChoice::Auto && ctx.is_software() && adapter.is_none() => Ok(Opened {
-                device: Device::Cpu,
-                note: Some(format!(
-                    "the only adapter is {} (software): using the CPU twin, which is faster there (device gpu uses the adapter)",
-                    ctx.info.name
-                )),
-            }),
             Ok(ctx) => {
                 let note = (ctx.info.backend == wgpu::Backend::Gl)
                     .then(|| "running on the OpenGL backend; a Vulkan driver is faster and more robust".to_string());
@@ -219,6 +230,19 @@ mod cache_tests {
         assert!(limited.device == first.device);
         assert_eq!(limited.limits.max_storage_binding, 1 << 20);
         assert!(first.limits.max_storage_binding > 1 << 20);
+    }
+
+    /// Two names for one adapter (the default, and its own name in capitals)
+    /// hold one device: a second device on the same GPU is what NVIDIA's
+    /// driver crashed on. Asking which adapter `auto` would use opens none.
+    #[test]
+    fn gpu_two_names_for_one_adapter_share_one_device() {
+        let first = super::test_context();
+        let opts = super::GpuOptions { adapter: Some(first.info.name.to_uppercase()), limits: None };
+        let named = super::Context::new(&opts).unwrap();
+        assert!(named.device == first.device);
+        let key = super::device_key(Some(&first.info.name)).unwrap();
+        assert_eq!(super::shared::adapter_info(&key, super::find_adapter).unwrap(), first.info);
     }
 }
 
@@ -310,12 +334,7 @@ impl Context {
     /// default. The device is opened once per process and shared by every
     /// context on it ([`shared`]); `opts.limits` applies to this context.
     pub fn new(opts: &GpuOptions) -> Result<Context> {
-        let key = shared::DeviceKey {
-            adapter: opts.adapter.as_ref().map(|a| a.to_lowercase()),
-            backends: backends_from_env()?.unwrap_or(wgpu::Backends::PRIMARY),
-            power: wgpu::PowerPreference::from_env().unwrap_or_default(),
-        };
-        let open = shared::device(key.clone(), || open_device(&key))?;
+        let open = shared::device(device_key(opts.adapter.as_deref())?, find_adapter, open_device)?;
         let mut limits = BatchLimits::from_wgpu(&open.required);
         if let Some(l) = opts.limits {
             limits = limits.min(l);
@@ -450,16 +469,20 @@ impl Context {
     }
 }
 
-/// Opens the adapter `key` names on a new instance, with the limits and
-/// features the kernels use.
-fn open_device(key: &shared::DeviceKey) -> Result<shared::SharedDevice> {
-    // The process environment is never changed here (unsound with
-    // threads); the binary switches Mesa's device-select layer off at
-    // start-up.
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
-    desc.backends = key.backends;
-    let instance = wgpu::Instance::new(desc);
-    let adapter = find_adapter(&instance, key)?;
+/// What picks the device for `adapter` (a name, or the default adapter):
+/// the backends `WGPU_BACKEND` names, otherwise the primary ones (Vulkan,
+/// Metal, DX12), and the power preference `WGPU_POWER_PREF` names.
+fn device_key(adapter: Option<&str>) -> Result<shared::DeviceKey> {
+    Ok(shared::DeviceKey {
+        adapter: adapter.map(str::to_lowercase),
+        backends: backends_from_env()?.unwrap_or(wgpu::Backends::PRIMARY),
+        power: wgpu::PowerPreference::from_env().unwrap_or_default(),
+    })
+}
+
+/// Opens a device on `adapter` with the limits and features the kernels
+/// use.
+fn open_device(adapter: wgpu::Adapter) -> Result<shared::SharedDevice> {
     let info = adapter.get_info();
     let required = required_limits(&adapter.limits(), &info.name)?;
     let features = adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP);

@@ -65,20 +65,84 @@ pub(crate) struct DeviceKey {
     pub power: wgpu::PowerPreference,
 }
 
-static OPEN: Mutex<Vec<(DeviceKey, Arc<SharedDevice>)>> = Mutex::new(Vec::new());
+/// The open devices by the key that asked for each (two keys naming one
+/// adapter, say the default and its name, hold the same device), and the
+/// instances adapters are looked up on, one per set of backends: kept, so
+/// that asking about an adapter neither opens a device nor creates and
+/// destroys an instance each time.
+struct Registry {
+    devices: Vec<(DeviceKey, Arc<SharedDevice>)>,
+    instances: Vec<(wgpu::Backends, u32, wgpu::Instance)>,
+}
 
-/// The device for `key`, opened by `open` the first time (or again, when
-/// the one kept is lost or was opened before a fork). The registry is
-/// locked while a device opens, so two threads asking at once get one
-/// device, and no device ever opens beside another's opening. A failed
-/// open is not kept: the next call tries again.
-pub(crate) fn device(key: DeviceKey, open: impl FnOnce() -> Result<SharedDevice>) -> Result<Arc<SharedDevice>> {
-    let mut devices = OPEN.lock().unwrap_or_else(PoisonError::into_inner);
-    devices.retain(|(_, d)| d.usable());
-    if let Some((_, d)) = devices.iter().find(|(k, _)| *k == key) {
+static OPEN: Mutex<Registry> = Mutex::new(Registry { devices: Vec::new(), instances: Vec::new() });
+
+impl Registry {
+    /// Forgets lost devices, and what a parent process opened before it
+    /// forked. The parent's objects are leaked, not destroyed: their driver
+    /// state belongs to the parent, and destroying a copy of it in the
+    /// child is undefined (the parent goes on using the originals).
+    fn prune(&mut self) {
+        let pid = std::process::id();
+        for (_, d) in self.devices.extract_if(.., |(_, d)| d.pid != pid) {
+            std::mem::forget(d);
+        }
+        for (_, _, i) in self.instances.extract_if(.., |(_, p, _)| *p != pid) {
+            std::mem::forget(i);
+        }
+        self.devices.retain(|(_, d)| d.usable());
+    }
+
+    /// The instance for `backends`, created the first time.
+    fn instance(&mut self, backends: wgpu::Backends) -> wgpu::Instance {
+        if let Some((_, _, i)) = self.instances.iter().find(|(b, _, _)| *b == backends) {
+            return i.clone();
+        }
+        // The process environment is never changed here (unsound with
+        // threads); the binary switches Mesa's device-select layer off at
+        // start-up.
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
+        desc.backends = backends;
+        let instance = wgpu::Instance::new(desc);
+        self.instances.push((backends, std::process::id(), instance.clone()));
+        instance
+    }
+}
+
+/// Finds the adapter a key names on an instance.
+pub(crate) type FindAdapter = fn(&wgpu::Instance, &DeviceKey) -> Result<wgpu::Adapter>;
+
+/// The adapter `key` names, without opening a device on it: the one open
+/// for it already, or the one `find` picks.
+pub(crate) fn adapter_info(key: &DeviceKey, find: FindAdapter) -> Result<wgpu::AdapterInfo> {
+    let mut reg = OPEN.lock().unwrap_or_else(PoisonError::into_inner);
+    reg.prune();
+    if let Some((_, d)) = reg.devices.iter().find(|(k, _)| k == key) {
+        return Ok(d.info.clone());
+    }
+    let instance = reg.instance(key.backends);
+    Ok(find(&instance, key)?.get_info())
+}
+
+/// The device for `key`: the one open for it or for another key naming
+/// the same adapter, else one `open` opens on the adapter `find` picks (or
+/// again, when the one kept is lost or was opened before a fork). The
+/// registry is locked while a device opens, so two threads asking at once
+/// get one device, and no device ever opens beside another's opening. A
+/// failed open is not kept: the next call tries again.
+pub(crate) fn device(key: DeviceKey, find: FindAdapter, open: impl FnOnce(wgpu::Adapter) -> Result<SharedDevice>) -> Result<Arc<SharedDevice>> {
+    let mut reg = OPEN.lock().unwrap_or_else(PoisonError::into_inner);
+    reg.prune();
+    if let Some((_, d)) = reg.devices.iter().find(|(k, _)| *k == key) {
         return Ok(d.clone());
     }
-    let d = Arc::new(open()?);
-    devices.push((key, d.clone()));
+    let instance = reg.instance(key.backends);
+    let adapter = find(&instance, &key)?;
+    let info = adapter.get_info();
+    let d = match reg.devices.iter().find(|(_, d)| d.info == info) {
+        Some((_, d)) => d.clone(),
+        None => Arc::new(open(adapter)?),
+    };
+    reg.devices.push((key, d.clone()));
     Ok(d)
 }
