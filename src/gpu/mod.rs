@@ -216,7 +216,7 @@ mod cache_tests {
                 s.spawn(|| {
                     for _ in 0..3 {
                         let ctx = super::test_context();
-                        assert!(ctx.device == first.device);
+                        assert!(ctx.shares_device_with(&first));
                         let compiling = ctx.clone().compile_in_background("test/empty", EMPTY, "main", Vec::new());
                         drop(ctx);
                         drop(compiling);
@@ -227,7 +227,7 @@ mod cache_tests {
         assert!(Arc::ptr_eq(&pipeline, &super::test_context().pipeline("test/empty", EMPTY, "main")));
         let small = super::BatchLimits { max_storage_binding: 1 << 20, ..first.limits };
         let limited = super::Context::new(&super::GpuOptions { adapter: None, limits: Some(small) }).unwrap();
-        assert!(limited.device == first.device);
+        assert!(limited.shares_device_with(&first));
         assert_eq!(limited.limits.max_storage_binding, 1 << 20);
         assert!(first.limits.max_storage_binding > 1 << 20);
     }
@@ -240,7 +240,7 @@ mod cache_tests {
         let first = super::test_context();
         let opts = super::GpuOptions { adapter: Some(first.info.name.to_uppercase()), limits: None };
         let named = super::Context::new(&opts).unwrap();
-        assert!(named.device == first.device);
+        assert!(named.shares_device_with(&first));
         let key = super::device_key(Some(&first.info.name)).unwrap();
         assert_eq!(super::shared::adapter_info(&key, super::find_adapter).unwrap(), first.info);
     }
@@ -358,6 +358,14 @@ impl Context {
     /// A one-line description: adapter name and backend.
     pub fn describe(&self) -> String {
         format!("{} ({:?})", self.info.name, self.info.backend)
+    }
+
+    /// Whether `other` is on the very device this context is on (one open
+    /// device, [`shared`]), not merely on the same adapter. `==` on
+    /// `wgpu::Device` compares ids, which a fresh instance (a forked child's)
+    /// hands out again.
+    pub fn shares_device_with(&self, other: &Context) -> bool {
+        Arc::ptr_eq(&self.cache, &other.cache)
     }
 
     /// True for software adapters (lavapipe/llvmpipe, WARP, SwiftShader).
