@@ -234,7 +234,8 @@ mod cache_tests {
 
     /// Two names for one adapter (the default, and its own name in capitals)
     /// hold one device: a second device on the same GPU is what NVIDIA's
-    /// driver crashed on. Asking which adapter `auto` would use opens none.
+    /// driver crashed on. Asking which adapter a name picks (what `auto`
+    /// does before opening anything) gives that adapter.
     #[test]
     fn gpu_two_names_for_one_adapter_share_one_device() {
         let first = super::test_context();
