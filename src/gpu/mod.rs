@@ -245,6 +245,25 @@ mod cache_tests {
         let key = super::device_key(Some(&first.info.name)).unwrap();
         assert_eq!(super::shared::adapter_info(&key, super::find_adapter).unwrap(), first.info);
     }
+
+    /// `auto` without a named adapter scores on the CPU twin, with a note,
+    /// where the default adapter is a software one (and on it otherwise);
+    /// an adapter named by the user is used whatever it is.
+    #[test]
+    fn gpu_auto_passes_over_a_software_adapter_unless_named() {
+        use super::{Device, DeviceChoice};
+        let ctx = super::test_context();
+        let auto = Device::open(DeviceChoice::Auto, None, false).unwrap();
+        match auto.device {
+            Device::Cpu => {
+                assert!(ctx.is_software());
+                assert!(auto.note.as_deref().is_some_and(|n| n.contains("(software): using the CPU twin")), "{:?}", auto.note);
+            }
+            Device::Gpu(g) => assert!(!ctx.is_software() && g.shares_device_with(&ctx)),
+        }
+        let named = Device::open(DeviceChoice::Auto, Some(&ctx.info.name), false).unwrap();
+        assert!(matches!(named.device, Device::Gpu(g) if g.shares_device_with(&ctx)));
+    }
 }
 
 #[cfg(test)]
