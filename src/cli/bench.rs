@@ -133,6 +133,11 @@ pub struct ScoreBenchRow {
     pub height: u32,
     pub gpu_hyps_per_s: Option<f64>,
     pub cpu_hyps_per_s: Option<f64>,
+    /// Every timed run's rate, in the order run (the figures above are
+    /// their medians): the spread shows a noisy machine, or a device that
+    /// swings where the other does not.
+    pub gpu_runs_hyps_per_s: Vec<f64>,
+    pub cpu_runs_hyps_per_s: Vec<f64>,
     pub cpu_threads: usize,
     /// With --physics: visual score + physical terms, end to end.
     pub gpu_physics_hyps_per_s: Option<f64>,
@@ -288,7 +293,9 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
                             width: ti.width,
                             height: ti.height,
                             gpu_hyps_per_s: None,
-                            cpu_hyps_per_s: cpu,
+                            cpu_hyps_per_s: cpu.as_ref().map(|c| c.0),
+                            gpu_runs_hyps_per_s: Vec::new(),
+                            cpu_runs_hyps_per_s: cpu.as_ref().map_or_else(Vec::new, |c| c.1.clone()),
                             cpu_threads: rayon::current_num_threads(),
                             gpu_physics_hyps_per_s: None,
                             cpu_physics_hyps_per_s: None,
@@ -365,6 +372,7 @@ fn measure_gpu(
         let (_, st) = scorer.score(poses)?;
         runs.push((t.elapsed(), st));
     }
+    row.gpu_runs_hyps_per_s = runs.iter().map(|r| n as f64 / r.0.as_secs_f64()).collect();
     runs.sort_by_key(|r| r.0);
     let (total, st) = runs[runs.len() / 2];
     let render = (0..repeat).map(|_| scorer.raster_only(poses)).collect::<Result<Option<Vec<_>>, _>>()?.map(median);
@@ -384,19 +392,19 @@ fn measure_gpu(
     Ok(())
 }
 
-/// The CPU twin's hypotheses per second (median of `repeat`).
-fn measure_cpu(rmesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, poses: &[plausible::pose::Pose], repeat: usize) -> f64 {
+/// The CPU twin's hypotheses per second: the median of `repeat` runs, and
+/// each run's, in the order run.
+fn measure_cpu(rmesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, poses: &[plausible::pose::Pose], repeat: usize) -> (f64, Vec<f64>) {
     score_cpu(rmesh, target, &poses[..poses.len().min(16)], &params); // warm-up
-    let total = median(
-        (0..repeat)
-            .map(|_| {
-                let t = Instant::now();
-                score_cpu(rmesh, target, poses, &params);
-                t.elapsed()
-            })
-            .collect(),
-    );
-    poses.len() as f64 / total.as_secs_f64()
+    let runs: Vec<Duration> = (0..repeat)
+        .map(|_| {
+            let t = Instant::now();
+            score_cpu(rmesh, target, poses, &params);
+            t.elapsed()
+        })
+        .collect();
+    let rate = |d: Duration| poses.len() as f64 / d.as_secs_f64();
+    (rate(median(runs.clone())), runs.into_iter().map(rate).collect())
 }
 
 /// Visual score and physical terms end to end, GPU and CPU twin. Like the
