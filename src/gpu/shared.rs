@@ -1,4 +1,4 @@
-//! One device per adapter choice, opened once and kept for the process.
+//! One device per adapter, opened once and kept for the process.
 //!
 //! NVIDIA's Vulkan driver crashes a process that opens and closes devices on
 //! several threads (SIGSEGV, or glibc's "corrupted size vs. prev_size in
@@ -15,9 +15,14 @@
 //! What stays per context is the caller's own view: its batch limits
 //! ([`GpuOptions::limits`](super::GpuOptions)).
 //!
+//! Contexts ask for an adapter by name or for the default one; names are
+//! resolved to adapters on an instance kept per set of backends, so two
+//! names for one adapter share its device, and asking which adapter a name
+//! picks opens nothing (`--device auto` looks before it opens).
+//!
 //! A device the driver reports lost, or one opened before the process
 //! forked (Python's multiprocessing forks on Linux), is not handed out
-//! again: the next context opens a new one.
+//! again: the next context opens a new one (`tests/fork.rs`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
