@@ -55,8 +55,8 @@ impl SharedDevice {
         SharedDevice { device, queue, info, required, features, cache: Default::default(), lost, pid: std::process::id() }
     }
 
-    fn usable(&self) -> bool {
-        !self.lost.load(Ordering::Relaxed) && self.pid == std::process::id()
+    fn lost(&self) -> bool {
+        self.lost.load(Ordering::Relaxed)
     }
 }
 
@@ -95,7 +95,19 @@ impl Registry {
         for (_, _, i) in self.instances.extract_if(.., |(_, p, _)| *p != pid) {
             std::mem::forget(i);
         }
-        self.devices.retain(|(_, d)| d.usable());
+        self.devices.retain(|(_, d)| !d.lost());
+    }
+
+    /// The registry, locked, without lost devices or a parent's objects.
+    fn locked() -> std::sync::MutexGuard<'static, Registry> {
+        let mut reg = OPEN.lock().unwrap_or_else(PoisonError::into_inner);
+        reg.prune();
+        reg
+    }
+
+    /// The device open for `key`, if any.
+    fn open_for(&self, key: &DeviceKey) -> Option<&Arc<SharedDevice>> {
+        self.devices.iter().find(|(k, _)| k == key).map(|(_, d)| d)
     }
 
     /// The instance for `backends`, created the first time.
@@ -120,9 +132,8 @@ pub(crate) type FindAdapter = fn(&wgpu::Instance, &DeviceKey) -> Result<wgpu::Ad
 /// The adapter `key` names, without opening a device on it: the one open
 /// for it already, or the one `find` picks.
 pub(crate) fn adapter_info(key: &DeviceKey, find: FindAdapter) -> Result<wgpu::AdapterInfo> {
-    let mut reg = OPEN.lock().unwrap_or_else(PoisonError::into_inner);
-    reg.prune();
-    if let Some((_, d)) = reg.devices.iter().find(|(k, _)| k == key) {
+    let mut reg = Registry::locked();
+    if let Some(d) = reg.open_for(key) {
         return Ok(d.info.clone());
     }
     let instance = reg.instance(key.backends);
@@ -136,9 +147,8 @@ pub(crate) fn adapter_info(key: &DeviceKey, find: FindAdapter) -> Result<wgpu::A
 /// get one device, and no device ever opens beside another's opening. A
 /// failed open is not kept: the next call tries again.
 pub(crate) fn device(key: DeviceKey, find: FindAdapter, open: impl FnOnce(wgpu::Adapter) -> Result<SharedDevice>) -> Result<Arc<SharedDevice>> {
-    let mut reg = OPEN.lock().unwrap_or_else(PoisonError::into_inner);
-    reg.prune();
-    if let Some((_, d)) = reg.devices.iter().find(|(k, _)| *k == key) {
+    let mut reg = Registry::locked();
+    if let Some(d) = reg.open_for(&key) {
         return Ok(d.clone());
     }
     let instance = reg.instance(key.backends);
