@@ -300,3 +300,41 @@ fn closed_stdout_ends_quietly() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// `bench score` alternates the GPU's and the twin's timed runs and reports
+/// the median of the pairs' ratios, so both devices are timed in the same
+/// moments of a machine whose speed drifts.
+#[test]
+fn gpu_bench_score_pairs_the_gpu_and_twin_runs() {
+    let cube = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/physics/cube.obj");
+    let o = plausible()
+        .args(["bench", "score", "--quick", "--json", "--repeat", "3", "--mesh", cube])
+        .args(device_args())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rows: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.len(), 2, "N = 256 and 1024");
+    for r in &rows {
+        let runs = |k: &str| r[k].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
+        let (gpu, cpu) = (runs("gpu_runs_hyps_per_s"), runs("cpu_runs_hyps_per_s"));
+        assert_eq!((gpu.len(), cpu.len()), (3, 3), "{r}");
+        let mut ratios: Vec<f64> = gpu.iter().zip(&cpu).map(|(g, c)| g / c).collect();
+        ratios.sort_by(f64::total_cmp);
+        assert_eq!(r["gpu_cpu"].as_f64().unwrap(), ratios[1], "{r}");
+        let mut sorted = cpu.clone();
+        sorted.sort_by(f64::total_cmp);
+        assert_eq!(r["cpu_hyps_per_s"].as_f64().unwrap(), sorted[1], "{r}");
+    }
+    // Without the twin, no ratio.
+    let o = plausible()
+        .args(["bench", "score", "--quick", "--json", "--repeat", "1", "--no-cpu", "--mesh", cube])
+        .args(device_args())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for l in String::from_utf8_lossy(&o.stdout).lines() {
+        let r: serde_json::Value = serde_json::from_str(l).unwrap();
+        assert!(r["gpu_cpu"].is_null() && r["cpu_runs_hyps_per_s"].as_array().unwrap().is_empty(), "{r}");
+    }
+}

@@ -1,6 +1,8 @@
 //! `plausible bench`: throughput of the GPU path and its CPU twin, measured
 //! side by side in the same run (wall clock; the first submit is excluded
-//! by a warm-up, and each figure is the median of `--repeat` runs).
+//! by a warm-up, and each figure is the median of `--repeat` runs; `bench
+//! score` alternates the GPU's runs with the twin's, so the two are timed in
+//! the same moments of a machine whose speed drifts).
 
 use std::time::{Duration, Instant};
 
@@ -45,7 +47,8 @@ pub struct BenchScoreArgs {
     /// Print JSON (one object per configuration) instead of a table.
     #[arg(long)]
     pub json: bool,
-    /// Timed runs per configuration (the median is reported).
+    /// Timed runs per configuration (the median is reported); the GPU's and
+    /// the twin's alternate, and gpu/cpu is the median of their pairs' ratios.
     #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub repeat: usize,
     /// Only the 4k-triangle mesh and N <= 1024 (a quick look).
@@ -133,6 +136,9 @@ pub struct ScoreBenchRow {
     pub height: u32,
     pub gpu_hyps_per_s: Option<f64>,
     pub cpu_hyps_per_s: Option<f64>,
+    /// GPU against the twin: the median of the ratios of runs made in
+    /// pairs, one right after the other (None where they were not paired).
+    pub gpu_cpu: Option<f64>,
     /// Every timed run's rate, in the order run (the figures above are
     /// their medians): the spread shows a noisy machine, or a device that
     /// swings where the other does not.
@@ -233,7 +239,10 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
     let machine = super::machine::Machine::detect(Some(&device));
     if !a.json {
         println!("machine: {}", machine.line());
-        println!("adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}", rayon::current_num_threads());
+        println!(
+            "adapter: {adapter} ({backend}); CPU twin on {} threads; wall clock, median of {repeat}; GPU and twin runs alternate, gpu/cpu = median ratio of the pairs",
+            rayon::current_num_threads()
+        );
         print!(
             "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
             "mesh", "lod", "tris", "N", "region", "gpu hyp/s", "cpu hyp/s", "gpu ren", "cpu ren", "gpu/cpu", "upload", "render", "reduce", "readback"
@@ -273,8 +282,7 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
                 for &renderer in &a.renderer {
                     let mut rmesh = RenderMesh::new(&scoring.mesh)?;
                     rmesh.renderer = renderer;
-                    // The CPU twin once per mesh, beside each GPU kernel's row.
-                    let cpu = (!a.no_cpu).then(|| tracing::trace_span!("cpu").in_scope(|| measure_cpu(&rmesh, &target, params, &poses, repeat)));
+                    let twin = (!a.no_cpu).then_some(Twin { rmesh: &rmesh, target: &target, params, poses: &poses });
                     for &kernel in &a.kernel {
                         let mut row = ScoreBenchRow {
                             adapter: adapter.clone(),
@@ -293,9 +301,10 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
                             width: ti.width,
                             height: ti.height,
                             gpu_hyps_per_s: None,
-                            cpu_hyps_per_s: cpu.as_ref().map(|c| c.0),
+                            cpu_hyps_per_s: None,
+                            gpu_cpu: None,
                             gpu_runs_hyps_per_s: Vec::new(),
-                            cpu_runs_hyps_per_s: cpu.as_ref().map_or_else(Vec::new, |c| c.1.clone()),
+                            cpu_runs_hyps_per_s: Vec::new(),
                             cpu_threads: rayon::current_num_threads(),
                             gpu_physics_hyps_per_s: None,
                             cpu_physics_hyps_per_s: None,
@@ -307,14 +316,21 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
                             timing: "wall clock",
                             machine: machine.clone(),
                         };
+                        let mut paired = false;
                         if let Device::Gpu(ctx) = &device {
                             // A mesh past the kernels' loop budget is refused, not
                             // benchmarked: the row keeps its CPU figures.
                             match plausible::kernels::check_gpu_budget(ctx, &rmesh, ti.pixels()) {
-                                Ok(()) => tracing::trace_span!("gpu")
-                                    .in_scope(|| measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, kernel.into(), &mut row))?,
+                                Ok(()) => {
+                                    paired = tracing::trace_span!("gpu").in_scope(|| {
+                                        measure_gpu(ctx, &rmesh, &target, params, &poses, repeat, kernel.into(), twin.as_ref(), &mut row)
+                                    })?
+                                }
                                 Err(e) => eprintln!("{name}: GPU not measured: {e}"),
                             }
+                        }
+                        if let (false, Some(twin)) = (paired, &twin) {
+                            tracing::trace_span!("cpu").in_scope(|| twin.measure(repeat, &mut row));
                         }
                         if let Some(physics) = &physics {
                             let _span = tracing::trace_span!("physics").entered();
@@ -344,7 +360,9 @@ fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
 }
 
 /// The GPU rows of a configuration: end to end (median of `repeat`), the
-/// rasterization alone, and timestamps in a separate run.
+/// rasterization alone, and timestamps in a separate run. With a `twin`,
+/// its runs alternate with the GPU's (see [`Twin`]) and the row gets both;
+/// returns whether it did.
 #[allow(clippy::too_many_arguments)] // one call site
 fn measure_gpu(
     ctx: &plausible::gpu::Context,
@@ -354,25 +372,46 @@ fn measure_gpu(
     poses: &[plausible::pose::Pose],
     repeat: usize,
     kernel: ScoreKernel,
+    twin: Option<&Twin<'_>>,
     row: &mut ScoreBenchRow,
-) -> Result<()> {
+) -> Result<bool> {
     let n = poses.len();
     let mut scorer = GpuScorer::new(ctx, rmesh, target, params, n)?;
     if let Err(e) = scorer.set_kernel(kernel) {
         eprintln!("{}: GPU not measured: {e}", row.mesh);
-        return Ok(());
+        return Ok(false);
     }
     if !scorer.ray_casts() {
         row.gpu_kernel = format!("{:?}", scorer.kernel()).to_lowercase();
     }
     scorer.score(poses)?; // warm-up
+    if let Some(twin) = twin {
+        twin.warm_up();
+    }
     let mut runs = Vec::new();
-    for _ in 0..repeat {
+    let mut cpu_runs = Vec::new();
+    for r in 0..repeat {
+        // GPU then twin in even rounds, twin then GPU in odd ones (ABBA):
+        // each pair runs in the same second of the machine's life, and a
+        // drift in its speed falls on both alike.
+        let twin_first = r % 2 == 1;
+        if let (true, Some(twin)) = (twin_first, twin) {
+            cpu_runs.push(twin.run());
+        }
         let t = Instant::now();
         let (_, st) = scorer.score(poses)?;
         runs.push((t.elapsed(), st));
+        if let (false, Some(twin)) = (twin_first, twin) {
+            cpu_runs.push(twin.run());
+        }
     }
     row.gpu_runs_hyps_per_s = runs.iter().map(|r| n as f64 / r.0.as_secs_f64()).collect();
+    if twin.is_some() {
+        let ratios = row.gpu_runs_hyps_per_s.iter().zip(&cpu_runs).map(|(g, c)| g / c).collect();
+        row.gpu_cpu = Some(median_f64(ratios));
+        row.cpu_hyps_per_s = Some(median_f64(cpu_runs.clone()));
+        row.cpu_runs_hyps_per_s = cpu_runs;
+    }
     runs.sort_by_key(|r| r.0);
     let (total, st) = runs[runs.len() / 2];
     let render = (0..repeat).map(|_| scorer.raster_only(poses)).collect::<Result<Option<Vec<_>>, _>>()?.map(median);
@@ -389,22 +428,44 @@ fn measure_gpu(
         row.gpu_timestamp_compute_ms = scorer.score(poses)?.1.gpu_compute.map(ms);
         scorer.set_timestamps(false);
     }
-    Ok(())
+    Ok(true)
 }
 
-/// The CPU twin's hypotheses per second: the median of `repeat` runs, and
-/// each run's, in the order run.
-fn measure_cpu(rmesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, poses: &[plausible::pose::Pose], repeat: usize) -> (f64, Vec<f64>) {
-    score_cpu(rmesh, target, &poses[..poses.len().min(16)], &params); // warm-up
-    let runs: Vec<Duration> = (0..repeat)
-        .map(|_| {
-            let t = Instant::now();
-            score_cpu(rmesh, target, poses, &params);
-            t.elapsed()
-        })
-        .collect();
-    let rate = |d: Duration| poses.len() as f64 / d.as_secs_f64();
-    (rate(median(runs.clone())), runs.into_iter().map(rate).collect())
+/// The CPU twin on one configuration. Its timed runs alternate with the
+/// GPU's when both are measured: this VM's vCPUs change speed by up to
+/// 1.7x within a second (a plain spin loop shows it), so medians taken a
+/// few seconds apart compared the machine's states, not the devices.
+struct Twin<'a> {
+    rmesh: &'a RenderMesh,
+    target: &'a ScoreTarget,
+    params: ScoreParams,
+    poses: &'a [plausible::pose::Pose],
+}
+
+impl Twin<'_> {
+    fn warm_up(&self) {
+        score_cpu(self.rmesh, self.target, &self.poses[..self.poses.len().min(16)], &self.params);
+    }
+
+    /// One timed run: hypotheses per second.
+    fn run(&self) -> f64 {
+        let t = Instant::now();
+        score_cpu(self.rmesh, self.target, self.poses, &self.params);
+        self.poses.len() as f64 / t.elapsed().as_secs_f64()
+    }
+
+    /// The twin alone (no GPU row to pair with): `repeat` runs, their
+    /// median and each, in the order run.
+    fn measure(&self, repeat: usize, row: &mut ScoreBenchRow) {
+        self.warm_up();
+        row.cpu_runs_hyps_per_s = (0..repeat).map(|_| self.run()).collect();
+        row.cpu_hyps_per_s = Some(median_f64(row.cpu_runs_hyps_per_s.clone()));
+    }
+}
+
+fn median_f64(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 /// Visual score and physical terms end to end, GPU and CPU twin. Like the
@@ -464,10 +525,7 @@ fn cpu_renderer_at(rmesh: &RenderMesh, pose: &plausible::pose::Pose, k: &Intrins
 /// One table row.
 fn print_row(row: &ScoreBenchRow, physics: bool) {
     let f = |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
-    let ratio = match (row.gpu_hyps_per_s, row.cpu_hyps_per_s) {
-        (Some(g), Some(c)) => format!("{:.2}x", g / c),
-        _ => "-".into(),
-    };
+    let ratio = row.gpu_cpu.map_or_else(|| "-".into(), |r| format!("{r:.2}x"));
     print!(
         "{:>8} {:>5} {:>8} {:>6} {:>9} {:>12} {:>12} {:>7} {:>7} {:>7} {:>9} {:>9} {:>9} {:>9}",
         row.mesh,
