@@ -494,7 +494,7 @@ fn load_models(ds: &Dataset, obj_ids: &[u32], opts: &EvalOptions, need_render: b
         .map(|&id| {
             let info = ds.models_info[&id].clone();
             let path = ds.model_path(id);
-            let (pts, tris) = crate::mesh::load_positions(&path).map_err(|e| match e {
+            let (pts, tris) = ds.model_points(id).map_err(|e| match e {
                 Error::NotFound { .. } => Error::InvalidInput(format!(
                     "object {id} is a target (in the targets file, or annotated in the ground truth when there is none) but its model {} was not found",
                     path.display()
@@ -1162,7 +1162,7 @@ fn image_visibility(ds: &Dataset, scene: &Scene, im: u32, device: &Device, delta
     for g in gt {
         if let std::collections::hash_map::Entry::Vacant(e) = meshes.entry(g.obj_id) {
             let path = ds.model_path(g.obj_id);
-            let mesh = if path.exists() { Some(RenderMesh::new(&Mesh::load(&path, crate::mesh::MeshUnits::Millimetres)?.0)?) } else { None };
+            let mesh = if path.exists() { Some(RenderMesh::new(&ds.model_mesh(g.obj_id)?)?) } else { None };
             e.insert(mesh);
         }
     }

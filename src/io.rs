@@ -101,6 +101,17 @@ pub fn write_atomically(path: &Path, body: impl FnOnce(&mut std::io::BufWriter<s
     })
 }
 
+/// Saves an image as PNG through [`write_atomically`]: a full disk or a
+/// kill leaves no truncated picture.
+pub fn save_png<P, C>(path: &Path, img: &image::ImageBuffer<P, C>) -> Result<()>
+where
+    P: image::Pixel + image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    write_atomically(path, |w| img.write_to(w, image::ImageFormat::Png).map_err(std::io::Error::other))
+}
+
 fn temp_beside(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))

@@ -338,3 +338,50 @@ fn gpu_bench_score_pairs_the_gpu_and_twin_runs() {
         assert!(r["gpu_cpu"].is_null() && r["cpu_runs_hyps_per_s"].as_array().unwrap().is_empty(), "{r}");
     }
 }
+
+/// `--explain DIR` replaces only the pictures an earlier run listed there:
+/// a file of the user's under a picture's name (or an input) is refused
+/// before any work and left as it was, and other files stay.
+#[test]
+fn explain_replaces_only_its_own_pictures() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = plausible().args(["demo", "--n", "16", "--device", "cpu", "--out"]).arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let why = dir.path().join("why");
+    let score = |ids: &str| {
+        on_demo("score", &out).arg("--poses").arg(out.join("poses.json")).args(["--quiet", "--device", "cpu", "--explain-ids", ids, "--explain"]).arg(&why).output().unwrap()
+    };
+    std::fs::create_dir_all(&why).unwrap();
+    std::fs::write(why.join("hypothesis_3.png"), "my notes").unwrap();
+    let o = score("3");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("hypothesis_3.png") && err.contains("not a picture of an earlier run"), "{err}");
+    assert_eq!(std::fs::read_to_string(why.join("hypothesis_3.png")).unwrap(), "my notes");
+    // Other files stay; each run's pictures replace the last run's.
+    std::fs::rename(why.join("hypothesis_3.png"), why.join("notes.txt")).unwrap();
+    assert!(score("1,2").status.success());
+    let names = |d: &std::path::Path| {
+        let mut v: Vec<String> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        v.sort();
+        v
+    };
+    assert_eq!(names(&why), [".plausible-explain", "hypothesis_1.png", "hypothesis_2.png", "notes.txt"]);
+    assert!(score("5").status.success());
+    assert_eq!(names(&why), [".plausible-explain", "hypothesis_5.png", "notes.txt"]);
+    // An input under a picture's name: refused, even where listed.
+    std::fs::copy(out.join("mask.png"), why.join("hypothesis_5.png")).unwrap();
+    let o = plausible()
+        .arg("score")
+        .arg("--mesh").arg(out.join("duck_0.15m.obj"))
+        .arg("--camera").arg(out.join("camera.json"))
+        .arg("--depth").arg(out.join("depth.png"))
+        .arg("--mask").arg(why.join("hypothesis_5.png"))
+        .arg("--poses").arg(out.join("poses.json"))
+        .args(["--quiet", "--device", "cpu", "--explain"]).arg(&why)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--mask") && err.contains("an input named like the pictures"), "{err}");
+    assert!(why.join("hypothesis_5.png").exists());
+}

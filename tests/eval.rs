@@ -988,3 +988,26 @@ fn coco_results_read_gzipped_in_several_members_and_boxes_ignore_the_masks() {
     assert_eq!((r.n_used, r.n_ignored), (0, 1));
     assert!(err_of(read_coco_results(&poly).and_then(|r| coco::evaluate(&ds, &r, &images, None, CocoOptions { task: CocoTask::Segm, boxes: BoxKind::Amodal }, &mut |_| Ok(())))).contains("polygons"));
 }
+
+/// A model whose units disagree with its `models_info.json` diameter (a
+/// model in metres, or a diameter 1000 times too large) would have every
+/// error measured against the wrong threshold: it is refused, naming the
+/// object and both sizes, by evaluation and refinement alike.
+#[test]
+fn a_model_in_other_units_than_its_diameter_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    copy_dir(&assets(), dir.path());
+    let info_path = dir.path().join("models/models_info.json");
+    let mut info: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&info_path).unwrap()).unwrap();
+    info["1"]["diameter"] = serde_json::json!(102098.658);
+    std::fs::write(&info_path, info.to_string()).unwrap();
+    let ds = Dataset::open(dir.path(), "test").unwrap();
+    let (targets, _) = ds.targets(None).unwrap();
+    let results = read_results(&assets().join("perturbed.csv")).unwrap();
+    let e = err_of(evaluate(&ds, &results, &targets, &Device::Cpu, &EvalOptions::default(), &mut |_| Ok(())));
+    assert!(e.contains("object 1") && e.contains("102098.6580 mm") && e.contains("142.1240") && e.contains("obj_000001.ply"), "{e}");
+    let e = err_of(ds.model_mesh(1));
+    assert!(e.contains("other units"), "{e}");
+    // The other objects load as before.
+    assert!(ds.model_mesh(5).is_ok());
+}

@@ -492,3 +492,31 @@ fn refine_with_a_level_of_detail_matches_the_full_models() {
     let bad = plausible().arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(d.path().join("x.csv")).args(["--lod", "2"]).output().unwrap();
     assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("--lod"), "{}", String::from_utf8_lossy(&bad.stderr));
 }
+
+/// The score column is the visual score on every row: an object without a
+/// mask in its image keeps its pose and scores 0 (a pose against no
+/// observed pixel), never its input score, which is on another method's
+/// scale.
+#[test]
+fn objects_without_a_mask_keep_their_pose_and_score_zero() {
+    let d = tempfile::tempdir().unwrap();
+    // Image 3's mask of object 1 only (its instance 0 in mask_visib).
+    std::fs::create_dir_all(d.path().join("masks/000002")).unwrap();
+    std::fs::copy(dataset().join("test/000002/mask_visib/000003_000000.png"), d.path().join("masks/000002/000003_000001.png")).unwrap();
+    let out = d.path().join("r.csv");
+    let masks = d.path().join("masks");
+    refine(&dataset().join("perturbed.csv"), &out, &["--images", "3", "--method", "ref", "--masks", masks.to_str().unwrap()]);
+    let init: Vec<plausible::bop::Estimate> = plausible::bop::read_results(&dataset().join("perturbed.csv")).unwrap().into_iter().filter(|e| e.im_id == 3).collect();
+    let got = plausible::bop::read_results(&out).unwrap();
+    assert_eq!(got.len(), init.len());
+    assert!(init.len() > 1 && init.iter().all(|e| e.score > 0.0));
+    for (g, i) in got.iter().zip(&init) {
+        assert_eq!(g.obj_id, i.obj_id);
+        if g.obj_id == 1 {
+            assert!(g.score > 0.0 && g.score != i.score, "object 1: {} (input {})", g.score, i.score);
+        } else {
+            assert_eq!(g.score, 0.0, "object {}", g.obj_id);
+            assert_eq!(g.pose, i.pose, "object {}", g.obj_id);
+        }
+    }
+}

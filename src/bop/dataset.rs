@@ -36,6 +36,12 @@ pub struct PoseMm {
     pub t: DVec3,
 }
 
+/// The largest translation component a pose may have (mm): far beyond
+/// any camera's range, and small enough that every error (squared
+/// distances included) stays finite; a translation of 1e300 mm gave an
+/// infinite translation error, and ICP a pose just as absurd.
+pub const MAX_TRANSLATION_MM: f64 = 1e9;
+
 impl PoseMm {
     /// From a row-major rotation and a translation in mm.
     pub fn from_row_major(r: &[f64], t: &[f64]) -> std::result::Result<PoseMm, String> {
@@ -44,6 +50,9 @@ impl PoseMm {
         }
         if r.iter().chain(t).any(|v| !v.is_finite()) {
             return Err("pose holds NaN or infinity".into());
+        }
+        if let Some(v) = t.iter().find(|v| v.abs() > MAX_TRANSLATION_MM) {
+            return Err(format!("t holds {v:e} mm, more than {MAX_TRANSLATION_MM:e} mm (1,000 km) from the camera: not a pose"));
         }
         let p = PoseMm { r: DMat3::from_cols_array(&r.try_into().unwrap()).transpose(), t: DVec3::new(t[0], t[1], t[2]) };
         let err = p.to_pose().orthonormality_error();
@@ -325,6 +334,26 @@ impl Dataset {
     /// The model file of an object (`obj_000001.ply`).
     pub fn model_path(&self, obj_id: u32) -> PathBuf {
         self.models_dir.join(format!("obj_{obj_id:06}.ply"))
+    }
+
+    /// An object's model: its vertices (mm, all finite) and triangles,
+    /// checked against its `models_info.json` diameter.
+    pub fn model_points(&self, obj_id: u32) -> Result<(Vec<DVec3>, Vec<[u32; 3]>)> {
+        let path = self.model_path(obj_id);
+        let (pts, tris) = crate::mesh::load_positions(&path)?;
+        crate::mesh::check_finite(&path, &pts)?;
+        if let Some(info) = self.models_info.get(&obj_id) {
+            check_model_size(&path, obj_id, &pts, info.diameter)?;
+        }
+        Ok((pts, tris))
+    }
+
+    /// An object's model as a mesh in metres ([`model_points`](Self::model_points),
+    /// checked the same way).
+    pub fn model_mesh(&self, obj_id: u32) -> Result<crate::mesh::Mesh> {
+        let (pts, tris) = self.model_points(obj_id)?;
+        let metres: Vec<DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
+        Ok(crate::mesh::Mesh::from_raw(&self.model_path(obj_id), metres, tris)?.0)
     }
 
     /// Folder of a scene of the split.
@@ -670,6 +699,35 @@ struct RawModelInfo {
     symmetries_discrete: Vec<Vec<f64>>,
     #[serde(default)]
     symmetries_continuous: Vec<RawContinuous>,
+}
+
+/// The largest and smallest ratio of an object's `models_info.json`
+/// diameter to its model's bounding-box diagonal that are taken to be in
+/// the same units. The diameter of points in a box of diagonal d lies in
+/// [d/√3, d]; the slack covers a diameter computed on another resampling
+/// of the model (`models_eval/` against `models/`). A model in metres,
+/// centimetres or inches against a diameter in mm is off by 1000, 10 or
+/// 25.4, and every error of its estimates with it: MSSD, ADD and the
+/// visual score are in the model's units, their thresholds in the
+/// diameter's.
+pub const MODEL_DIAMETER_RATIO: std::ops::RangeInclusive<f64> = 0.4..=2.5;
+
+/// Refuses a model whose vertices do not span about its `diameter` (mm).
+pub fn check_model_size(path: &Path, obj_id: u32, pts: &[DVec3], diameter: f64) -> Result<()> {
+    let (lo, hi) = pts.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let diagonal = (hi - lo).length();
+    if pts.is_empty() || MODEL_DIAMETER_RATIO.contains(&(diameter / diagonal)) {
+        return Ok(());
+    }
+    let num = |x: f64| if (1e-3..1e9).contains(&x) { format!("{x:.4}") } else { format!("{x:.3e}") };
+    Err(Error::MalformedMesh {
+        path: path.to_path_buf(),
+        reason: format!(
+            "object {obj_id}: its vertices span {} units (bounding-box diagonal) but models_info.json gives it a diameter of {} mm; BOP models are in millimetres: is the model (or the diameter) in other units?",
+            num(diagonal),
+            num(diameter)
+        ),
+    })
 }
 
 /// Reads `models_info.json`.

@@ -85,9 +85,7 @@ pub fn run(a: CheckArgs) -> Result<()> {
     let checks = tracing::trace_span!("check").in_scope(|| check_scene(&scene, &opts))?;
     if let Some(path) = &a.explain {
         let _span = tracing::trace_span!("explain").entered();
-        plausible::physical::explain::explain_image(&scene, &checks)
-            .save(path)
-            .with_context(|| format!("writing {}", path.display()))?;
+        plausible::io::save_png(path, &plausible::physical::explain::explain_image(&scene, &checks))?;
     }
     let sim: Vec<Option<Vec<Displacement>>> = if a.sim {
         let settings = SimSettings {

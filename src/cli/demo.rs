@@ -251,7 +251,7 @@ fn write_outputs(
     let panels = plausible::explain::alignment_panels(target, &render, &params, 3);
     let pic = plausible::draw::with_title(&panels, &title, plausible::explain::verdict_colour(s.evals[s.best].verdict));
     let pic_path = out.join("alignment.png");
-    write_named(out, "alignment.png", |p| pic.save(p))?;
+    write_named(out, "alignment.png", |p| plausible::io::save_png(p, &pic))?;
     println!(
         "\nwrote {}: observed depth | best hypothesis' depth | per-pixel alignment (yellow = aligned, red = rendered only, blue = observed only)",
         pic_path.display()
@@ -260,6 +260,8 @@ fn write_outputs(
     let implausible = (0..poses.len()).filter(|&i| s.evals[i].verdict != Verdict::Plausible).min_by_key(|&i| s.visual_rank[i]);
     let mut ids = vec![s.best];
     ids.extend(implausible);
+    // The demo's own folder: pictures there are an earlier demo's.
+    super::score::adopt_pictures(&out.join("explain"))?;
     super::score::write_explanations(&out.join("explain"), &ids, poses, &s.records, &s.rank, &scene.rmesh, target, &params, Some(physics))?;
     if let Some(i) = implausible {
         let e = &s.evals[i];
@@ -291,10 +293,10 @@ fn write_inputs(out: &std::path::Path, scene: &DemoScene, poses: &[Pose], est_po
     let depth_scale = 0.1; // value x 0.1 = mm
     let depth16: Vec<u16> = scene.obs.depth.iter().map(|&d| ((d as f64 * 1e3 / depth_scale).round()).clamp(0.0, 65535.0) as u16).collect();
     let depth = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(k.width, k.height, depth16).context("depth image size")?;
-    write_named(out, "depth.png", |p| depth.save(p))?;
+    write_named(out, "depth.png", |p| plausible::io::save_png(p, &depth))?;
     let mask8: Vec<u8> = scene.mask.iter().map(|&m| if m { 255 } else { 0 }).collect();
     let mask = image::GrayImage::from_raw(k.width, k.height, mask8).context("mask image size")?;
-    write_named(out, "mask.png", |p| mask.save(p))?;
+    write_named(out, "mask.png", |p| plausible::io::save_png(p, &mask))?;
     let camera = serde_json::to_string_pretty(&serde_json::json!({
         "cam_K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
         "depth_scale": depth_scale,

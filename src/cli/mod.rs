@@ -258,7 +258,10 @@ pub fn targets_flag(e: &plausible::Error, targets: Option<&std::path::Path>, ds:
 /// Refuses two flags naming one file where one of them is written: an
 /// output would overwrite an input, or another output.
 pub fn distinct_files(outputs: &[(&str, Option<&std::path::Path>)], inputs: &[(&str, Option<&std::path::Path>)]) -> Result<()> {
-    let outs: Vec<(&str, PathBuf)> = outputs.iter().filter_map(|(f, p)| Some((*f, resolved((*p)?)?))).collect();
+    // The trace is written last, over whatever a command output there.
+    let trace = trace::path();
+    let outs: Vec<(&str, PathBuf)> =
+        std::iter::once(("--trace", trace.as_deref())).chain(outputs.iter().copied()).filter_map(|(f, p)| Some((f, resolved(p?)?))).collect();
     for (i, (flag, path)) in outs.iter().enumerate() {
         for (other, q) in outs[..i].iter().map(|(f, p)| (*f, Some(p.clone()))).chain(inputs.iter().map(|(f, p)| (*f, p.and_then(resolved)))) {
             if q.as_deref().is_some_and(|q| same_file(q, path)) {

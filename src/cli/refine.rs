@@ -221,8 +221,7 @@ impl ImageRunArgs {
         if let (Some(d), Some(pic)) = (&self.explain, picture) {
             let path = d.join(format!("{scene_id:06}_{im_id:06}.png"));
             let title = format!("scene {scene_id}, image {im_id}: each object's alignment before | after refinement, and the physics after");
-            plausible::draw::with_title(pic, &title, image::Rgb([225, 225, 225]))
-                .save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+            plausible::io::save_png(&path, &plausible::draw::with_title(pic, &title, image::Rgb([225, 225, 225])))?;
         }
         Ok(())
     }
@@ -357,6 +356,23 @@ pub fn shard_of<T>(jobs: Vec<T>, shard: Option<(usize, usize)>) -> Vec<T> {
     }
 }
 
+/// How long a held lock is waited for before the run is refused: a run
+/// killed a moment ago can hold it until the kernel has finished tearing
+/// its process down (seen for up to a second after `kill -9`, while the
+/// rerun the README tells users to make was already starting).
+const LOCK_PATIENCE: std::time::Duration = std::time::Duration::from_secs(3);
+
+/// `file.try_lock()`, retried for [`LOCK_PATIENCE`] while another holds it.
+fn try_lock_awhile(file: &std::fs::File) -> std::result::Result<(), std::fs::TryLockError> {
+    let start = std::time::Instant::now();
+    loop {
+        match file.try_lock() {
+            Err(std::fs::TryLockError::WouldBlock) if start.elapsed() < LOCK_PATIENCE => std::thread::sleep(std::time::Duration::from_millis(50)),
+            r => return r,
+        }
+    }
+}
+
 /// Takes `OUT.lock` for this run: two runs writing one output at once
 /// would each rewrite it on resuming while the other appends to the file
 /// it replaced, losing or doubling rows. The lock (flock) goes with the
@@ -372,7 +388,7 @@ fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
     let out = super::resolved(out).unwrap_or_else(|| out.to_path_buf());
     let path = beside(&out, ".lock");
     let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&path).map_err(|e| plausible::Error::write(&path, e))?;
-    match file.try_lock() {
+    match try_lock_awhile(&file) {
         Ok(()) => Ok(Some(file)),
         Err(std::fs::TryLockError::WouldBlock) => {
             bail!("--out {}: another run is writing it (it holds {}); wait for it to end, or give another --out", out.display(), path.display())

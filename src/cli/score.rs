@@ -78,7 +78,8 @@ pub struct ScoreArgs {
     /// (`hypothesis_<index>.png`): observed depth | rendered depth |
     /// alignment, and with --physics the samples, support polygon and centre
     /// of mass from above and from the side under a band in the verdict's colour.
-    /// An earlier run's `hypothesis_<index>.png` there are removed first.
+    /// An earlier run's pictures there (listed in `.plausible-explain`) are
+    /// removed first; any other `hypothesis_<index>.png` is refused.
     #[arg(long)]
     pub explain: Option<PathBuf>,
     /// Hypotheses (input indices) to explain; default: the best 3.
@@ -235,7 +236,8 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
         super::distinct_files(&[("--out", Some(out))], &[&inputs[..], &a.obs.inputs()].concat())?;
     }
     if let Some(dir) = &a.explain {
-        prepare_explain_dir(dir).context("--explain")?;
+        let inputs = [("--mesh", Some(a.mesh.mesh.as_path())), ("--poses", Some(a.poses.as_path())), ("--plane", a.plane.as_deref())];
+        prepare_explain_dir(dir, &[&inputs[..], &a.obs.inputs()].concat()).context("--explain")?;
     }
     let mesh = a.mesh.load()?;
     let (obs, mask) = tracing::trace_span!("observation").in_scope(|| a.obs.load(a.obj_id.is_some()))?;
@@ -310,12 +312,21 @@ pub fn write_explanations(
     params: &ScoreParams,
     physics: Option<&PlanePhysics>,
 ) -> Result<()> {
-    prepare_explain_dir(dir)?;
+    prepare_explain_dir(dir, &[])?;
     // Pictures of an earlier run would sit beside this run's rows in a
-    // report as if they were its own.
-    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?.flatten() {
-        if plausible_picture_index(&entry.file_name().to_string_lossy()).is_some() {
-            std::fs::remove_file(entry.path()).with_context(|| format!("cannot remove the earlier run's {}", entry.path().display()))?;
+    // report as if they were its own: those it listed are removed, and
+    // nothing else. The list names this run's pictures before the first
+    // is written (a kill leaves none unlisted) and only them after.
+    let earlier = earlier_pictures(dir);
+    let names: Vec<String> = ids.iter().map(|i| format!("hypothesis_{i}.png")).collect();
+    let mut both = earlier.clone();
+    both.extend(names.iter().cloned());
+    list_pictures(dir, &both)?;
+    for name in &earlier {
+        let path = dir.join(name);
+        match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e).with_context(|| format!("cannot remove the earlier run's {}", path.display())),
+            _ => {}
         }
     }
     for &i in ids {
@@ -336,20 +347,70 @@ pub fn write_explanations(
         }
         let pic = plausible::explain::hypothesis_picture(target, &render, params, views.as_ref().map(|(v, e)| (v, e.verdict)), &title);
         let path = dir.join(format!("hypothesis_{i}.png"));
-        pic.save(&path).with_context(|| format!("cannot write {}", path.display()))?;
+        plausible::io::save_png(&path, &pic)?;
         println!("wrote {}", path.display());
     }
-    Ok(())
+    list_pictures(dir, &names)
+}
+
+/// The file in an `--explain` folder that lists the pictures written
+/// there, one name a line: a later run removes or replaces those, and
+/// never a file it did not write (an input, a user's own picture).
+const PICTURE_LIST: &str = ".plausible-explain";
+
+/// The pictures an earlier run listed in `dir` (names of the form
+/// `hypothesis_<index>.png` only: the list cannot point elsewhere).
+fn earlier_pictures(dir: &std::path::Path) -> Vec<String> {
+    let text = std::fs::read_to_string(dir.join(PICTURE_LIST)).unwrap_or_default();
+    text.lines().filter(|n| plausible_picture_index(n).is_some()).map(str::to_string).collect()
+}
+
+/// Lists every `hypothesis_<index>.png` in `dir` as an earlier run's, for
+/// a folder that only plausible writes (the demo's `explain/`, whose
+/// pictures from before the list existed are not listed).
+pub fn adopt_pictures(dir: &std::path::Path) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    let mut names = earlier_pictures(dir);
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if plausible_picture_index(&name).is_some() && !names.contains(&name) {
+            names.push(name);
+        }
+    }
+    list_pictures(dir, &names)
+}
+
+fn list_pictures(dir: &std::path::Path, names: &[String]) -> Result<()> {
+    plausible::io::write_atomically(&dir.join(PICTURE_LIST), |w| names.iter().try_for_each(|n| writeln!(w, "{n}"))).map_err(Into::into)
 }
 
 /// The folder of `--explain` pictures, made now (before the scoring) and
-/// checked writable.
-fn prepare_explain_dir(dir: &std::path::Path) -> Result<()> {
+/// checked writable. A `hypothesis_<index>.png` there that no earlier run
+/// listed, or any of `inputs` under such a name, is refused: this run
+/// could replace it.
+fn prepare_explain_dir(dir: &std::path::Path, inputs: &[(&str, Option<&std::path::Path>)]) -> Result<()> {
     if dir.exists() && !dir.is_dir() {
         bail!("{}: is a file; --explain takes a folder for the pictures", dir.display());
     }
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     plausible::io::check_writable(&dir.join(".plausible-write-test")).with_context(|| format!("{}", dir.display()))?;
+    let ours = earlier_pictures(dir);
+    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if plausible_picture_index(&name).is_some() && !ours.contains(&name) {
+            bail!(
+                "{}: not a picture of an earlier run (none lists it in {PICTURE_LIST}), and this run could replace it: move it, or give a folder of its own for the pictures",
+                entry.path().display()
+            );
+        }
+    }
+    let here = dir.canonicalize().with_context(|| format!("cannot resolve {}", dir.display()))?;
+    for (flag, p) in inputs {
+        let Some(p) = p.and_then(|p| p.canonicalize().ok()) else { continue };
+        if p.parent() == Some(here.as_path()) && p.file_name().is_some_and(|n| plausible_picture_index(&n.to_string_lossy()).is_some()) {
+            bail!("{flag} {}: an input named like the pictures written into this folder; move it, or give a folder of its own for the pictures", p.display());
+        }
+    }
     Ok(())
 }
 

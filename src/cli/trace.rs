@@ -31,6 +31,12 @@ struct TraceFile {
 
 static TRACE: Mutex<Option<TraceFile>> = Mutex::new(None);
 
+/// The `--trace` file of this run, if any: an output like the command's
+/// own, which no other output or input may name.
+pub fn path() -> Option<PathBuf> {
+    TRACE.lock().unwrap_or_else(|e| e.into_inner()).as_ref().map(|t| t.path.clone())
+}
+
 /// Installs the subscriber: the log formatter, and with `trace` a Chrome
 /// trace written to that file. The file is created here, before any work,
 /// so a bad path fails at once with a clear message.

@@ -7,7 +7,6 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use glam::DVec3;
 use rayon::prelude::*;
 
 use super::icp::ModelSurface;
@@ -158,17 +157,9 @@ pub fn physics_world(plane: &crate::physical::Plane, body: &Model, others: &[(&M
     SimWorld::from_bodies(std::slice::from_ref(plane), -9.81 * plane.normal, &bodies, body.mesh.diagonal(), &p.sim)
 }
 
-/// A dataset model in metres (BOP models are millimetres).
-pub fn model_mesh(ds: &Dataset, obj_id: u32) -> Result<Mesh> {
-    let path = ds.model_path(obj_id);
-    let (pts, tris) = crate::mesh::load_positions(&path)?;
-    let metres: Vec<DVec3> = pts.iter().map(|v| *v * 1e-3).collect();
-    Ok(Mesh::from_raw(&path, metres, tris)?.0)
-}
-
 /// Loads the models of `obj_ids`.
 pub fn load_models(ds: &Dataset, obj_ids: &[u32], p: &RefineParams) -> Result<HashMap<u32, Model>> {
-    obj_ids.par_iter().map(|&id| Ok((id, Model::new(model_mesh(ds, id)?, p)?))).collect()
+    obj_ids.par_iter().map(|&id| Ok((id, Model::new(ds.model_mesh(id)?, p)?))).collect()
 }
 
 /// The estimates of one image.
@@ -278,6 +269,12 @@ pub fn refine_image(
     let scene_out = super::scene::refine_scene(device, &depth, plane.as_ref(), &objects, usize::MAX, p)?;
     let mut stats = ImageStats { objects: objs.len(), unrefined: objs.len() - ids.len(), times: scene_out.times, ..Default::default() };
     let mut out = job.estimates.clone();
+    // An object without mask pixels keeps its pose, and gets the score of
+    // a pose against no observed pixel, 0 (eq. 3): its input score is on
+    // another method's scale, and the column must rank every row alike.
+    for e in out.iter_mut().filter(|e| !ids.contains(&e.obj_id)) {
+        e.score = 0.0;
+    }
     for (obj, refined) in ids.iter().zip(&scene_out.objects) {
         let Some(refined) = refined else {
             stats.unrefined += 1;

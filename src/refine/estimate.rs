@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::dataset::{model_mesh, support_plane, Masks, Model};
+use super::dataset::{support_plane, Masks, Model};
 use super::scene::{refine_scene, SceneObject};
 use super::{ObjectView, RefineParams, MIN_OBSERVED_POINTS};
 use crate::bop::dataset::{PoseMm, Scene, Target};
@@ -231,7 +231,7 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
         .par_iter()
         .map(|&id| {
             let path = ds.model_path(id);
-            let mesh = model_mesh(ds, id)?;
+            let mesh = ds.model_mesh(id)?;
             // Matched by its stem when the hash differs (a database of
             // models/ serves models_eval/).
             let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
