@@ -61,6 +61,17 @@ impl DepthImage {
 /// 10-1000 times too close, and score every pose zero without a word.
 pub const MIN_MEDIAN_DEPTH_M: f32 = 0.05;
 
+/// The colour type in a PNG's header (0 grey, 4 grey with alpha, ...),
+/// `None` for a file that is no PNG. The decoder gives a grey PNG with a
+/// transparent value (tRNS chunk) an alpha channel too; only the header
+/// tells the two apart.
+fn png_colour_type(path: &Path) -> Option<u8> {
+    use std::io::Read;
+    let mut head = [0u8; 26];
+    std::fs::File::open(path).ok()?.read_exact(&mut head).ok()?;
+    (head[..8] == *b"\x89PNG\r\n\x1a\n" && head[12..16] == *b"IHDR").then_some(head[25])
+}
+
 /// Refuses depth read with a wrong `depth_scale`: a largest depth beyond
 /// 100 m or a median under [`MIN_MEDIAN_DEPTH_M`]. `depth` holds values in
 /// units of `metres_per_unit` (1 for metres, 1e-3 for millimetres); an image
@@ -259,14 +270,15 @@ pub fn read_depth_png(path: &Path, cam: &BopCamera) -> Result<DepthImage> {
         // A grey PNG with a tRNS chunk (one depth value marked
         // transparent) comes out of the decoder with an alpha channel;
         // the grey values are the depth, unchanged.
-        image::DynamicImage::ImageLumaA16(i) => {
+        image::DynamicImage::ImageLumaA16(i) if png_colour_type(path) == Some(0) => {
             let luma: Vec<u16> = i.as_raw().chunks_exact(2).map(|p| p[0]).collect();
             image::ImageBuffer::from_raw(i.width(), i.height(), luma).ok_or_else(|| bad("depth image buffer of the wrong size".into()))?
         }
         other => {
             return Err(bad(format!(
-                "depth must be a 16-bit single-channel PNG (BOP convention), got {:?}",
-                other.color()
+                "depth must be a 16-bit single-channel PNG (BOP convention), got {:?}{}",
+                other.color(),
+                if other.color() == image::ColorType::La16 { " (an alpha channel, which a depth image has no use for)" } else { "" }
             )))
         }
     };

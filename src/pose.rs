@@ -19,6 +19,12 @@ pub struct Pose {
     pub t: DVec3,
 }
 
+/// Farthest a hypothesis may lie from the camera (m), as far as a scene may
+/// span ([`crate::physical::scene::MAX_POSITION_M`]): beyond, the
+/// f32 kernels and the twin's f64 part ways (a pose at 1e97 m gave the GPU
+/// a minimum distance of -inf and the twin -7e296).
+pub const MAX_DISTANCE_M: f64 = 1e4;
+
 /// Largest `|RᵀR - I|` that orthonormalization projects onto SO(3); beyond
 /// it the matrix is scaled or sheared (2·I is not a noisy rotation).
 pub const MAX_ORTHONORMALIZE_ERR: f64 = 0.1;
@@ -104,6 +110,9 @@ impl Pose {
         }
         if self.t.z <= 0.0 {
             return Err(bad(format!("translation z = {:.4} m: the object is behind the camera", self.t.z)));
+        }
+        if self.t.length() > MAX_DISTANCE_M {
+            return Err(bad(format!("translation of {:.3e} m: more than the {MAX_DISTANCE_M} m a camera sees (units?)", self.t.length())));
         }
         Ok(self)
     }

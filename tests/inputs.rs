@@ -379,6 +379,10 @@ fn poses_behind_camera() {
     let d = tempfile::tempdir().unwrap();
     let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0, 0, -500]}}]"#));
     assert!(read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string().contains("behind the camera"));
+    // Beyond 10 km: no camera sees it, and f32 kernels would overflow.
+    let p = poses_file(d.path(), &format!(r#"[{{"cam_R_m2c": {GOOD_R}, "cam_t_m2c": [0, 0, 1e100]}}]"#));
+    let e = read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().to_string();
+    assert!(e.contains("1.000e97 m") && e.contains("10000 m"), "{e}");
 }
 
 #[test]
@@ -543,4 +547,10 @@ fn depth_png_with_transparency_chunk() {
     let depth = read_depth_png(&p, &cam).unwrap();
     assert_eq!(depth.depth[0], 0.0);
     assert!((depth.depth[5] - 7005.0 * 1e-4).abs() < 1e-6, "{}", depth.depth[5]);
+    // A grey PNG with a real alpha channel (colour type 4) is no depth
+    // image: refused, not read with its alpha dropped.
+    let la = image::ImageBuffer::<image::LumaA<u16>, _>::from_fn(64, 48, |x, _| image::LumaA([7000 + x as u16, 0]));
+    la.save(&p).unwrap();
+    let e = read_depth_png(&p, &cam).unwrap_err().to_string();
+    assert!(e.contains("La16") && e.contains("alpha channel"), "{e}");
 }

@@ -364,7 +364,7 @@ fn vec3(what: &str, v: &[f64]) -> std::result::Result<DVec3, String> {
 
 /// Farthest position taken (m): beyond it f32 samples and grids lose the
 /// millimetres a contact test needs, and no tabletop scene is that large.
-pub const MAX_POSITION_M: f64 = 1e4;
+pub const MAX_POSITION_M: f64 = crate::pose::MAX_DISTANCE_M;
 
 fn within_reach(what: &str, t: DVec3) -> std::result::Result<DVec3, String> {
     if t.length() > MAX_POSITION_M {
