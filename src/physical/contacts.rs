@@ -343,13 +343,24 @@ impl Body {
     ) -> Result<Body> {
         let samples = super::samples::surface_samples(mesh, count, seed)?;
         let (mass, _) = crate::mesh::mass::MassProperties::of_mesh(mesh)?;
-        let eps = epsilon.unwrap_or_else(|| {
-            super::samples::default_epsilon(super::samples::sample_spacing(mesh.area(), count))
-        });
+        let spacing = super::samples::sample_spacing(mesh.area(), count);
+        let eps = epsilon.unwrap_or_else(|| super::samples::default_epsilon(spacing));
         if !(eps.is_finite() && eps > 0.0) {
             return Err(Error::InvalidInput(format!(
                 "ε must be a positive number of metres, got {eps}"
             )));
+        }
+        // Samples farther apart than 2ε can all miss the strip of a face
+        // that touches the support: a resting pose then reads as floating
+        // (the demo's duck at 1-3 samples; 3 made an intersecting pose
+        // "unstable", ranked first).
+        if spacing > 2.0 * eps {
+            let enough = (mesh.area() / (2.0 * eps).powi(2)).ceil();
+            tracing::warn!(
+                "{count} surface samples lie {:.1} mm apart on this object, more than twice the contact tolerance ε = {:.1} mm: contacts can go unseen (take at least {enough} samples, or a larger ε)",
+                spacing * 1e3,
+                eps * 1e3
+            );
         }
         Ok(Body {
             samples,
