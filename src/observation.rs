@@ -115,7 +115,7 @@ pub fn check_mask(mask: &[bool], width: u32, height: u32) -> Result<()> {
         return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth image {width}x{height}", mask.len())));
     }
     if !mask.iter().any(|&m| m) {
-        return Err(Error::InvalidInput("the mask is empty (no object pixel): nothing to score".into()));
+        return Err(Error::InvalidInput("the mask is empty: it marks no pixel of the object".into()));
     }
     Ok(())
 }

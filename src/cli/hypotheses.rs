@@ -52,6 +52,13 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     if !(a.grid_step_mm.is_finite() && a.grid_step_mm > 0.0) {
         bail!("--grid-step-mm must be a positive number of millimetres");
     }
+    use plausible::hypotheses::on_plane::{MAX_GRID_RADIUS, MAX_YAW_STEPS};
+    if !(1..=MAX_YAW_STEPS).contains(&a.yaw_steps) {
+        bail!("--yaw-steps {}: between 1 and {MAX_YAW_STEPS} (0.1° apart)", a.yaw_steps);
+    }
+    if a.grid_radius > MAX_GRID_RADIUS {
+        bail!("--grid-radius {}: at most {MAX_GRID_RADIUS} ({} offsets per hypothesis)", a.grid_radius, (2 * MAX_GRID_RADIUS + 1).pow(2));
+    }
     let mesh = a.mesh.load()?;
     let (obs, mask) = a.obs.load(false)?;
     let Some(mask) = mask else {
@@ -89,7 +96,18 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
     if used == 0 {
         bail!("no resting poses");
     }
-    let hyps = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &params)?;
+    let hyps = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &params).map_err(|e| {
+        // The library's words, with the flag whose file they are about.
+        let msg = e.to_string();
+        let flag = if msg.contains("support plane") {
+            format!("--plane {}", a.plane.display())
+        } else if msg.contains("masked pixels") || msg.contains("mask") {
+            format!("--mask {}", a.obs.mask.as_deref().map(|p| p.display().to_string()).unwrap_or_default())
+        } else {
+            "hypotheses".to_string()
+        };
+        anyhow::anyhow!(e).context(flag)
+    })?;
     let json: Vec<serde_json::Value> = hyps
         .iter()
         .map(|h| {

@@ -197,6 +197,15 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             ))
         })?;
     let label = if entry.mesh.is_empty() { format!("sha256 {}", entry.sha256.chars().take(12).collect::<String>()) } else { entry.mesh.clone() };
+    let rivals = meshes.iter().filter(|m| match how {
+        ExportMatch::Hash => m.sha256 == sha256,
+        ExportMatch::Name => stem(m).as_deref() == Some(name.as_str()),
+        ExportMatch::OnlyEntry => false,
+    });
+    let rivals = rivals.count();
+    if rivals > 1 {
+        tracing::warn!("the stable poses hold {rivals} entries for {label} (runs with other seeds or settings?): using the one with clusters and the most settled drops ({})", entry.settled);
+    }
     let out = entry_resting_poses(entry).map_err(|reason| bad(format!("the entry of {label}: {reason}")))?;
     Ok((out, how))
 }

@@ -331,6 +331,9 @@ fn score_json(text: &str) -> Result<Kind> {
     if rows.is_empty() {
         bail!("a score file with no records");
     }
+    for (i, r) in rows.iter().enumerate() {
+        check_score_row(r).with_context(|| format!("record {i} (index {})", r.index))?;
+    }
     Ok(Kind::Score(rows))
 }
 
@@ -347,10 +350,14 @@ fn object_json(text: &str) -> Result<Kind> {
             );
         }
         let e: StableExport = serde_json::from_value(v).context("a stable-pose export with missing or malformed fields")?;
+        check_stable(&e)?;
         return Ok(Kind::Stable(e));
     }
     if obj.contains_key("objects") && obj.contains_key("scene") {
         let c: CheckReport = serde_json::from_value(v).context("a `plausible check --json` report with missing or malformed fields")?;
+        for o in &c.objects {
+            check_verdict(&o.verdict).with_context(|| format!("object {}", o.name))?;
+        }
         return Ok(Kind::Check(c));
     }
     if obj.contains_key("per_object") && obj.contains_key("per_threshold") {
@@ -364,13 +371,78 @@ fn object_json(text: &str) -> Result<Kind> {
     )
 }
 
+/// The verdicts `score --physics` and `check` write.
+const VERDICTS: [&str; 4] = ["plausible", "unstable", "floating", "intersecting"];
+
+fn check_verdict(v: &str) -> Result<()> {
+    if !VERDICTS.contains(&v) {
+        bail!("verdict '{v}' is none of {}", VERDICTS.join(", "));
+    }
+    Ok(())
+}
+
+/// A record as `score` writes it: scores in [0, 1] (or missing, NaN's
+/// `null`), finite physics, a known verdict. A report drew -7 as a score
+/// and "banana" as a verdict.
+fn check_score_row(r: &ScoreRow) -> Result<()> {
+    for (k, v) in [("score", r.score), ("a_d", r.a_d), ("a_n", r.a_n)] {
+        if let Some(v) = v.filter(|v| !(0.0..=1.0).contains(v)) {
+            bail!("{k} {v} is not in [0, 1]");
+        }
+    }
+    for (k, v) in [("min_distance", r.min_distance), ("stability_margin", r.stability_margin)] {
+        if let Some(v) = v.filter(|v| !v.is_finite()) {
+            bail!("{k} {v} is not a finite number");
+        }
+    }
+    if r.rank == 0 {
+        bail!("rank 0 (ranks start at 1)");
+    }
+    r.verdict.as_deref().map_or(Ok(()), check_verdict)
+}
+
+/// An export as `stable-poses export` writes it: at least one mesh, and
+/// per mesh probabilities and intervals in [0, 1] that sum to at most 1,
+/// counts within the drops. A report drew "p = -500.0 %" and clusters
+/// summing to 20000 %.
+fn check_stable(e: &StableExport) -> Result<()> {
+    if e.meshes.is_empty() {
+        bail!("a stable-pose export with no mesh");
+    }
+    for m in &e.meshes {
+        let bad = |what: String| anyhow::anyhow!("stable-pose export, mesh {}: {what}", m.mesh);
+        if m.settled > m.drops {
+            return Err(bad(format!("{} settled of {} drops", m.settled, m.drops)));
+        }
+        let groups = m.clusters.iter().map(|c| (c.probability, c.ci95, c.count)).chain(m.families.iter().map(|f| (f.probability, f.ci95, f.count)));
+        let mut sum = 0.0;
+        for (i, (p, [lo, hi], count)) in groups.enumerate() {
+            if !(0.0..=1.0).contains(&p) || !(0.0..=1.0).contains(&lo) || !(0.0..=1.0).contains(&hi) || lo > hi {
+                return Err(bad(format!("cluster {i}: probability {p} or interval [{lo}, {hi}] is not within [0, 1]")));
+            }
+            if count > m.drops {
+                return Err(bad(format!("cluster {i}: {count} drops of {}", m.drops)));
+            }
+            sum += p;
+        }
+        if sum > 1.0 + 1e-6 {
+            return Err(bad(format!("the probabilities sum to {sum:.3}, more than 1")));
+        }
+        if let Some(a) = m.analytic.iter().find(|a| !(0.0..=1.0).contains(&a.probability)) {
+            return Err(bad(format!("analytic pose probability {} is not in [0, 1]", a.probability)));
+        }
+    }
+    Ok(())
+}
+
 /// `plausible score --out X.csv`: the same records as the JSON.
 fn score_csv(text: &str) -> Result<Kind> {
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
     let mut rows = Vec::new();
     for (n, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-        rows.push(csv_row(&header, line).with_context(|| format!("score CSV line {}", n + 2))?);
+        let row = csv_row(&header, line).and_then(|r| check_score_row(&r).map(|()| r));
+        rows.push(row.with_context(|| format!("score CSV line {}", n + 2))?);
     }
     if rows.is_empty() {
         bail!("a score file with no records");
@@ -433,5 +505,28 @@ mod tests {
         assert_eq!(rows.len(), 2);
         assert_eq!(rows[1].score, None);
         assert!(classify(b"index,rank,score,a_d,a_n,valid,rendered,observed\n0,x\n").is_err());
+    }
+
+    #[test]
+    fn values_no_command_writes_are_refused() {
+        let row = |score: &str, verdict: &str| format!(r#"[{{"index": 0, "rank": 1, "score": {score}, "a_d": 0.5, "a_n": 0.5, "valid": 1, "rendered": 1, "observed": 1, "verdict": "{verdict}"}}]"#);
+        assert!(classify(row("0.5", "plausible").as_bytes()).is_ok());
+        assert!(classify(row("null", "floating").as_bytes()).is_ok());
+        let e = format!("{:#}", classify(row("-7", "plausible").as_bytes()).unwrap_err());
+        assert!(e.contains("score -7"), "{e}");
+        let e = format!("{:#}", classify(row("0.5", "banana").as_bytes()).unwrap_err());
+        assert!(e.contains("banana"), "{e}");
+        assert!(classify(b"index,rank,score,a_d,a_n,valid,rendered,observed\n0,1,NaN,0.1,0.2,1,2,3\n").is_err());
+        let export = |p: f64| {
+            format!(
+                r#"{{"format": "{}", "meshes": [{{"mesh": "m.obj", "sha256": "x", "drops": 10, "settled": 10, "clusters": [{{"probability": {p}, "ci95": [0.1, 0.9], "count": 5, "gravity_in_model": [0,0,-1], "R_model_to_plane": [1,0,0,0,1,0,0,0,1], "height": 0.01}}]}}]}}"#,
+                plausible::stable::export::FORMAT
+            )
+        };
+        assert!(classify(export(0.5).as_bytes()).is_ok());
+        let e = format!("{:#}", classify(export(-5.0).as_bytes()).unwrap_err());
+        assert!(e.contains("probability -5"), "{e}");
+        let none = format!(r#"{{"format": "{}", "meshes": []}}"#, plausible::stable::export::FORMAT);
+        assert!(classify(none.as_bytes()).is_err());
     }
 }
