@@ -217,7 +217,6 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     if !(a.tau > 0.0 && a.tau <= 1.0) {
         bail!("--tau {}: the depth tolerance is in metres and must lie in (0, 1] (the usual value is 0.02)", a.tau);
     }
-    // 1 - cos of two normals is at most 2: a larger α never reaches it.
     use plausible::observation::{MAX_ROI_MARGIN, MAX_ROI_SIDE};
     if !(a.margin.is_finite() && (0.0..=MAX_ROI_MARGIN).contains(&a.margin)) {
         bail!("--margin {}: the region's growth on each side, a fraction of the mask's size, must lie in [0, {MAX_ROI_MARGIN}]", a.margin);
@@ -225,6 +224,7 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
     if a.res > MAX_ROI_SIDE {
         bail!("--res {}: the region is resampled to at most {MAX_ROI_SIDE} pixels a side (0 scores native pixels)", a.res);
     }
+    // 1 - cos of two normals is at most 2: a larger α never reaches it.
     if !(a.alpha > 0.0 && a.alpha <= 2.0) {
         bail!("--alpha {}: the normal tolerance (on 1 - cos of the angle) must lie in (0, 2] (the usual value is 0.7)", a.alpha);
     }

@@ -269,10 +269,12 @@ pub fn refine_image(
     let scene_out = super::scene::refine_scene(device, &depth, plane.as_ref(), &objects, usize::MAX, p)?;
     let mut stats = ImageStats { objects: objs.len(), unrefined: objs.len() - ids.len(), times: scene_out.times, ..Default::default() };
     let mut out = job.estimates.clone();
-    // An object without mask pixels keeps its pose, and gets the score of
-    // a pose against no observed pixel, 0 (eq. 3): its input score is on
-    // another method's scale, and the column must rank every row alike.
-    for e in out.iter_mut().filter(|e| !ids.contains(&e.obj_id)) {
+    // An object without a usable view (no mask pixel, or too few observed
+    // points) keeps its pose and scores 0, as a pose against no observed
+    // pixel does (eq. 3): its input score is on another method's scale,
+    // and the column must rank every row alike.
+    let viewed: Vec<u32> = ids.iter().zip(&scene_out.objects).filter(|(_, r)| r.is_some()).map(|(&o, _)| o).collect();
+    for e in out.iter_mut().filter(|e| !viewed.contains(&e.obj_id)) {
         e.score = 0.0;
     }
     for (obj, refined) in ids.iter().zip(&scene_out.objects) {
