@@ -385,3 +385,27 @@ fn explain_replaces_only_its_own_pictures() {
     assert!(!o.status.success() && err.contains("--mask") && err.contains("an input named like the pictures"), "{err}");
     assert!(why.join("hypothesis_5.png").exists());
 }
+
+/// Surface samples farther apart than twice the contact tolerance can all
+/// miss a resting face: `score --physics` says so (the demo's duck at 64
+/// samples, about 20 mm apart against ε = 5 mm), and not at the default.
+#[test]
+fn sparse_surface_samples_are_warned_about() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = plausible().args(["demo", "--n", "16", "--device", "cpu", "--out"]).arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let score = |samples: &str| {
+        let o = on_demo("score", &out)
+            .arg("--poses").arg(out.join("poses.json"))
+            .arg("--plane").arg(out.join("plane.json"))
+            .args(["--physics", "--quiet", "--device", "cpu", "--samples", samples])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let err = score("64");
+    assert!(err.contains("contacts can go unseen") && err.contains("take at least"), "{err}");
+    assert!(!score("1024").contains("unseen"));
+}
