@@ -520,3 +520,44 @@ fn objects_without_a_mask_keep_their_pose_and_score_zero() {
         }
     }
 }
+
+/// A model edited between a kill and the rerun refuses the resume: the
+/// settings record holds every model file's digest, so the images done
+/// with the old geometry are not kept beside ones done with the new. An
+/// output started before the record had models still resumes.
+#[test]
+fn a_model_edited_before_the_rerun_refuses_the_resume() {
+    let d = tempfile::tempdir().unwrap();
+    let ds = d.path().join("ds");
+    copy_dir(&dataset(), &ds);
+    let out = d.path().join("r.csv");
+    let refine_on = |ds: &Path| {
+        plausible()
+            .arg("refine").arg("--dataset").arg(ds)
+            .arg("--init").arg(dataset().join("perturbed.csv"))
+            .arg("--out").arg(&out)
+            .args(["--images", "3", "--method", "ref", "--quiet", "--device", "cpu"])
+            .output()
+            .unwrap()
+    };
+    assert!(refine_on(&ds).status.success());
+    // Without the models in the record (an older version's), it resumes.
+    let stamp = d.path().join("r.csv.settings.json");
+    let mut rec: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stamp).unwrap()).unwrap();
+    rec.as_object_mut().unwrap().remove("models");
+    std::fs::write(&stamp, rec.to_string()).unwrap();
+    assert!(refine_on(&ds).status.success());
+    // A fresh output records the models; the same models resume.
+    std::fs::remove_file(&out).unwrap();
+    std::fs::remove_file(&stamp).unwrap();
+    std::fs::remove_file(d.path().join("r.csv.done")).ok();
+    assert!(refine_on(&ds).status.success());
+    assert!(refine_on(&ds).status.success(), "the same models resume");
+    let model = ds.join("models/obj_000001.ply");
+    let mut bytes = std::fs::read(&model).unwrap();
+    bytes.push(b'\n');
+    std::fs::write(&model, bytes).unwrap();
+    let o = refine_on(&ds);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("other settings (models;"), "{err}");
+}

@@ -348,6 +348,26 @@ impl Dataset {
         Ok((pts, tris))
     }
 
+    /// SHA-256 over every model file of `models_info.json` (its id and the
+    /// file's digest, a line each; a missing file as `-`): what a resumable
+    /// output records, so that a model edited between a kill and the rerun
+    /// refuses the resume instead of mixing two geometries in one file.
+    /// Over all the dataset's models, not only those an image uses: shards
+    /// of one output must record the same.
+    pub fn models_digest(&self) -> Result<String> {
+        let mut lines = String::new();
+        for &id in self.models_info.keys() {
+            let path = self.model_path(id);
+            let digest = match std::fs::File::open(&path) {
+                Ok(f) => crate::stable::db::sha256_hex_reader(f).map_err(|e| Error::io(&path, e))?,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => "-".into(),
+                Err(e) => return Err(Error::io(&path, e)),
+            };
+            lines += &format!("{id} {digest}\n");
+        }
+        crate::stable::db::sha256_hex_reader(lines.as_bytes()).map_err(|e| Error::io(&self.models_dir, e))
+    }
+
     /// An object's model as a mesh in metres ([`model_points`](Self::model_points),
     /// checked the same way).
     pub fn model_mesh(&self, obj_id: u32) -> Result<crate::mesh::Mesh> {

@@ -136,6 +136,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         // rerun that adds nothing still rewrites its database.
         "stable": stable.as_deref().map(|text| plausible::stable::db::sha256_hex_reader(text.as_bytes())).transpose()?,
         "targets": targets_setting,
+        "models": ds.models_digest()?,
         "yaw_steps": a.yaw_steps,
         "top": a.top,
         "method": a.method,

@@ -443,6 +443,10 @@ pub fn path_setting(path: &std::path::Path) -> String {
     std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string()
 }
 
+/// Settings that records of earlier versions do not have: an output they
+/// started resumes without the check (it had none then).
+const NEWER_SETTINGS: [&str; 1] = ["models"];
+
 /// Refuses to resume into `out` when it was written with other settings
 /// (another --stable, --lod, method, ...): its images would be kept and the
 /// rest made differently, a silently mixed result. The settings are kept in
@@ -467,6 +471,8 @@ pub fn check_settings(out: &std::path::Path, settings: &serde_json::Value, legac
                     .into_iter()
                     .flatten()
                     .filter(|(k, v)| before.get(k.as_str()) != Some(*v))
+                    // Recorded since 12-05: outputs started before lack it.
+                    .filter(|(k, _)| !(NEWER_SETTINGS.contains(&k.as_str()) && before.get(k.as_str()).is_none()))
                     .filter(|(k, _)| {
                         let recorded = before.get(k.as_str()).and_then(|b| b.as_str());
                         !legacy.iter().any(|(l, old)| l == k && recorded.is_some() && old().as_deref() == recorded)
@@ -547,6 +553,7 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
         "dataset": path_setting(&a.dataset),
         "split": a.split,
         "init": read_digest(init.iter().map(format_line)),
+        "models": ds.models_digest()?,
         "method": a.method,
         "no_physics": a.no_physics,
         "lod": a.lod.to_string(),
