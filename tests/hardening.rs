@@ -137,6 +137,8 @@ fn absurd_flags_are_refused_before_any_work() {
         (vec!["bench", "physics", "--n", "1000000", "--samples", "1024"], "sample-hypothesis queries"),
         (vec!["bench", "stable", "--diameter", "1e9"], "outside"),
         (vec!["bench", "stable", "--diameter", "nan"], "outside"),
+        (vec!["stable-poses", "assets/physics/cube.obj", "--db", "x.sqlite", "--max-time", "1e30"], "must lie in (0, 600]"),
+        (vec!["bench", "score", "--units", "mm"], "is for --mesh files"),
         (vec!["plane", "--camera", "c", "--depth", "d", "--iterations", "100000000", "--out", "p.json"], "100000000"),
         (vec!["check", "assets/physics/stack.json", "--explain", "pic"], ".png"),
         (vec!["eval", "--dataset", "assets/lmo-synth", "--gt-as-results", "/dev/null", "--batch-images", "0"], "batch size"),

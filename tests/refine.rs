@@ -159,10 +159,12 @@ fn refine_refuses_bad_flags_before_any_work() {
     // No output overwrites an input or another output, side files included.
     let out = d.path().join("o.csv");
     let journal = d.path().join("o.csv.done");
+    let lock = d.path().join("o.csv.lock");
     for (outs, want) in [
         (vec![&init], "--out and --init name the same file"),
         (vec![&out, &out], "--summary and --out name the same file"),
         (vec![&out, &journal], "--summary and --out's journal name the same file"),
+        (vec![&out, &lock], "--summary and --out's lock name the same file"),
     ] {
         let mut cmd = plausible();
         cmd.arg("refine").arg("--dataset").arg(dataset()).arg("--init").arg(&init).arg("--out").arg(outs[0]);

@@ -206,6 +206,9 @@ pub fn bench_meshes(quick: bool) -> Result<Vec<(String, Mesh)>> {
 
 fn bench_score(mut a: BenchScoreArgs, verbose: u8) -> Result<()> {
     super::bench_eval::check_no_cpu(&a.device.device, a.no_cpu)?;
+    if a.mesh.is_empty() && a.units != plausible::mesh::MeshUnits::Auto {
+        anyhow::bail!("--units {:?} is for --mesh files; the shipped meshes are scaled to a 0.15 m diagonal", a.units);
+    }
     // A repeated --lod or --renderer would only measure the same row twice.
     a.lod = distinct(&a.lod);
     a.renderer = distinct(&a.renderer);

@@ -120,6 +120,12 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         }
         plausible::bop::dataset::TargetSource::AllInstances => (None, None),
     };
+    if targets.is_empty() {
+        match &targets_file {
+            Some(p) => bail!("--targets {}: lists no target", p.display()),
+            None => bail!("--dataset {}: annotates no instance to estimate", a.dataset.display()),
+        }
+    }
     let mut by_image: BTreeMap<(u32, u32), Vec<_>> = BTreeMap::new();
     for t in targets {
         by_image.entry((t.scene_id, t.im_id)).or_default().push(t);
@@ -169,7 +175,14 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         n => format!("refined by {} ({n} steps)", params.refine.method.name().to_uppercase()),
     };
     eprintln!("estimating {} images: resting poses from {source} x {} yaws, best {} {refined}; {}", jobs.len(), a.yaw_steps, a.top, masks.describe());
-    let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).context("loading the models")?;
+    let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).map_err(|e| {
+        // Problems of the resting poses are the --stable file's.
+        let context = match &a.stable {
+            Some(p) if e.to_string().contains("stable poses") => format!("--stable {}", p.display()),
+            _ => "loading the models".to_string(),
+        };
+        anyhow::anyhow!(e).context(context)
+    })?;
     let mut out = ResultsAppender::open(&a.out)?;
     let pb = a.run.progress(jobs.len());
     let mut total = EstimateStats::default();

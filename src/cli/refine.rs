@@ -184,11 +184,12 @@ impl ImageRunArgs {
     /// dropped.
     pub fn prepare_outputs(&self, ds: &Dataset, out: &std::path::Path, inputs: &[(&str, Option<&std::path::Path>)]) -> Result<Option<std::fs::File>> {
         plausible::io::check_writable(out)?;
-        let (settings, journal) = (settings_path(out), plausible::refine::dataset::journal_path(out));
+        let (settings, journal, lock) = (settings_path(out), plausible::refine::dataset::journal_path(out), beside(out, ".lock"));
         let outputs = [
             ("--out", Some(out)),
             ("--out's settings record", Some(settings.as_path())),
             ("--out's journal", Some(journal.as_path())),
+            ("--out's lock", Some(lock.as_path())),
             ("--summary", self.summary.as_deref()),
             ("--explain", self.explain.as_deref()),
         ];

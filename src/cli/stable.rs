@@ -193,8 +193,13 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if !(0.0..90.0).contains(&args.cluster_deg) || args.cluster_deg == 0.0 {
         bail!("--cluster-deg must be between 0 and 90 degrees");
     }
-    if !args.max_time.is_finite() || args.max_time <= 0.0 {
-        bail!("--max-time must be positive");
+    // A drop of the reference object settles in 0.3-2 s; 10 minutes of
+    // simulated time is 144,000 steps a drop, and 1e30 s ran for ever.
+    if !(args.max_time.is_finite() && args.max_time > 0.0 && args.max_time <= 600.0) {
+        bail!(
+            "--max-time {}: the simulated seconds a drop may take must lie in (0, 600] (the default 10 s is 2,400 steps at 240 Hz)",
+            plausible::error::compact(args.max_time, 3)
+        );
     }
     let dt = step_dt(args.step_hz)?;
     let params = RunParams {
@@ -303,6 +308,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 prepared.analytic.poses.len()
             );
         }
+        warn_unsettled(&name, summary.settled, summary.stored);
         names.push(prepared.sha256.clone());
     }
     if let Some(json) = &args.json {
@@ -312,6 +318,41 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         write_json(json, &ex)?;
     }
     Ok(())
+}
+
+/// The runs of `db` with fewer drops stored than asked for (a shard not
+/// merged yet, or still running), each as a sentence: merged shards give
+/// the single run's result only once all of them are in.
+fn incomplete_runs(db: &Db) -> anyhow::Result<Vec<String>> {
+    let names: std::collections::HashMap<String, String> = db.meshes()?.into_iter().map(|m| (m.sha256, m.source)).collect();
+    let mut out = Vec::new();
+    for run in db.runs()? {
+        let stored = db.drops(run.id)?.len() as u64;
+        if stored < run.drops {
+            let name = names.get(&run.mesh_sha256).cloned().unwrap_or_else(|| run.mesh_sha256.chars().take(12).collect());
+            out.push(format!(
+                "{name} (seed {}): {stored} of its {} drops are in; merge the other shards (or finish them) before using its clusters",
+                run.seed, run.drops
+            ));
+        }
+    }
+    Ok(out)
+}
+
+/// Share of stored drops below which a run is warned about (also under
+/// `--quiet`): the clusters then describe only the drops that came to
+/// rest, and a body that never rests (a needle 0.1 mm thick rolled at the
+/// time cap in every drop) has none.
+const MIN_SETTLED: f64 = 0.99;
+
+fn warn_unsettled(name: &str, settled: u64, stored: u64) {
+    if stored > 0 && (settled as f64) < MIN_SETTLED * stored as f64 {
+        eprintln!(
+            "warning: {name}: only {settled} of {stored} drops came to rest within --max-time ({:.1} %); the clusters describe those alone. \
+             A body that is still rolling or rocking at the cap (very thin, very light, or round) may need a longer --max-time or another collider",
+            100.0 * settled as f64 / stored as f64
+        );
+    }
 }
 
 fn short_name(p: &Path) -> String {
@@ -472,7 +513,7 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
     if output.exists() {
         std::fs::copy(&output, &tmp).with_context(|| format!("copying {}", args.output.display()))?;
     }
-    let result = (|| -> anyhow::Result<u64> {
+    let result = (|| -> anyhow::Result<(u64, Vec<String>)> {
         let mut out = Db::open(&tmp)?;
         let mut total = 0;
         for i in &args.inputs {
@@ -480,12 +521,15 @@ fn merge(args: MergeArgs) -> anyhow::Result<()> {
             println!("{}: {added} new drops", i.display());
             total += added;
         }
-        Ok(total)
+        Ok((total, incomplete_runs(&out)?))
     })();
     match result {
-        Ok(total) => {
+        Ok((total, incomplete)) => {
             std::fs::rename(&tmp, &output).with_context(|| format!("writing {}", args.output.display()))?;
             println!("{}: {total} drops merged", args.output.display());
+            for w in incomplete {
+                eprintln!("warning: {w}");
+            }
             Ok(())
         }
         Err(e) => {

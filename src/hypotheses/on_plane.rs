@@ -167,7 +167,7 @@ pub fn resting_poses(mesh: &Mesh, export: Option<&str>, name: &str) -> Result<(V
 /// settled drops is taken. Clusters give one resting pose each, rolling
 /// families [`ROLL_STEPS`] (their probability split evenly).
 pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<(Vec<RestingPose>, ExportMatch)> {
-    let bad = |reason: String| Error::InvalidInput(format!("stable-pose JSON: {reason}"));
+    let bad = |reason: String| Error::InvalidInput(format!("the stable poses (a `stable-poses export`): {reason}"));
     let value: serde_json::Value = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
     if value.get("format").and_then(|f| f.as_str()).is_none() {
         return Err(bad(format!("not a `stable-poses export` file (it has no \"format\": \"{}\")", crate::stable::export::FORMAT)));
@@ -203,6 +203,13 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
         ExportMatch::OnlyEntry => false,
     });
     let rivals = rivals.count();
+    if entry.drops < entry.drops_requested && !entry.clusters.is_empty() {
+        tracing::warn!(
+            "the stable poses of {label} come from {} of its {} drops (a shard not merged, or a run not finished): their probabilities are less precise than asked for",
+            entry.drops,
+            entry.drops_requested
+        );
+    }
     if rivals > 1 {
         tracing::warn!("the stable poses hold {rivals} entries for {label} (runs with other seeds or settings?): using the one with clusters and the most settled drops ({})", entry.settled);
     }
