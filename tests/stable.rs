@@ -590,6 +590,11 @@ fn cli_show_merge_export_and_json() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+    // One shard alone: merged, with a word that drops are missing.
+    let half = scratch.file("cli_half.sqlite");
+    let out = Command::new(bin).args(["stable-poses", "merge"]).arg(&s1).arg("-o").arg(&half).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("of its 40 drops are in"), "{err}");
     let out = Command::new(bin)
         .args(["stable-poses", "merge"])
         .arg(&s1)
@@ -603,6 +608,7 @@ fn cli_show_merge_export_and_json() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("drops are in"));
     let out = Command::new(bin)
         .args(["stable-poses", "show", "--db"])
         .arg(&merged)

@@ -197,12 +197,6 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             ))
         })?;
     let label = if entry.mesh.is_empty() { format!("sha256 {}", entry.sha256.chars().take(12).collect::<String>()) } else { entry.mesh.clone() };
-    let rivals = meshes.iter().filter(|m| match how {
-        ExportMatch::Hash => m.sha256 == sha256,
-        ExportMatch::Name => stem(m).as_deref() == Some(name.as_str()),
-        ExportMatch::OnlyEntry => false,
-    });
-    let rivals = rivals.count();
     if entry.drops < entry.drops_requested && !entry.clusters.is_empty() {
         tracing::warn!(
             "the stable poses of {label} come from {} of its {} drops (a shard not merged, or a run not finished): their probabilities are less precise than asked for",
@@ -210,6 +204,15 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             entry.drops_requested
         );
     }
+    // Entries matched the same way as the one taken.
+    let rivals = meshes
+        .iter()
+        .filter(|m| match how {
+            ExportMatch::Hash => m.sha256 == sha256,
+            ExportMatch::Name => stem(m).as_deref() == Some(name.as_str()),
+            ExportMatch::OnlyEntry => false,
+        })
+        .count();
     if rivals > 1 {
         tracing::warn!("the stable poses hold {rivals} entries for {label} (runs with other seeds or settings?): using the one with clusters and the most settled drops ({})", entry.settled);
     }
