@@ -21,6 +21,14 @@ fn on_demo(sub: &str, out: &std::path::Path) -> Command {
     c
 }
 
+/// The demo's inputs for `n` poses, made on the CPU twin into `dir/demo`.
+fn cpu_demo(dir: &std::path::Path, n: usize) -> std::path::PathBuf {
+    let out = dir.join("demo");
+    let o = plausible().args(["demo", "--n", &n.to_string(), "--device", "cpu", "--out"]).arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
 fn device_args() -> Vec<&'static str> {
     // The GPU (these tests have `gpu` in their names: `cargo test -- --skip
     // gpu` skips them where no adapter exists).
@@ -250,9 +258,7 @@ fn score_reports_bad_input_without_panicking() {
 #[test]
 fn outputs_and_traces_never_replace_inputs() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("demo");
-    let o = plausible().args(["demo", "--n", "64", "--device", "cpu", "--out"]).arg(&out).output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = cpu_demo(dir.path(), 64);
     let poses = out.join("poses.json");
     let kept: Vec<(std::path::PathBuf, Vec<u8>)> =
         ["poses.json", "depth.png", "duck_0.15m.obj", "plane.json"].iter().map(|f| (out.join(f), std::fs::read(out.join(f)).unwrap())).collect();
@@ -345,9 +351,7 @@ fn gpu_bench_score_pairs_the_gpu_and_twin_runs() {
 #[test]
 fn explain_replaces_only_its_own_pictures() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("demo");
-    let o = plausible().args(["demo", "--n", "16", "--device", "cpu", "--out"]).arg(&out).output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = cpu_demo(dir.path(), 16);
     let why = dir.path().join("why");
     let score = |ids: &str| {
         on_demo("score", &out).arg("--poses").arg(out.join("poses.json")).args(["--quiet", "--device", "cpu", "--explain-ids", ids, "--explain"]).arg(&why).output().unwrap()
@@ -392,9 +396,7 @@ fn explain_replaces_only_its_own_pictures() {
 #[test]
 fn sparse_surface_samples_are_warned_about() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("demo");
-    let o = plausible().args(["demo", "--n", "16", "--device", "cpu", "--out"]).arg(&out).output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = cpu_demo(dir.path(), 16);
     let score = |samples: &str| {
         let o = on_demo("score", &out)
             .arg("--poses").arg(out.join("poses.json"))

@@ -734,7 +734,7 @@ pub const MODEL_DIAMETER_RATIO: std::ops::RangeInclusive<f64> = 0.4..=2.5;
 
 /// Refuses a model whose vertices do not span about its `diameter` (mm).
 pub fn check_model_size(path: &Path, obj_id: u32, pts: &[DVec3], diameter: f64) -> Result<()> {
-    let (lo, hi) = pts.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let (lo, hi) = crate::mesh::bounds_of(pts);
     let diagonal = (hi - lo).length();
     if pts.is_empty() || MODEL_DIAMETER_RATIO.contains(&(diameter / diagonal)) {
         return Ok(());

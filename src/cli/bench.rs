@@ -172,8 +172,9 @@ pub fn run(a: BenchArgs, verbose: u8) -> Result<()> {
     }
 }
 
-fn median(mut v: Vec<Duration>) -> Duration {
-    v.sort();
+/// The upper median of timed runs (durations or rates; at least one).
+pub(super) fn median<T: Copy + PartialOrd>(mut v: Vec<T>) -> T {
+    v.sort_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal));
     v[v.len() / 2]
 }
 
@@ -411,8 +412,8 @@ fn measure_gpu(
     row.gpu_runs_hyps_per_s = runs.iter().map(|r| n as f64 / r.0.as_secs_f64()).collect();
     if twin.is_some() {
         let ratios = row.gpu_runs_hyps_per_s.iter().zip(&cpu_runs).map(|(g, c)| g / c).collect();
-        row.gpu_cpu = Some(median_f64(ratios));
-        row.cpu_hyps_per_s = Some(median_f64(cpu_runs.clone()));
+        row.gpu_cpu = Some(median(ratios));
+        row.cpu_hyps_per_s = Some(median(cpu_runs.clone()));
         row.cpu_runs_hyps_per_s = cpu_runs;
     }
     runs.sort_by_key(|r| r.0);
@@ -462,13 +463,8 @@ impl Twin<'_> {
     fn measure(&self, repeat: usize, row: &mut ScoreBenchRow) {
         self.warm_up();
         row.cpu_runs_hyps_per_s = (0..repeat).map(|_| self.run()).collect();
-        row.cpu_hyps_per_s = Some(median_f64(row.cpu_runs_hyps_per_s.clone()));
+        row.cpu_hyps_per_s = Some(median(row.cpu_runs_hyps_per_s.clone()));
     }
-}
-
-fn median_f64(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Visual score and physical terms end to end, GPU and CPU twin. Like the

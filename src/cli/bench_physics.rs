@@ -3,7 +3,7 @@
 //! plane alone and for a plane plus one mesh grid.
 
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::Result;
 use glam::{DMat3, DVec3};
@@ -18,6 +18,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
+use super::bench::median;
 use super::DeviceArgs;
 
 #[derive(clap::Args, Debug)]
@@ -66,11 +67,6 @@ pub struct PhysicsBenchRow {
     pub cpu_threads: usize,
     pub timing: &'static str,
     pub machine: super::machine::Machine,
-}
-
-fn median(mut v: Vec<Duration>) -> Duration {
-    v.sort();
-    v[v.len() / 2]
 }
 
 /// Sample-hypothesis queries one configuration may hold at once: the CPU

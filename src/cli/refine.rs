@@ -184,7 +184,7 @@ impl ImageRunArgs {
     /// dropped.
     pub fn prepare_outputs(&self, ds: &Dataset, out: &std::path::Path, inputs: &[(&str, Option<&std::path::Path>)]) -> Result<Option<std::fs::File>> {
         plausible::io::check_writable(out)?;
-        let (settings, journal, lock) = (settings_path(out), plausible::refine::dataset::journal_path(out), beside(out, ".lock"));
+        let (settings, journal, lock) = (settings_path(out), plausible::refine::dataset::journal_path(out), lock_path(out));
         let outputs = [
             ("--out", Some(out)),
             ("--out's settings record", Some(settings.as_path())),
@@ -387,7 +387,7 @@ fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
     // Named after the file itself, so every spelling of it (a symlink, a
     // relative path) takes the same lock.
     let out = super::resolved(out).unwrap_or_else(|| out.to_path_buf());
-    let path = beside(&out, ".lock");
+    let path = lock_path(&out);
     let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&path).map_err(|e| plausible::Error::write(&path, e))?;
     match try_lock_awhile(&file) {
         Ok(()) => Ok(Some(file)),
@@ -405,6 +405,11 @@ fn lock_output(out: &std::path::Path) -> Result<Option<std::fs::File>> {
 /// with.
 pub fn settings_path(out: &std::path::Path) -> PathBuf {
     beside(out, ".settings.json")
+}
+
+/// The lock file a run writing `out` holds ([`lock_output`]).
+fn lock_path(out: &std::path::Path) -> PathBuf {
+    beside(out, ".lock")
 }
 
 /// `out` with `suffix` added to its file name (a side file of the output).

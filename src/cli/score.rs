@@ -376,15 +376,23 @@ fn earlier_pictures(dir: &std::path::Path) -> Vec<String> {
 /// a folder that only plausible writes (the demo's `explain/`, whose
 /// pictures from before the list existed are not listed).
 pub fn adopt_pictures(dir: &std::path::Path) -> Result<()> {
-    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
-    let mut names = earlier_pictures(dir);
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        if plausible_picture_index(&name).is_some() && !names.contains(&name) {
-            names.push(name);
-        }
+    if !dir.is_dir() {
+        return Ok(());
     }
+    let mut names = earlier_pictures(dir);
+    names.extend(unlisted_pictures(dir)?);
     list_pictures(dir, &names)
+}
+
+/// The `hypothesis_<index>.png` names in `dir` that no earlier run listed.
+fn unlisted_pictures(dir: &std::path::Path) -> Result<Vec<String>> {
+    let ours = earlier_pictures(dir);
+    let entries = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
+    Ok(entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|name| plausible_picture_index(name).is_some() && !ours.contains(name))
+        .collect())
 }
 
 fn list_pictures(dir: &std::path::Path, names: &[String]) -> Result<()> {
@@ -401,15 +409,11 @@ fn prepare_explain_dir(dir: &std::path::Path, inputs: &[(&str, Option<&std::path
     }
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     plausible::io::check_writable(&dir.join(".plausible-write-test")).with_context(|| format!("{}", dir.display()))?;
-    let ours = earlier_pictures(dir);
-    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        if plausible_picture_index(&name).is_some() && !ours.contains(&name) {
-            bail!(
-                "{}: not a picture of an earlier run (none lists it in {PICTURE_LIST}), and this run could replace it: move it, or give a folder of its own for the pictures",
-                entry.path().display()
-            );
-        }
+    if let Some(name) = unlisted_pictures(dir)?.first() {
+        bail!(
+            "{}: not a picture of an earlier run (none lists it in {PICTURE_LIST}), and this run could replace it: move it, or give a folder of its own for the pictures",
+            dir.join(name).display()
+        );
     }
     let here = dir.canonicalize().with_context(|| format!("cannot resolve {}", dir.display()))?;
     for (flag, p) in inputs {

@@ -327,7 +327,7 @@ fn incomplete_runs(db: &Db) -> anyhow::Result<Vec<String>> {
     let names: std::collections::HashMap<String, String> = db.meshes()?.into_iter().map(|m| (m.sha256, m.source)).collect();
     let mut out = Vec::new();
     for run in db.runs()? {
-        let stored = db.drops(run.id)?.len() as u64;
+        let stored = db.finished_drops(run.id)?.len() as u64;
         if stored < run.drops {
             let name = names.get(&run.mesh_sha256).cloned().unwrap_or_else(|| run.mesh_sha256.chars().take(12).collect());
             out.push(format!(

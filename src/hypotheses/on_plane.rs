@@ -182,13 +182,21 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
     // A run stopped before clustering has no clusters: a finished run of
     // the same mesh is preferred to it whatever their sizes.
     let best = |m: &&MeshIn| (!(m.clusters.is_empty() && m.families.is_empty()), m.settled);
-    let (entry, how) = meshes
+    // The entries of this mesh by hash, else by name, else the only one:
+    // the best of them is taken.
+    let by_hash: Vec<&MeshIn> = meshes.iter().filter(|m| m.sha256 == sha256).collect();
+    let by_name: Vec<&MeshIn> = meshes.iter().filter(|m| stem(m).as_deref() == Some(name.as_str())).collect();
+    let (group, how) = if !by_hash.is_empty() {
+        (by_hash, ExportMatch::Hash)
+    } else if !by_name.is_empty() {
+        (by_name, ExportMatch::Name)
+    } else {
+        (meshes.iter().filter(|_| meshes.len() == 1).collect(), ExportMatch::OnlyEntry)
+    };
+    let entry = group
         .iter()
-        .filter(|m| m.sha256 == sha256)
+        .copied()
         .max_by_key(best)
-        .map(|m| (m, ExportMatch::Hash))
-        .or_else(|| meshes.iter().filter(|m| stem(m).as_deref() == Some(name.as_str())).max_by_key(best).map(|m| (m, ExportMatch::Name)))
-        .or_else(|| (meshes.len() == 1).then(|| (&meshes[0], ExportMatch::OnlyEntry)))
         .ok_or_else(|| {
             let names: Vec<String> = meshes.iter().filter_map(stem).collect();
             bad(format!(
@@ -204,17 +212,8 @@ pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result
             entry.drops_requested
         );
     }
-    // Entries matched the same way as the one taken.
-    let rivals = meshes
-        .iter()
-        .filter(|m| match how {
-            ExportMatch::Hash => m.sha256 == sha256,
-            ExportMatch::Name => stem(m).as_deref() == Some(name.as_str()),
-            ExportMatch::OnlyEntry => false,
-        })
-        .count();
-    if rivals > 1 {
-        tracing::warn!("the stable poses hold {rivals} entries for {label} (runs with other seeds or settings?): using the one with clusters and the most settled drops ({})", entry.settled);
+    if group.len() > 1 {
+        tracing::warn!("the stable poses hold {} entries for {label} (runs with other seeds or settings?): using the one with clusters and the most settled drops ({})", group.len(), entry.settled);
     }
     let out = entry_resting_poses(entry).map_err(|reason| bad(format!("the entry of {label}: {reason}")))?;
     Ok((out, how))

@@ -104,10 +104,7 @@ impl Mesh {
 
     /// Axis-aligned bounds `(min, max)`.
     pub fn bounds(&self) -> (DVec3, DVec3) {
-        self.vertices.iter().fold(
-            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-            |(lo, hi), v| (lo.min(*v), hi.max(*v)),
-        )
+        bounds_of(&self.vertices)
     }
 
     /// Length of the bounding-box diagonal in metres.
@@ -374,6 +371,12 @@ impl Mesh {
 
 /// Largest bounding-box diagonal a mesh file may have, in its own units.
 pub const MAX_FILE_DIAGONAL: f64 = 1e30;
+
+/// Axis-aligned bounds `(min, max)` of points (inverted infinities for
+/// none).
+pub fn bounds_of(points: &[DVec3]) -> (DVec3, DVec3) {
+    points.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), v| (lo.min(*v), hi.max(*v)))
+}
 
 /// Refuses the first vertex that is not finite, naming it.
 pub(crate) fn check_finite(path: &Path, vertices: &[DVec3]) -> Result<()> {
