@@ -263,19 +263,32 @@ struct Setup {
 // back face of a closed mesh (the twin's test, raster.rs: culled where the
 // plane's side is <= 0, so a NaN is drawn, not culled).
 fn faces_camera(t: u32, cam: vec3<f32>) -> bool {
-    let plane = tri_texel(t, 3u);
+    return plane_faces(tri_texel(t, 3u), cam);
+}
+
+// faces_camera for a triangle's plane texel already fetched.
+fn plane_faces(plane: vec4<f32>, cam: vec3<f32>) -> bool {
     return params.cull == 0u || !(dot(plane.xyz, cam) <= plane.w);
 }
 
 fn setup_triangle(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
-    var s: Setup;
-    s.ok = false;
     if (!faces_camera(t, cam)) {
+        var s: Setup;
+        s.ok = false;
         return s; // back face of a closed mesh
     }
-    let a = transform(p, tri_texel(t, 0u).xyz);
-    let b = transform(p, tri_texel(t, 1u).xyz);
-    let c = transform(p, tri_texel(t, 2u).xyz);
+    return setup_vertices(p, tri_texel(t, 0u), tri_texel(t, 1u), tri_texel(t, 2u), first, last);
+}
+
+// setup_triangle for a triangle that faces the camera, from its vertex
+// texels (the lanes kernel fetches a group's texels together:
+// score_lanes.wgsl).
+fn setup_vertices(p: GpuPose, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, first: vec2<f32>, last: vec2<f32>) -> Setup {
+    var s: Setup;
+    s.ok = false;
+    let a = transform(p, v0.xyz);
+    let b = transform(p, v1.xyz);
+    let c = transform(p, v2.xyz);
     if (min(a.z, min(b.z, c.z)) < params.near) {
         return s;
     }

@@ -58,13 +58,22 @@ fn key_texel(corner: vec2<u32>, p: vec2<u32>) -> vec2<u32> {
     return corner + vec2<u32>(4u * (p.x & ~3u) + 4u * (p.y & 3u) + (p.x & 3u), p.y >> 2u);
 }
 
+// This invocation's lane in its subgroup (set by the entry points).
+var<private> lane: u32;
+
 // A triangle set up by one lane: its set-up, the size of its pixel bounds
 // and the pixel-loop iterations it needs, four pixels each (0 where the
 // lane does not draw it).
 struct LaneTri { s: Setup, t: u32, nx: u32, ny: u32, trips: u32 }
 
-fn lane_setup(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>, draws: bool) -> LaneTri {
-    let s = setup_triangle(p, t, cam, first, last);
+// Sets up triangle t from its texels (vertices v0-v2 and plane) where
+// `draws` and it faces the camera.
+fn lane_setup(p: GpuPose, t: u32, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32>, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>, draws: bool) -> LaneTri {
+    var s: Setup;
+    s.ok = false;
+    if (plane_faces(plane, cam)) {
+        s = setup_vertices(p, v0, v1, v2, first, last);
+    }
     if (!draws || !s.ok) {
         return LaneTri(s, t, 1u, 1u, 0u);
     }
@@ -73,23 +82,43 @@ fn lane_setup(p: GpuPose, t: u32, cam: vec3<f32>, first: vec2<f32>, last: vec2<f
     return LaneTri(s, t, nx, ny, (nx * ny + 3u) / 4u);
 }
 
+// Why the subgroup fetches triangle texels together: the lanes of a
+// vector all set up the same triangle, but gallivm runs a texel fetch as
+// one load per lane, also where every lane fetches the same texel. So
+// lane j fetches texel `k(j)` of triangle `t(j)` (at most `end`) and
+// subgroupBroadcast, a shuffle within the vector, hands each texel to
+// every lane: one fetch for eight planes, two for a group of four
+// triangles' sixteen texels, in place of a fetch per texel (measured on
+// the duck, AVX2: 1.1x, see the README). Needs LANES >= 8 (the host).
+fn lane_texel(t: u32, k: u32, end: u32) -> vec4<f32> {
+    return tri_texel(min(t, end), k);
+}
+
 // The groups of four triangles of meshlet `ml` (bit g: triangles 4g ..
 // 4g + 3) that face the camera of some lane of the subgroup where `visible`.
 // gallivm runs every instruction of both sides of a branch, so a lane
 // cannot skip a back face; only the subgroup can, by leaving the group out
 // of the drawing loop's trips. MESHLET_TRIANGLES <= 128 (host) keeps the
-// bits in a u32.
+// bits in a u32. Eight triangles per iteration, their planes fetched
+// together (lane_texel).
 fn lane_facing_groups(ml: GpuMeshlet, cam: vec3<f32>, visible: bool) -> u32 {
     var bits = 0u;
-    let groups = (ml.count + 3u) / 4u;
-    for (var g = 0u; g < groups; g++) {
-        let t = ml.first + 4u * g;
-        let left = ml.count - 4u * g;
-        // Non-short-circuit `|` and `&`: all four tests run anyway.
-        let f = faces_camera(t, cam) | (left > 1u & faces_camera(t + 1u, cam)) | (left > 2u & faces_camera(t + 2u, cam)) | (left > 3u & faces_camera(t + 3u, cam));
-        bits |= select(0u, 1u << g, f & visible);
+    let end = ml.first + ml.count - 1u;
+    for (var c = 0u; c < ml.count; c += 8u) {
+        let plane = lane_texel(ml.first + c + lane, 3u, end);
+        var f = u32(plane_faces(subgroupBroadcast(plane, 0u), cam));
+        f |= u32(plane_faces(subgroupBroadcast(plane, 1u), cam)) << 1u;
+        f |= u32(plane_faces(subgroupBroadcast(plane, 2u), cam)) << 2u;
+        f |= u32(plane_faces(subgroupBroadcast(plane, 3u), cam)) << 3u;
+        f |= u32(plane_faces(subgroupBroadcast(plane, 4u), cam)) << 4u;
+        f |= u32(plane_faces(subgroupBroadcast(plane, 5u), cam)) << 5u;
+        f |= u32(plane_faces(subgroupBroadcast(plane, 6u), cam)) << 6u;
+        f |= u32(plane_faces(subgroupBroadcast(plane, 7u), cam)) << 7u;
+        // Only the meshlet's own triangles.
+        f &= (1u << min(ml.count - c, 8u)) - 1u;
+        bits |= (u32((f & 0xfu) != 0u) | (u32(f > 0xfu) << 1u)) << (c / 4u);
     }
-    return subgroupOr(bits);
+    return subgroupOr(select(0u, bits, visible));
 }
 
 // Triangle k (0-3) of a group of four.
@@ -204,24 +233,30 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
         if (!subgroupAny(visible)) {
             continue;
         }
-        // The facing test's loop and the group loop, at most a trip per
-        // group each, and their entries.
+        // The facing test's loop (a trip per eight triangles) and the
+        // group loop (at most a trip per group), and their entries.
+        let eights = (ml.count + 7u) / 8u;
         let groups = (ml.count + 3u) / 4u;
-        if (spent + 2u * groups + 2u > params.draw_budget) {
+        if (spent + eights + groups + 2u > params.draw_budget) {
             over = true;
             break;
         }
         var todo = lane_facing_groups(ml, cam, visible);
-        spent += groups + countOneBits(todo) + 2u;
+        spent += eights + countOneBits(todo) + 2u;
+        let end = ml.first + ml.count - 1u;
         while (todo != 0u) {
             let g = firstTrailingBit(todo);
             todo &= todo - 1u;
             let t = ml.first + 4u * g;
             let left = ml.count - 4u * g;
-            let a = lane_setup(p, t, cam, first, last, visible);
-            let b = lane_setup(p, t + 1u, cam, first, last, visible && left > 1u);
-            let c = lane_setup(p, t + 2u, cam, first, last, visible && left > 2u);
-            let d = lane_setup(p, t + 3u, cam, first, last, visible && left > 3u);
+            // Lane j fetches texel j % 4 of triangle t + j / 4, then of
+            // t + 2 + j / 4 (lane_texel).
+            let ab = lane_texel(t + (lane >> 2u), lane & 3u, end);
+            let cd = lane_texel(t + 2u + (lane >> 2u), lane & 3u, end);
+            let a = lane_setup(p, t, subgroupBroadcast(ab, 0u), subgroupBroadcast(ab, 1u), subgroupBroadcast(ab, 2u), subgroupBroadcast(ab, 3u), cam, first, last, visible);
+            let b = lane_setup(p, t + 1u, subgroupBroadcast(ab, 4u), subgroupBroadcast(ab, 5u), subgroupBroadcast(ab, 6u), subgroupBroadcast(ab, 7u), cam, first, last, visible && left > 1u);
+            let c = lane_setup(p, t + 2u, subgroupBroadcast(cd, 0u), subgroupBroadcast(cd, 1u), subgroupBroadcast(cd, 2u), subgroupBroadcast(cd, 3u), cam, first, last, visible && left > 2u);
+            let d = lane_setup(p, t + 3u, subgroupBroadcast(cd, 4u), subgroupBroadcast(cd, 5u), subgroupBroadcast(cd, 6u), subgroupBroadcast(cd, 7u), cam, first, last, visible && left > 3u);
             // The pixel loop and its entry.
             let most = subgroupMax(a.trips + b.trips + c.trips + d.trips);
             if (spent + most + 1u > params.draw_budget) {
@@ -314,13 +349,15 @@ fn lanes(slot: u32, score: bool) {
 }
 
 @compute @workgroup_size(LANES)
-fn score_lanes_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn score_lanes_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(subgroup_invocation_id) sid: u32) {
+    lane = sid;
     lanes(gid.x, true);
 }
 
 // Rasterization alone (the slot is emptied again), so `bench` can split
 // render from reduce.
 @compute @workgroup_size(LANES)
-fn raster_lanes_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn raster_lanes_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(subgroup_invocation_id) sid: u32) {
+    lane = sid;
     lanes(gid.x, false);
 }

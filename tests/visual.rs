@@ -134,9 +134,9 @@ fn exact_twin(ctx: &Context) -> bool {
 /// Whether the adapter runs the lanes score kernel (subgroups of one fixed
 /// size: lavapipe's are its SIMD vector). Where it cannot, says so.
 fn lanes_available(ctx: &Context) -> bool {
-    let ok = ctx.subgroup_lanes.is_some();
+    let ok = ctx.subgroup_lanes.is_some_and(|l| l >= 8);
     if !ok {
-        eprintln!("SKIPPED (lanes kernel): {} has no subgroups of one fixed size", ctx.describe());
+        eprintln!("SKIPPED (lanes kernel): {} has no subgroups of one fixed size of 8 lanes or more", ctx.describe());
         assert!(!ctx.is_software() || std::env::var("PLAUSIBLE_REQUIRE_GPU").as_deref() != Ok("1"), "lavapipe must run the lanes kernel");
     }
     ok
@@ -235,6 +235,47 @@ fn gpu_lanes_kernel_agrees_on_regions_of_any_size() {
         let cpu = score_cpu(&mesh, &target, &poses, &params);
         assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{width}x{height}");
         assert_kernels_agree(&format!("{width}x{height} "), &lanes, &groups, &cpu);
+    }
+}
+
+/// The lanes kernel fetches triangle texels for the whole subgroup at once,
+/// eight planes or two triangles' texels per fetch, clamped to the
+/// meshlet's last triangle (`lane_texel` in score_lanes.wgsl): on meshes
+/// with fewer triangles than lanes, meshlets whose counts are not
+/// multiples of 8 or 4, and an open mesh (no back faces culled), it draws
+/// the workgroup kernel's and the twin's pixels.
+#[test]
+fn gpu_lanes_kernel_agrees_on_small_odd_and_open_meshes() {
+    let ctx = test_context();
+    if !lanes_available(&ctx) {
+        return;
+    }
+    let mut tetra = shapes::cuboid(DVec3::new(0.04, 0.03, 0.02));
+    tetra.vertices = vec![DVec3::new(0.04, 0.0, 0.0), DVec3::new(-0.03, 0.03, 0.0), DVec3::new(-0.02, -0.03, 0.01), DVec3::new(0.0, 0.0, 0.05)];
+    tetra.triangles = vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
+    let meshes = [
+        ("tetrahedron", tetra),
+        ("cuboid", shapes::cuboid(DVec3::new(0.04, 0.03, 0.02))),
+        ("7-sided cylinder", shapes::cylinder(0.03, 0.05, 7)),
+        ("icosphere", shapes::icosphere(0.04, 1)),
+        ("open box", open_box()),
+    ];
+    let params = ScoreParams::default();
+    for (name, mesh) in meshes {
+        let mesh = RenderMesh::new(&mesh).unwrap();
+        let k = Intrinsics { fx: 200.0, fy: 200.0, cx: 31.5, cy: 31.5, width: 64, height: 64 };
+        let seen = Pose::new(axis_angle(DVec3::new(0.3, 1.0, -0.2), 2.1), DVec3::new(0.004, -0.003, 0.3));
+        let (obs, mask) = observe(&mesh, &seen, &k, SensorNoise::default(), 9);
+        let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
+        let poses = around_and_random(&seen, 61, 33);
+        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
+        scorer.set_kernel(ScoreKernel::Lanes).unwrap();
+        let lanes = scorer.score(&poses).unwrap().0;
+        scorer.set_kernel(ScoreKernel::Workgroups).unwrap();
+        let groups = scorer.score(&poses).unwrap().0;
+        let cpu = score_cpu(&mesh, &target, &poses, &params);
+        assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{name}");
+        assert_kernels_agree(&format!("{name}: "), &lanes, &groups, &cpu);
     }
 }
 

@@ -324,12 +324,17 @@ fn lanes_pipeline(lanes: u32, raster_only: bool) -> (&'static str, &'static str,
 /// The workgroup kernel's scoring pipeline without a plane stage.
 const WORKGROUP_SCORE: (&str, &str) = ("score", "score_main");
 
+/// Fewest lanes the lanes kernel runs with: its subgroup fetches two
+/// triangles' four texels, or eight triangles' planes, in one go
+/// (`lane_texel` in score_lanes.wgsl).
+const LANES_MIN: u32 = 8;
+
 /// Invocations of the lanes kernel's workgroup: the adapter's one fixed
 /// subgroup size, or why it has none.
 fn lane_count(ctx: &Context) -> std::result::Result<u32, String> {
     match ctx.subgroup_lanes {
-        Some(l) if (1..=256).contains(&l) => Ok(l),
-        _ => Err("the adapter has no subgroups of one fixed size".into()),
+        Some(l) if (LANES_MIN..=256).contains(&l) => Ok(l),
+        _ => Err(format!("the adapter has no subgroups of one fixed size of {LANES_MIN} to 256 lanes")),
     }
 }
 
