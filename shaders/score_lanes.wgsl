@@ -17,7 +17,8 @@
 //
 // lavapipe stops a vector's loops after 65,535 iterations in total. The
 // subgroup here is the vector (LANES is the subgroup size, set by the
-// host, which uses this kernel only where that size is fixed), so
+// host, which uses this kernel only where that size is fixed and at
+// least 8: lane_texel), so
 // subgroupMax of the lanes' trip counts bounds each loop's iterations, and
 // `spent` adds up those bounds, each loop's entry included: a vector that
 // would exceed params.draw_budget stops drawing, still empties what it
@@ -89,7 +90,8 @@ fn lane_setup(p: GpuPose, t: u32, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, p
 // subgroupBroadcast, a shuffle within the vector, hands each texel to
 // every lane: one fetch for eight planes, two for a group of four
 // triangles' sixteen texels, in place of a fetch per texel (measured on
-// the duck, AVX2: 1.1x, see the README). Needs LANES >= 8 (the host).
+// the duck, AVX2, one thread: render 155-167 -> 130-136 ms, README).
+// Needs LANES >= 8 (the host: LANES_MIN).
 fn lane_texel(t: u32, k: u32, end: u32) -> vec4<f32> {
     return tri_texel(min(t, end), k);
 }

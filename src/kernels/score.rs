@@ -226,7 +226,8 @@ pub struct GpuScorer {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ScoreKernel {
     /// `Lanes` on a software adapter where it can run (subgroups of one
-    /// fixed size, no plane stage, a rasterized mesh), else `Workgroups`.
+    /// fixed size of at least 8 lanes, no plane stage, a rasterized mesh),
+    /// else `Workgroups`.
     #[default]
     Auto,
     /// `score_main` (`shaders/score.wgsl`): a workgroup per hypothesis,
@@ -236,7 +237,7 @@ pub enum ScoreKernel {
     /// hypothesis, pixels drawn with plain texel loads and stores; faster
     /// on lavapipe (Mesa 22.3), whose atomics and storage-buffer accesses
     /// run lane by lane. Runs on any adapter with subgroups of one fixed
-    /// size (an error elsewhere).
+    /// size of at least 8 lanes (an error elsewhere).
     Lanes,
 }
 
@@ -495,7 +496,8 @@ impl GpuScorer {
     /// Starts compiling, on a thread of its own, the score pipeline that
     /// [`ScoreKernel::Auto`] would pick on `ctx` for a rasterized mesh
     /// without a plane stage (the lanes kernel on a software adapter with
-    /// subgroups of one fixed size, else the workgroup kernel), and returns
+    /// subgroups of one fixed size of 8 lanes or more, else the workgroup
+    /// kernel), and returns
     /// at once. Called before the mesh and observation are prepared, the
     /// compile (30-50 ms on lavapipe) overlaps that work; a scorer made
     /// meanwhile waits for it, and one that uses another kernel compiles
