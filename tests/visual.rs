@@ -218,24 +218,31 @@ fn gpu_lanes_kernel_agrees_on_regions_of_any_size() {
         return;
     }
     let mesh = RenderMesh::new(&duck()).unwrap();
-    let params = ScoreParams::default();
     for (width, height) in [(5, 3), (37, 23), (61, 130), (130, 71), (250, 9)] {
         let f = 2.2 * width.max(height) as f64;
         let k = Intrinsics { fx: f, fy: f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0, width, height };
         let seen = Pose::new(axis_angle(DVec3::new(0.3, 1.0, -0.2), 2.1), DVec3::new(0.004, -0.003, 0.5));
-        let (obs, mask) = observe(&mesh, &seen, &k, SensorNoise::default(), 9);
-        let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
         let mut poses = around_and_random(&seen, 60, 31);
         poses.push(Pose::new(seen.r, seen.t + DVec3::new(0.05, 0.0, 0.0)));
-        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
-        scorer.set_kernel(ScoreKernel::Lanes).unwrap();
-        let lanes = scorer.score(&poses).unwrap().0;
-        scorer.set_kernel(ScoreKernel::Workgroups).unwrap();
-        let groups = scorer.score(&poses).unwrap().0;
-        let cpu = score_cpu(&mesh, &target, &poses, &params);
-        assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{width}x{height}");
-        assert_kernels_agree(&format!("{width}x{height} "), &lanes, &groups, &cpu);
+        assert_kernels_agree_seen(&ctx, &format!("{width}x{height} "), &mesh, &k, &seen, &poses);
     }
+}
+
+/// Both GPU kernels and the twin on `poses` against a synthetic view of
+/// `mesh` at `seen` (camera `k`): their records agree
+/// ([`assert_kernels_agree`]) and more than 20 hypotheses render.
+fn assert_kernels_agree_seen(ctx: &Context, what: &str, mesh: &RenderMesh, k: &Intrinsics, seen: &Pose, poses: &[Pose]) {
+    let params = ScoreParams::default();
+    let (obs, mask) = observe(mesh, seen, k, SensorNoise::default(), 9);
+    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
+    let mut scorer = GpuScorer::new(ctx, mesh, &target, params, poses.len()).unwrap();
+    scorer.set_kernel(ScoreKernel::Lanes).unwrap();
+    let lanes = scorer.score(poses).unwrap().0;
+    scorer.set_kernel(ScoreKernel::Workgroups).unwrap();
+    let groups = scorer.score(poses).unwrap().0;
+    let cpu = score_cpu(mesh, &target, poses, &params);
+    assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{what}");
+    assert_kernels_agree(what, &lanes, &groups, &cpu);
 }
 
 /// The lanes kernel fetches triangle texels for the whole subgroup at once,
@@ -260,22 +267,11 @@ fn gpu_lanes_kernel_agrees_on_small_odd_and_open_meshes() {
         ("icosphere", shapes::icosphere(0.04, 1)),
         ("open box", open_box()),
     ];
-    let params = ScoreParams::default();
+    let k = Intrinsics { fx: 200.0, fy: 200.0, cx: 31.5, cy: 31.5, width: 64, height: 64 };
+    let seen = Pose::new(axis_angle(DVec3::new(0.3, 1.0, -0.2), 2.1), DVec3::new(0.004, -0.003, 0.3));
+    let poses = around_and_random(&seen, 61, 33);
     for (name, mesh) in meshes {
-        let mesh = RenderMesh::new(&mesh).unwrap();
-        let k = Intrinsics { fx: 200.0, fy: 200.0, cx: 31.5, cy: 31.5, width: 64, height: 64 };
-        let seen = Pose::new(axis_angle(DVec3::new(0.3, 1.0, -0.2), 2.1), DVec3::new(0.004, -0.003, 0.3));
-        let (obs, mask) = observe(&mesh, &seen, &k, SensorNoise::default(), 9);
-        let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
-        let poses = around_and_random(&seen, 61, 33);
-        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
-        scorer.set_kernel(ScoreKernel::Lanes).unwrap();
-        let lanes = scorer.score(&poses).unwrap().0;
-        scorer.set_kernel(ScoreKernel::Workgroups).unwrap();
-        let groups = scorer.score(&poses).unwrap().0;
-        let cpu = score_cpu(&mesh, &target, &poses, &params);
-        assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{name}");
-        assert_kernels_agree(&format!("{name}: "), &lanes, &groups, &cpu);
+        assert_kernels_agree_seen(&ctx, &format!("{name}: "), &RenderMesh::new(&mesh).unwrap(), &k, &seen, &poses);
     }
 }
 
