@@ -67,13 +67,16 @@ var<private> lane: u32;
 // lane does not draw it).
 struct LaneTri { s: Setup, t: u32, nx: u32, ny: u32, trips: u32 }
 
-// Sets up triangle t from its texels (vertices v0-v2 and plane) where
-// `draws` and it faces the camera.
-fn lane_setup(p: GpuPose, t: u32, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32>, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>, draws: bool) -> LaneTri {
+// A triangle's four texels (tri_texel 0-3: vertices, plane).
+struct TriTexels { v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, plane: vec4<f32> }
+
+// Sets up triangle t from its texels where `draws` and it faces the
+// camera.
+fn lane_setup(p: GpuPose, t: u32, tri: TriTexels, cam: vec3<f32>, first: vec2<f32>, last: vec2<f32>, draws: bool) -> LaneTri {
     var s: Setup;
     s.ok = false;
-    if (plane_faces(plane, cam)) {
-        s = setup_vertices(p, v0, v1, v2, first, last);
+    if (plane_faces(tri.plane, cam)) {
+        s = setup_vertices(p, tri.v0, tri.v1, tri.v2, first, last);
     }
     if (!draws || !s.ok) {
         return LaneTri(s, t, 1u, 1u, 0u);
@@ -96,6 +99,17 @@ fn lane_texel(t: u32, k: u32, end: u32) -> vec4<f32> {
     return tri_texel(min(t, end), k);
 }
 
+// The texels of the first (lanes 0-3) and second (lanes 4-7) triangle a
+// lane_texel fetch of `f = lane_texel(t + lane / 4, lane % 4, end)` holds
+// (subgroupBroadcast takes a constant lane).
+fn first_texels(f: vec4<f32>) -> TriTexels {
+    return TriTexels(subgroupBroadcast(f, 0u), subgroupBroadcast(f, 1u), subgroupBroadcast(f, 2u), subgroupBroadcast(f, 3u));
+}
+
+fn second_texels(f: vec4<f32>) -> TriTexels {
+    return TriTexels(subgroupBroadcast(f, 4u), subgroupBroadcast(f, 5u), subgroupBroadcast(f, 6u), subgroupBroadcast(f, 7u));
+}
+
 // The groups of four triangles of meshlet `ml` (bit g: triangles 4g ..
 // 4g + 3) that face the camera of some lane of the subgroup where `visible`.
 // gallivm runs every instruction of both sides of a branch, so a lane
@@ -103,9 +117,9 @@ fn lane_texel(t: u32, k: u32, end: u32) -> vec4<f32> {
 // of the drawing loop's trips. MESHLET_TRIANGLES <= 128 (host) keeps the
 // bits in a u32. Eight triangles per iteration, their planes fetched
 // together (lane_texel).
-fn lane_facing_groups(ml: GpuMeshlet, cam: vec3<f32>, visible: bool) -> u32 {
+// `end` is the meshlet's last triangle.
+fn lane_facing_groups(ml: GpuMeshlet, end: u32, cam: vec3<f32>, visible: bool) -> u32 {
     var bits = 0u;
-    let end = ml.first + ml.count - 1u;
     for (var c = 0u; c < ml.count; c += 8u) {
         let plane = lane_texel(ml.first + c + lane, 3u, end);
         var f = u32(plane_faces(subgroupBroadcast(plane, 0u), cam));
@@ -243,9 +257,9 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
             over = true;
             break;
         }
-        var todo = lane_facing_groups(ml, cam, visible);
-        spent += eights + countOneBits(todo) + 2u;
         let end = ml.first + ml.count - 1u;
+        var todo = lane_facing_groups(ml, end, cam, visible);
+        spent += eights + countOneBits(todo) + 2u;
         while (todo != 0u) {
             let g = firstTrailingBit(todo);
             todo &= todo - 1u;
@@ -255,10 +269,10 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
             // t + 2 + j / 4 (lane_texel).
             let ab = lane_texel(t + (lane >> 2u), lane & 3u, end);
             let cd = lane_texel(t + 2u + (lane >> 2u), lane & 3u, end);
-            let a = lane_setup(p, t, subgroupBroadcast(ab, 0u), subgroupBroadcast(ab, 1u), subgroupBroadcast(ab, 2u), subgroupBroadcast(ab, 3u), cam, first, last, visible);
-            let b = lane_setup(p, t + 1u, subgroupBroadcast(ab, 4u), subgroupBroadcast(ab, 5u), subgroupBroadcast(ab, 6u), subgroupBroadcast(ab, 7u), cam, first, last, visible && left > 1u);
-            let c = lane_setup(p, t + 2u, subgroupBroadcast(cd, 0u), subgroupBroadcast(cd, 1u), subgroupBroadcast(cd, 2u), subgroupBroadcast(cd, 3u), cam, first, last, visible && left > 2u);
-            let d = lane_setup(p, t + 3u, subgroupBroadcast(cd, 4u), subgroupBroadcast(cd, 5u), subgroupBroadcast(cd, 6u), subgroupBroadcast(cd, 7u), cam, first, last, visible && left > 3u);
+            let a = lane_setup(p, t, first_texels(ab), cam, first, last, visible);
+            let b = lane_setup(p, t + 1u, second_texels(ab), cam, first, last, visible && left > 1u);
+            let c = lane_setup(p, t + 2u, first_texels(cd), cam, first, last, visible && left > 2u);
+            let d = lane_setup(p, t + 3u, second_texels(cd), cam, first, last, visible && left > 3u);
             // The pixel loop and its entry.
             let most = subgroupMax(a.trips + b.trips + c.trips + d.trips);
             if (spent + most + 1u > params.draw_budget) {

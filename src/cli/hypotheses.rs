@@ -101,7 +101,7 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
         let msg = e.to_string();
         let flag = if msg.contains("support plane") {
             format!("--plane {}", a.plane.display())
-        } else if msg.contains("masked pixels") || msg.contains("mask") {
+        } else if msg.contains("mask") {
             format!("--mask {}", a.obs.mask.as_deref().map(|p| p.display().to_string()).unwrap_or_default())
         } else {
             "hypotheses".to_string()

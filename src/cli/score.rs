@@ -380,13 +380,13 @@ pub fn adopt_pictures(dir: &std::path::Path) -> Result<()> {
         return Ok(());
     }
     let mut names = earlier_pictures(dir);
-    names.extend(unlisted_pictures(dir)?);
+    names.extend(unlisted_pictures(dir, &names)?);
     list_pictures(dir, &names)
 }
 
-/// The `hypothesis_<index>.png` names in `dir` that no earlier run listed.
-fn unlisted_pictures(dir: &std::path::Path) -> Result<Vec<String>> {
-    let ours = earlier_pictures(dir);
+/// The `hypothesis_<index>.png` names in `dir` that are not in `ours`
+/// (what earlier runs listed: [`earlier_pictures`]).
+fn unlisted_pictures(dir: &std::path::Path, ours: &[String]) -> Result<Vec<String>> {
     let entries = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
     Ok(entries
         .flatten()
@@ -409,7 +409,7 @@ fn prepare_explain_dir(dir: &std::path::Path, inputs: &[(&str, Option<&std::path
     }
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     plausible::io::check_writable(&dir.join(".plausible-write-test")).with_context(|| format!("{}", dir.display()))?;
-    if let Some(name) = unlisted_pictures(dir)?.first() {
+    if let Some(name) = unlisted_pictures(dir, &earlier_pictures(dir))?.first() {
         bail!(
             "{}: not a picture of an earlier run (none lists it in {PICTURE_LIST}), and this run could replace it: move it, or give a folder of its own for the pictures",
             dir.join(name).display()
