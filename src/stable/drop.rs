@@ -41,7 +41,17 @@ pub struct SimParams {
     pub lin_tol_diag: f64,
     /// ... and angular speed below this (rad/s) ...
     pub ang_tol: f64,
-    /// ... for this long (s).
+    /// ... for this long (s). 0.05 s (12 steps at 240 Hz) gives the
+    /// results of the 0.1 s used before in 12 fewer steps per drop
+    /// (0.97-1.33× the drops/s on 25 meshes, the lego brick 1.11-1.23×).
+    /// Of 25,000 paired drops on the 25 meshes of `../shared/data`
+    /// (pybullet, YCB, robosuite), 32 (0.13 %) came to rest more than 5°
+    /// from where the 0.1 s test left them: 30 by 5-18° (cans that rolled
+    /// on, the bunny and the rock creeping a little) and 2 in another pose
+    /// (56°, 78°). None more or fewer were settled, and every cluster
+    /// stayed inside its 95 % interval. 0.033 s moved 93 (0.37 %), 3.4 %
+    /// of a can's. The support-polygon test, not the calm time, is what
+    /// keeps a body balanced on an edge from counting as resting.
     pub calm_time: f64,
     pub friction: f64,
     pub restitution: f64,
@@ -135,7 +145,7 @@ impl Default for SimParams {
             drop_height_diag: 1.5,
             lin_tol_diag: 0.02,
             ang_tol: 0.05,
-            calm_time: 0.1,
+            calm_time: 0.05,
             friction: 0.5,
             restitution: 0.0,
             density: 1000.0,
