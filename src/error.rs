@@ -73,6 +73,33 @@ pub enum Error {
     /// The work stopped early because a [`crate::stop::Stop`] was requested.
     #[error("stopped on request")]
     Stopped,
+
+    /// `error` is about one input of a call that takes several
+    /// ([`Input`]); the message is `error`'s. Made by [`Error::about`],
+    /// read by [`Error::input`] and [`Error::cause`].
+    #[error("{error}")]
+    About { input: Input, error: Box<Error> },
+}
+
+/// The input of a library call an error is about, where the call takes
+/// several and the message alone cannot say which to blame in the caller's
+/// own terms (a CLI flag, a Python argument). Callers match on it instead
+/// of on the message's words.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Input {
+    /// The object's mask over the depth image.
+    Mask,
+    /// The support plane.
+    SupportPlane,
+    /// Stable poses given as a drop-test database's export.
+    StablePoses,
+    /// A BOP targets file (`test_targets_bop19.json`), as against the
+    /// dataset's scene files it is checked against.
+    Targets,
+    /// The entry picked from a file of many: a frame of a
+    /// `scene_camera.json`, an image (and object) of a `scene_gt.json`.
+    Selection,
 }
 
 /// Convenience alias used throughout the library.
@@ -88,6 +115,50 @@ impl Error {
             // JSON): the content is wrong, not the disk.
             std::io::ErrorKind::InvalidData => Error::InvalidInput(format!("{}: not a text file of the expected kind ({source})", path.display())),
             _ => Error::Io { path, error: source },
+        }
+    }
+
+    /// This error, marked as being about `input` (see [`Input`]). An error
+    /// already marked keeps its first, innermost mark, and
+    /// [`Error::Stopped`] stays unmarked: a stop is nobody's input.
+    pub fn about(self, input: Input) -> Self {
+        match self {
+            Error::Stopped | Error::About { .. } => self,
+            error => Error::About { input, error: Box::new(error) },
+        }
+    }
+
+    /// The input this error is about, where the call marked one.
+    pub fn input(&self) -> Option<Input> {
+        match self {
+            Error::About { input, .. } => Some(*input),
+            _ => None,
+        }
+    }
+
+    /// The error without its [`Error::About`] mark: the variant to match on.
+    pub fn cause(&self) -> &Error {
+        match self {
+            Error::About { error, .. } => error.cause(),
+            e => e,
+        }
+    }
+
+    /// The file the error is about, where it names one.
+    pub fn path(&self) -> Option<&std::path::Path> {
+        match self.cause() {
+            Error::NotFound { path }
+            | Error::Io { path, .. }
+            | Error::UnsupportedFormat { path, .. }
+            | Error::MalformedMesh { path, .. }
+            | Error::NoTriangles { path }
+            | Error::NonFiniteVertex { path, .. }
+            | Error::IndexOutOfRange { path, .. }
+            | Error::BadImage { path, .. }
+            | Error::BadJson { path, .. }
+            | Error::BadLine { path, .. }
+            | Error::Database { path, .. } => Some(path),
+            _ => None,
         }
     }
 
@@ -114,7 +185,22 @@ pub fn compact(v: f64, decimals: usize) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::compact;
+    use super::{compact, Error, Input};
+
+    #[test]
+    fn a_mark_says_the_input_and_keeps_the_message_and_the_cause() {
+        let e = Error::BadJson { path: "gt.json".into(), reason: "no image '7'".into() };
+        let text = e.to_string();
+        let marked = e.about(Input::Selection);
+        assert_eq!(marked.to_string(), text);
+        assert_eq!(marked.input(), Some(Input::Selection));
+        assert!(matches!(marked.cause(), Error::BadJson { .. }));
+        assert_eq!(marked.path(), Some(std::path::Path::new("gt.json")));
+        // The innermost mark stays; a stop is never marked.
+        assert_eq!(marked.about(Input::Mask).input(), Some(Input::Selection));
+        assert!(matches!(Error::Stopped.about(Input::Mask), Error::Stopped));
+        assert_eq!(Error::InvalidInput("x".into()).input(), None);
+    }
 
     #[test]
     fn compact_numbers_stay_short() {

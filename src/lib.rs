@@ -16,7 +16,7 @@ pub mod shapes;
 pub mod stable;
 pub mod stop;
 
-pub use error::{Error, Result};
+pub use error::{Error, Input, Result};
 pub mod bop;
 pub mod camera;
 pub mod coco;

@@ -8,7 +8,7 @@ use glam::{DVec3, Vec3};
 use serde::Deserialize;
 
 use crate::camera::Intrinsics;
-use crate::error::{Error, Result};
+use crate::error::{Error, Input, Result};
 
 /// A depth image in metres (0 = no measurement) with its intrinsics.
 #[derive(Clone, Debug)]
@@ -190,14 +190,15 @@ pub fn read_camera_file(path: &Path, frame: Option<&str>) -> Result<(BopCamera, 
             v
         } else if let Some(map) = v.as_object() {
             match frame {
-                Some(f) => map.get(f).cloned().ok_or_else(|| bad(format!("no frame '{f}' in the file")))?,
+                Some(f) => map.get(f).cloned().ok_or_else(|| bad(format!("no frame '{f}' in the file")).about(Input::Selection))?,
                 None if map.len() == 1 => map.values().next().cloned().unwrap(),
                 None => {
                     return Err(bad(format!(
                         "holds {} frames; pick one by its id (e.g. {})",
                         map.len(),
                         map.keys().next().map(String::as_str).unwrap_or("0")
-                    )))
+                    ))
+                    .about(Input::Selection))
                 }
             }
         } else {

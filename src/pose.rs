@@ -9,7 +9,7 @@ use std::path::Path;
 use glam::{DMat3, DQuat, DVec3};
 use serde::Deserialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Input, Result};
 
 /// A rigid transform mapping model coordinates to camera coordinates
 /// (`x_cam = r * x_model + t`), translation in metres.
@@ -239,7 +239,7 @@ fn parse_pose_entries(path: &Path, text: &str, select: Option<SceneGtSelection>)
     let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason };
     let shape = "expected a list of {\"cam_R_m2c\": [9 numbers], \"cam_t_m2c\": [3 numbers, mm]}, {\"poses\": [...]}, or a BOP scene_gt.json with an image id and object id picked";
     // An image and object picked from a plain list would be ignored.
-    let not_scene_gt = || bad("an image and object were picked, but this is a list of poses, not a BOP scene_gt.json".into());
+    let not_scene_gt = || bad("an image and object were picked, but this is a list of poses, not a BOP scene_gt.json".into()).about(Input::Selection);
     match text.trim_start().as_bytes().first() {
         Some(b'[') if select.is_some() => Err(not_scene_gt()),
         Some(b'[') => serde_json::from_str::<Vec<BopPose>>(text).map_err(|e| bad(format!("{e}; {shape}"))),
@@ -265,12 +265,13 @@ fn parse_pose_entries(path: &Path, text: &str, select: Option<SceneGtSelection>)
                     "looks like a BOP scene_gt.json ({} images): pick an image id and an object id (e.g. {})",
                     o.keys,
                     o.first_key.as_deref().unwrap_or("0")
-                )));
+                ))
+                .about(Input::Selection));
             };
-            let all = o.frame.ok_or_else(|| bad(format!("no image '{}' in the scene_gt.json", sel.frame)))?;
+            let all = o.frame.ok_or_else(|| bad(format!("no image '{}' in the scene_gt.json", sel.frame)).about(Input::Selection))?;
             let picked: Vec<BopPose> = all.into_iter().filter(|p| sel.obj_id.is_none_or(|o| p.obj_id == Some(o))).collect();
             if picked.is_empty() {
-                return Err(bad(format!("image {} has no instance of object {}", sel.frame, sel.obj_id.map_or("(any)".into(), |o| o.to_string()))));
+                return Err(bad(format!("image {} has no instance of object {}", sel.frame, sel.obj_id.map_or("(any)".into(), |o| o.to_string()))).about(Input::Selection));
             }
             Ok(picked)
         }

@@ -745,9 +745,14 @@ fn a_targets_file_of_images_only_targets_every_instance_in_them() {
         (format!(r#"[{{"scene_id": {scene}, "im_id": {im}}}, {{"scene_id": {scene}, "im_id": {im}}}]"#), "listed twice"),
     ] {
         std::fs::write(&p, body).unwrap();
-        let e = ds.targets(Some(&p)).unwrap_err().to_string();
-        assert!(e.contains(err), "{e}");
+        let e = ds.targets(Some(&p)).unwrap_err();
+        assert!(e.to_string().contains(err), "{e}");
+        // The targets file is at fault, not the dataset (the CLI blames --targets).
+        assert_eq!(e.input(), Some(plausible::Input::Targets), "{e}");
     }
+    // A scene file the targets are checked against is the dataset's.
+    std::fs::write(&p, format!(r#"[{{"scene_id": 4242, "im_id": {im}}}]"#)).unwrap();
+    assert_eq!(ds.targets(Some(&p)).unwrap_err().input(), None);
 }
 
 /// Depth tiles of `mesh` at `poses`, on the CPU twin with the rasterizer

@@ -118,8 +118,9 @@ fn resting_poses_are_read_from_a_stable_pose_export() {
     let e = resting_poses_from_export(r#"{"format": "plausible-stable-poses/1"}"#, "x", "x").unwrap_err().to_string();
     assert!(e.contains("missing field `meshes`"), "{e}");
     // The format tag is checked: another tool's JSON is not read as ours.
-    let e = resting_poses_from_export(r#"{"format": "other-tool/2", "meshes": []}"#, "x", "x").unwrap_err().to_string();
-    assert!(e.contains("format 'other-tool/2'"), "{e}");
+    let e = resting_poses_from_export(r#"{"format": "other-tool/2", "meshes": []}"#, "x", "x").unwrap_err();
+    assert!(e.to_string().contains("format 'other-tool/2'"), "{e}");
+    assert_eq!(e.input(), Some(plausible::Input::StablePoses));
     // A rolling family: 12 roll angles sharing its probability, each with
     // the rolling axis horizontal.
     let can = serde_json::json!({"mesh": "can.obj", "sha256": "c", "clusters": [cluster(0.4)],

@@ -228,6 +228,9 @@ fn camera_errors() {
     assert!(err_text(read_camera(&p, None)).contains("pick one by its id"));
     assert!(read_camera(&p, Some("2")).is_ok());
     assert!(err_text(read_camera(&p, Some("3"))).contains("no frame '3'"));
+    // Both say the frame picked is at fault (the CLI names --frame).
+    assert_eq!(read_camera(&p, Some("3")).unwrap_err().input(), Some(plausible::Input::Selection));
+    assert_eq!(read_camera(&p, None).unwrap_err().input(), Some(plausible::Input::Selection));
     // A frame id that a one-frame scene_camera.json does not hold is an error, not ignored.
     let p = write(d.path(), "c4.json", r#"{"3": {"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1}}"#);
     assert!(err_text(read_camera(&p, Some("7"))).contains("no frame '7'"));
@@ -235,6 +238,7 @@ fn camera_errors() {
     // Two cameras in one entry: neither is picked silently.
     let p = write(d.path(), "c5.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1], "depth_scale": 0.1, "fx": 1145, "fy": 1145, "cx": 640, "cy": 480}"#);
     assert!(err_text(read_camera(&p, None)).contains("both cam_K and fx"));
+    assert_eq!(read_camera(&p, None).unwrap_err().input(), None);
     // depth_scale is required (BOP depth without it has no unit) and plausible.
     let p = write(d.path(), "c5.json", r#"{"cam_K": [572,0,320,0,572,240,0,0,1]}"#);
     assert!(err_text(read_camera(&p, None)).contains("depth_scale"));
@@ -262,6 +266,7 @@ fn pose_files_name_what_is_wrong() {
     let p = write(d.path(), "scene_gt.json", gt);
     let e = err_text(read_poses(&p, PoseUnits::Millimetres, false));
     assert!(e.contains("scene_gt.json") && e.contains("image id"), "{e}");
+    assert_eq!(read_poses(&p, PoseUnits::Millimetres, false).unwrap_err().input(), Some(plausible::Input::Selection));
     let sel = plausible::pose::SceneGtSelection { frame: "3", obj_id: Some(5) };
     let poses = plausible::pose::read_poses_selected(&p, PoseUnits::Millimetres, false, Some(sel)).unwrap();
     assert_eq!(poses.len(), 1);
@@ -493,6 +498,7 @@ fn pose_objects_read_like_lists() {
     let sel = |frame, obj_id| Some(plausible::pose::SceneGtSelection { frame, obj_id });
     let read_sel = |p: &Path, s| plausible::pose::read_poses_selected(p, PoseUnits::Millimetres, false, s);
     assert!(err_text(read_sel(&p, sel("0", None))).contains("not a BOP scene_gt.json"));
+    assert_eq!(read_sel(&p, sel("0", None)).unwrap_err().input(), Some(plausible::Input::Selection));
     // A scene_gt.json: the other images are skipped, even ones no pose list.
     let gt = write(d.path(), "gt.json", &format!(r#"{{"9": {{"odd": 1}}, "12": {list}, "10": [{}]}}"#, one(900, 2)));
     assert_eq!(read_sel(&gt, sel("12", None)).unwrap(), from_list);

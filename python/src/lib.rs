@@ -21,7 +21,7 @@ mod scorer;
 pub(crate) fn to_py(e: plausible::Error) -> PyErr {
     use plausible::Error as E;
     let msg = e.to_string();
-    match e {
+    match e.cause() {
         E::NotFound { .. } => PyFileNotFoundError::new_err(msg),
         E::Io { .. } | E::Database { .. } => PyOSError::new_err(msg),
         E::NoAdapter { .. } | E::Gpu(_) => PyRuntimeError::new_err(msg),

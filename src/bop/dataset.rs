@@ -18,7 +18,7 @@ use crate::camera::Intrinsics;
 use crate::lens::LensCamera;
 use super::tiff_depth::{depth_size, is_tiff, read_tiff_depth};
 use crate::observation::MAX_IMAGE_SIDE;
-use crate::error::{Error, Result};
+use crate::error::{Error, Input, Result};
 use crate::pose::Pose;
 
 /// How far `RᵀR` of a BOP rotation may be from the identity. BOP files are
@@ -945,7 +945,7 @@ fn image_targets(path: &Path, ds: &Dataset, raw: &[RawTarget]) -> Result<Vec<Tar
     let mut seen = std::collections::HashSet::new();
     let mut out = Vec::new();
     for (i, t) in raw.iter().enumerate() {
-        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") };
+        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") }.about(Input::Targets);
         if !seen.insert((t.scene_id, t.im_id)) {
             return Err(bad(format!("scene {}, image {} is listed twice", t.scene_id, t.im_id)));
         }
@@ -969,14 +969,14 @@ pub fn read_targets(path: &Path, ds: &Dataset) -> Result<Vec<Target>> {
 
 /// [`read_targets`], and whether the file names images only.
 fn read_targets_file(path: &Path, ds: &Dataset) -> Result<(Vec<Target>, bool)> {
-    let raw: Vec<RawTarget> = read_json_capped(path, MAX_TARGETS_BYTES)?;
+    let raw: Vec<RawTarget> = read_json_capped(path, MAX_TARGETS_BYTES).map_err(|e| e.about(Input::Targets))?;
     if !raw.is_empty() && raw.iter().all(|t| t.obj_id.is_none()) {
         return Ok((image_targets(path, ds, &raw)?, true));
     }
     let mut seen = std::collections::HashMap::new();
     let mut out = Vec::with_capacity(raw.len());
     for (i, t) in raw.iter().enumerate() {
-        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") };
+        let bad = |reason: String| Error::BadJson { path: path.to_path_buf(), reason: format!("entry {i}: {reason}") }.about(Input::Targets);
         let obj_id = t.obj_id.ok_or_else(|| bad("no obj_id (other entries have one)".into()))?;
         let inst_count = t.inst_count.ok_or_else(|| bad("no inst_count (needed by the BOP'19 protocol)".into()))?;
         if inst_count == 0 {

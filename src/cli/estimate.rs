@@ -110,7 +110,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).context(if a.sensor.is_some() { "--sensor" } else { "--dataset" })?;
     let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--stable", a.stable.as_deref()), ("--targets", a.targets.as_deref())])?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
-    let (targets, source) = ds.targets(a.targets.as_deref()).map_err(|e| { let f = super::targets_flag(&e, a.targets.as_deref(), &ds); anyhow::anyhow!(e).context(f) })?;
+    let (targets, source) = ds.targets(a.targets.as_deref()).map_err(|e| { let f = super::targets_flag(&e); anyhow::anyhow!(e).context(f) })?;
     // Which instances an image's estimates are for: the targets file by
     // content (a resumed run with other targets would mix two sets).
     // (And the file, whose digest earlier versions recorded instead.)
@@ -178,7 +178,7 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
     let models = load_estimate_models(&ds, &objs, &params.refine, stable.as_deref()).map_err(|e| {
         // Problems of the resting poses are the --stable file's.
         let context = match &a.stable {
-            Some(p) if e.to_string().contains("stable poses") => format!("--stable {}", p.display()),
+            Some(p) if e.input() == Some(plausible::Input::StablePoses) => format!("--stable {}", p.display()),
             _ => "loading the models".to_string(),
         };
         anyhow::anyhow!(e).context(context)

@@ -171,7 +171,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         Some(n) => eprintln!("BOP dataset '{n}': VSD δ {} mm, ad uses ADI for objects {:?}", opts.vsd_delta_mm, opts.symmetric_obj_ids.as_deref().unwrap_or(&[])),
         None => eprintln!("note: '{}' is not a BOP dataset name the toolkit knows: ad uses ADI for the objects with symmetries in models_info.json (--dataset-name sets it)", a.dataset.display()),
     }
-    let (targets, source) = task_targets(&ds, a.targets.as_deref(), task).map_err(|e| { let f = super::targets_flag(&e, a.targets.as_deref(), &ds); anyhow::anyhow!(e).context(f) })?;
+    let (targets, source) = task_targets(&ds, a.targets.as_deref(), task).map_err(|e| { let f = super::targets_flag(&e); anyhow::anyhow!(e).context(f) })?;
     if let TargetSource::File(f) | TargetSource::ImageList(f) = &source {
         // The dataset's own targets file, found without --targets.
         super::distinct_files(&outputs, &[("the dataset's targets file", Some(f))])?;

@@ -50,7 +50,7 @@ pub fn run(a: EvalArgs, task: CocoTask) -> Result<()> {
         anyhow::anyhow!(e).context(flag)
     })?;
     super::outside_dataset(&ds, &outputs)?;
-    let (images, source) = target_images(&ds, a.targets.as_deref()).map_err(|e| { let f = super::targets_flag(&e, a.targets.as_deref(), &ds); anyhow::anyhow!(e).context(f) })?;
+    let (images, source) = target_images(&ds, a.targets.as_deref()).map_err(|e| { let f = super::targets_flag(&e); anyhow::anyhow!(e).context(f) })?;
     if images.is_empty() {
         bail!("--targets: no target images");
     }

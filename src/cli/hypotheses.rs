@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context as _, Result};
 use plausible::hypotheses::on_plane::{analytic_resting_poses, check_mesh_size, on_plane_hypotheses, resting_poses_from_export, ExportMatch, OnPlaneParams};
 use plausible::physical::scene::read_camera_plane;
+use plausible::Input;
 
 #[derive(clap::Args, Debug)]
 pub struct HypothesesArgs {
@@ -97,14 +98,11 @@ pub fn run(a: HypothesesArgs) -> Result<()> {
         bail!("no resting poses");
     }
     let hyps = on_plane_hypotheses(&mesh, &rests, &plane, &obs, &mask, &params).map_err(|e| {
-        // The library's words, with the flag whose file they are about.
-        let msg = e.to_string();
-        let flag = if msg.contains("support plane") {
-            format!("--plane {}", a.plane.display())
-        } else if msg.contains("mask") {
-            format!("--mask {}", a.obs.mask.as_deref().map(|p| p.display().to_string()).unwrap_or_default())
-        } else {
-            "hypotheses".to_string()
+        // The library's words, with the flag of the input they are about.
+        let flag = match e.input() {
+            Some(Input::SupportPlane) => format!("--plane {}", a.plane.display()),
+            Some(Input::Mask) => format!("--mask {}", a.obs.mask.as_deref().map(|p| p.display().to_string()).unwrap_or_default()),
+            _ => "hypotheses".to_string(),
         };
         anyhow::anyhow!(e).context(flag)
     })?;

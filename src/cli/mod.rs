@@ -83,7 +83,7 @@ impl ObservationArgs {
     /// rather than silently ignored.
     pub fn load(&self, frame_picks_poses: bool) -> Result<(DepthImage, Option<Vec<bool>>)> {
         let (cam, kind) = read_camera_file(&self.camera, self.frame.as_deref()).map_err(|e| {
-            let frames = matches!(&e, plausible::Error::BadJson { reason, .. } if reason.contains("frame"));
+            let frames = e.input() == Some(plausible::Input::Selection);
             anyhow::Error::new(e).context(if frames { "--camera (a frame of a scene_camera.json is picked with --frame)" } else { "--camera" })
         })?;
         if let (Some(f), false, CameraFile::Single) = (&self.frame, frame_picks_poses, kind) {
@@ -243,12 +243,10 @@ fn resolved(p: &std::path::Path) -> Option<PathBuf> {
 }
 
 /// The flag to blame for an error reading the targets: `--targets` where
-/// the error is about the targets file, else `--dataset` (the scene files
-/// that the targets are checked against).
-pub fn targets_flag(e: &plausible::Error, targets: Option<&std::path::Path>, ds: &plausible::bop::Dataset) -> &'static str {
-    let file = targets.map(std::path::Path::to_path_buf).unwrap_or_else(|| ds.targets_file(false));
-    let msg = e.to_string();
-    if msg.contains(&file.display().to_string()) || msg.contains("test_targets") || msg.contains("targets file") {
+/// the error is about the targets file (given or the dataset's own), else
+/// `--dataset` (the scene files that the targets are checked against).
+pub fn targets_flag(e: &plausible::Error) -> &'static str {
+    if e.input() == Some(plausible::Input::Targets) {
         "--targets"
     } else {
         "--dataset"

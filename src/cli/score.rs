@@ -255,12 +255,9 @@ fn load(a: &ScoreArgs) -> Result<(plausible::mesh::Mesh, DepthImage, Option<Vec<
         .map_err(|e| {
             // The library's hints in this command's flags.
             let msg = e.to_string().replace("read them as metres if they really are", "pass --pose-units m if the file really holds metres");
-            let context = if msg.contains("looks like a BOP scene_gt.json") {
-                "--poses (a BOP scene_gt.json needs --frame and --obj-id)"
-            } else if msg.contains("an image and object were picked") {
-                "--poses (--obj-id picks from a scene_gt.json)"
-            } else {
-                "--poses"
+            let context = match e.input() {
+                Some(plausible::Input::Selection) => "--poses (--frame and --obj-id pick an image's poses from a BOP scene_gt.json)",
+                _ => "--poses",
             };
             anyhow::anyhow!(msg).context(context)
         })?;

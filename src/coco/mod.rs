@@ -21,7 +21,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::bop::{Dataset, TargetSource};
-use crate::error::{Error, Result};
+use crate::error::{Error, Input, Result};
 use crate::metrics::pose_error::np_mean;
 use cocoeval::{DtRegion, Group, GtRegion, Summary, STAT_NAMES};
 use gt::{GtImage, GtSource};
@@ -160,9 +160,10 @@ pub fn target_images(ds: &Dataset, file: Option<&Path>) -> Result<(Vec<(u32, u32
         }
         return Ok((all, TargetSource::AllInstances));
     };
-    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-    let list: Vec<TargetImage> = serde_json::from_str(&text)
-        .map_err(|e| Error::BadJson { path: path.clone(), reason: format!("not a BOP targets list ({{\"scene_id\", \"im_id\", ...}}): {e}") })?;
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e).about(Input::Targets))?;
+    let list: Vec<TargetImage> = serde_json::from_str(&text).map_err(|e| {
+        Error::BadJson { path: path.clone(), reason: format!("not a BOP targets list ({{\"scene_id\", \"im_id\", ...}}): {e}") }.about(Input::Targets)
+    })?;
     let mut seen = BTreeSet::new();
     let images = list.into_iter().map(|t| (t.scene_id, t.im_id)).filter(|k| seen.insert(*k)).collect();
     Ok((images, TargetSource::File(path)))

@@ -16,7 +16,7 @@
 use glam::{DMat3, DVec2, DVec3};
 use rayon::prelude::*;
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Input, Result};
 use crate::kernels::raster::{render_ids, resolve};
 use crate::kernels::{GpuPose, RenderMesh};
 use crate::mesh::mass::MassProperties;
@@ -167,7 +167,7 @@ pub fn resting_poses(mesh: &Mesh, export: Option<&str>, name: &str) -> Result<(V
 /// settled drops is taken. Clusters give one resting pose each, rolling
 /// families [`ROLL_STEPS`] (their probability split evenly).
 pub fn resting_poses_from_export(text: &str, sha256: &str, name: &str) -> Result<(Vec<RestingPose>, ExportMatch)> {
-    let bad = |reason: String| Error::InvalidInput(format!("the stable poses (a `stable-poses export`): {reason}"));
+    let bad = |reason: String| Error::InvalidInput(format!("the stable poses (a `stable-poses export`): {reason}")).about(Input::StablePoses);
     let value: serde_json::Value = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
     if value.get("format").and_then(|f| f.as_str()).is_none() {
         return Err(bad(format!("not a `stable-poses export` file (it has no \"format\": \"{}\")", crate::stable::export::FORMAT)));
@@ -376,7 +376,8 @@ fn check_object_on_plane(points: &[DVec3], to_plane: &Pose, diagonal: f64) -> Re
             crate::error::compact(median.abs(), 3),
             if median < 0.0 { "below" } else { "above" },
             crate::error::compact(diagonal, 3)
-        )));
+        ))
+        .about(Input::SupportPlane));
     }
     Ok(())
 }
@@ -443,7 +444,7 @@ fn mesh_size_verdict(diagonal: f64, points: &[DVec3]) -> Result<Option<String>> 
 /// not end a dataset run.
 pub fn check_mesh_size(mesh: &Mesh, obs: &DepthImage, mask: &[bool]) -> Result<Option<String>> {
     if mask.len() != obs.depth.len() {
-        return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())));
+        return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())).about(Input::Mask));
     }
     mesh_size_verdict(mesh.diagonal(), &observed_points(obs, mask))
 }
@@ -481,7 +482,7 @@ fn check_params(mesh: &Mesh, rests: &[RestingPose], obs: &DepthImage, mask: &[bo
         )));
     }
     if mask.len() != obs.depth.len() {
-        return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())));
+        return Err(Error::InvalidInput(format!("the mask has {} pixels, the depth {}", mask.len(), obs.depth.len())).about(Input::Mask));
     }
     if !(p.grid_step.is_finite() && p.grid_step > 0.0) {
         return Err(Error::InvalidInput(format!("the grid step must be a positive number of metres, got {}", crate::error::compact(p.grid_step, 3))));
@@ -529,7 +530,8 @@ pub fn on_plane_hypotheses(
         return Err(Error::InvalidInput(format!(
             "only {} masked pixels have depth; hypotheses need the object's observed points",
             points.len()
-        )));
+        ))
+        .about(Input::Mask));
     }
     let to_plane = camera_to_plane_frame(plane);
     let from_plane = to_plane.inverse();
@@ -620,5 +622,19 @@ mod tests {
         assert!(w.contains("times smaller: is the mesh in other units"), "{w}");
         // Too few points to judge: no verdict (the caller refuses them).
         assert_eq!(mesh_size_verdict(1e-6, &face[..5]).unwrap(), None);
+    }
+
+    /// The errors of a call given a plane, a mask and a depth say which of
+    /// them is wrong (the CLI names its flag by it, not by the words).
+    #[test]
+    fn errors_say_whether_the_plane_or_the_mask_is_wrong() {
+        // The face is 0.8 m from the plane z = 0, the object 0.17 m across.
+        let e = check_object_on_plane(&visible_face(), &Pose::IDENTITY, 0.17).unwrap_err();
+        assert_eq!(e.input(), Some(Input::SupportPlane), "{e}");
+        assert!(e.to_string().contains("support plane"), "{e}");
+        let k = crate::camera::Intrinsics::from_k(&[500.0, 0.0, 16.0, 0.0, 500.0, 12.0, 0.0, 0.0, 1.0], 32, 24).unwrap();
+        let obs = DepthImage { intrinsics: k, depth: vec![0.8; 32 * 24] };
+        let e = check_mesh_size(&crate::shapes::cuboid(DVec3::splat(0.05)), &obs, &[true; 10]).unwrap_err();
+        assert_eq!(e.input(), Some(Input::Mask), "{e}");
     }
 }

@@ -238,7 +238,8 @@ pub fn load_estimate_models(ds: &crate::bop::Dataset, obj_ids: &[u32], p: &Refin
             let (rests, how) = crate::hypotheses::on_plane::resting_poses(&mesh, stable, &name)?;
             match how {
                 Some(ExportMatch::OnlyEntry) => {
-                    return Err(Error::InvalidInput(format!("the stable poses given (a database or its export) have no entry for {name} (object {id}): drop-test that model too")));
+                    return Err(Error::InvalidInput(format!("the stable poses given (a database or its export) have no entry for {name} (object {id}): drop-test that model too"))
+                        .about(crate::error::Input::StablePoses));
                 }
                 // Every BOP dataset names its models obj_0000NN.ply: a
                 // database of another dataset matches by name alone.
