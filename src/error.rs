@@ -94,6 +94,12 @@ pub enum Input {
     SupportPlane,
     /// Stable poses given as a drop-test database's export.
     StablePoses,
+    /// Which sensor's annotations and depth a BOP split annotated per
+    /// sensor is read with.
+    Sensor,
+    /// A setting of the call, by the name its message gives it (e.g. the
+    /// evaluation's "ADD threshold").
+    Setting(&'static str),
     /// A BOP targets file (`test_targets_bop19.json`), as against the
     /// dataset's scene files it is checked against.
     Targets,

@@ -19,7 +19,7 @@ use serde::Serialize;
 
 use crate::bop::{Dataset, DepthMm, Estimate, GtInstance, ModelInfo, PoseMm, Projection, Scene, SensorRule, Target};
 use crate::camera::Intrinsics;
-use crate::error::{Error, Result};
+use crate::error::{Error, Input, Result};
 use crate::kernels::depth::{depth_tiles_cpu, DepthTile, GpuDepth};
 use crate::kernels::RenderMesh;
 use crate::mesh::Mesh;
@@ -212,7 +212,7 @@ pub fn open_dataset(root: &std::path::Path, split: &str, sensor: Option<&str>, n
             // HOT3D's cameras (rgb, gray1, gray2) change by scene: the
             // toolkit's choice comes with the dataset's name.
             let hot3d = if sensors.iter().any(|s| s == "gray1") { " (HOT3D: name the dataset hot3d to read each scene with the camera the BOP toolkit evaluates)" } else { "" };
-            Err(Error::InvalidInput(format!("sensor: the split '{split}' is annotated per sensor ({}): choose one{hot3d}", sensors.join(", "))))
+            Err(Error::InvalidInput(format!("sensor: the split '{split}' is annotated per sensor ({}): choose one{hot3d}", sensors.join(", "))).about(Input::Sensor))
         }
     }
 }
@@ -295,7 +295,7 @@ impl EvalOptions {
 
     /// Checks the numbers before any work.
     pub fn validate(&self) -> Result<()> {
-        let bad = |what: &str, why: String| Err(Error::InvalidInput(format!("{what}: {why}")));
+        let bad = |what: &'static str, why: String| Err(Error::InvalidInput(format!("{what}: {why}")).about(Input::Setting(what)));
         if self.errors.is_empty() {
             return bad("error types", "none chosen".into());
         }
@@ -1355,6 +1355,17 @@ mod tests {
     fn at(im_id: u32, time: f64) -> Estimate {
         let pose = PoseMm { r: glam::DMat3::IDENTITY, t: glam::DVec3::new(0.0, 0.0, 700.0) };
         Estimate { scene_id: 2, im_id, obj_id: 1, score: 1.0, pose, time, line: 0 }
+    }
+
+    /// A setting out of range is refused naming it, by its name and in the
+    /// error's mark (the CLI blames the flag that gave it).
+    #[test]
+    fn settings_out_of_range_are_named() {
+        let e = EvalOptions { add_threshold: 20.0, ..Default::default() }.validate().unwrap_err();
+        assert_eq!(e.input(), Some(Input::Setting("ADD threshold")), "{e}");
+        let e = EvalOptions { batch_images: 0, ..Default::default() }.validate().unwrap_err();
+        assert_eq!(e.input(), Some(Input::Setting("batch size")), "{e}");
+        assert!(e.to_string().starts_with("batch size: "), "{e}");
     }
 
     #[test]

@@ -287,6 +287,12 @@ fn hot3d_fisheye_detection_matches_the_bop_toolkit_bit_for_bit() {
     // poses, other lenses), and MSPD through a pinhole of the same focal
     // length and centre is another number: the lens is what is measured.
     let gray2 = Dataset::open_sensor(&hot3d(), "test", Some("gray2")).unwrap();
+    // Without a name or a sensor the split's cameras are a choice left to
+    // the caller, and the error says so (the CLI blames --sensor).
+    let e = open_dataset(&hot3d(), "test", None, None).unwrap_err();
+    assert!(e.to_string().contains("choose one"), "{e}");
+    assert_eq!(e.input(), Some(plausible::Input::Sensor));
+    assert_eq!(Dataset::open_sensor(&hot3d(), "test", Some("a b")).unwrap_err().input(), Some(plausible::Input::Sensor));
     assert_ne!(detect(&gray2, &results, &EvalOptions::detection(Some("hot3d"))).ap_mspd, r.ap_mspd);
     let scene = ds.scene(3365).unwrap();
     let Projection::Lens(lens) = scene.frame_camera(0).unwrap().projection else { panic!("a lens") };

@@ -234,7 +234,7 @@ impl Dataset {
     pub fn open_sensor(root: &Path, split: &str, sensor: Option<&str>) -> Result<Dataset> {
         if let Some(s) = sensor {
             if s.is_empty() || !s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
-                return Err(Error::InvalidInput(format!("sensor '{s}': a name of letters, digits, '_' or '-' (photoneo, xyz, 3dlong, ...)")));
+                return Err(Error::InvalidInput(format!("sensor '{s}': a name of letters, digits, '_' or '-' (photoneo, xyz, 3dlong, ...)")).about(Input::Sensor));
             }
         }
         if !root.exists() {
@@ -439,6 +439,7 @@ impl Dataset {
             dir.display(),
             sensors.join(", ")
         ))
+        .about(Input::Sensor)
     }
 
     /// The sensors a split is annotated for, when it is annotated per sensor

@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context as _, Result};
 use plausible::bop::{read_results, write_results, TargetSource};
 use plausible::eval::{detection_targets, evaluate, open_dataset, gt_as_results, task_targets, toolkit_dataset_name, ErrorType, EvalOptions, EvalReport, Task};
+use plausible::Input;
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -143,11 +144,13 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
     };
     opts.validate().map_err(|e| {
         // The library names the setting; say which flag gave it.
-        let msg = e.to_string();
-        let flag = [("error types", "--errors"), ("ADD threshold", "--add-threshold"), ("batch size", "--batch-images"), ("estimates per image", "--max-estimates-per-image")]
-            .iter()
-            .find(|(what, _)| msg.contains(what))
-            .map_or("the dataset's evaluation settings", |(_, f)| f);
+        let flag = match e.input() {
+            Some(Input::Setting("error types")) => "--errors",
+            Some(Input::Setting("ADD threshold")) => "--add-threshold",
+            Some(Input::Setting("batch size")) => "--batch-images",
+            Some(Input::Setting("estimates per image")) => "--max-estimates-per-image",
+            _ => "the dataset's evaluation settings",
+        };
         anyhow::anyhow!(e).context(flag)
     })?;
     let outputs = [("--out", a.out.as_deref()), ("--errors-out", a.errors_out.as_deref()), ("--gt-as-results", a.gt_as_results.as_deref())];
@@ -156,8 +159,7 @@ pub fn run(a: EvalArgs, verbose: u8) -> Result<()> {
         plausible::io::check_writable(p)?;
     }
     let ds = open_dataset(&a.dataset, &a.split, a.sensor.as_deref(), name.as_deref()).map_err(|e| {
-        // The library names the setting; say which flag gives it.
-        let flag = if a.sensor.is_some() || e.to_string().starts_with("sensor") { "--sensor" } else { "--dataset" };
+        let flag = super::dataset_flag(&e, a.sensor.is_some());
         anyhow::anyhow!(e).context(flag)
     })?;
     if let (None, Some(s)) = (&a.sensor, &ds.sensor) {

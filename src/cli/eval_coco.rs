@@ -46,7 +46,7 @@ pub fn run(a: EvalArgs, task: CocoTask) -> Result<()> {
         plausible::io::check_writable(p)?;
     }
     let ds = open_dataset(&a.dataset, &a.split, a.sensor.as_deref(), name.as_deref()).map_err(|e| {
-        let flag = if a.sensor.is_some() || e.to_string().starts_with("sensor") { "--sensor" } else { "--dataset" };
+        let flag = super::dataset_flag(&e, a.sensor.is_some());
         anyhow::anyhow!(e).context(flag)
     })?;
     super::outside_dataset(&ds, &outputs)?;

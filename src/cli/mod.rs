@@ -253,6 +253,17 @@ pub fn targets_flag(e: &plausible::Error) -> &'static str {
     }
 }
 
+/// The flag to blame for an error opening a dataset: `--sensor` where one
+/// was given (its files are the likeliest culprit) or the error is about
+/// which sensor to read, else `--dataset`.
+pub fn dataset_flag(e: &plausible::Error, sensor_given: bool) -> &'static str {
+    if sensor_given || e.input() == Some(plausible::Input::Sensor) {
+        "--sensor"
+    } else {
+        "--dataset"
+    }
+}
+
 /// Refuses two flags naming one file where one of them is written: an
 /// output would overwrite an input, or another output.
 pub fn distinct_files(outputs: &[(&str, Option<&std::path::Path>)], inputs: &[(&str, Option<&std::path::Path>)]) -> Result<()> {
