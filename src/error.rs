@@ -150,24 +150,6 @@ impl Error {
         }
     }
 
-    /// The file the error is about, where it names one.
-    pub fn path(&self) -> Option<&std::path::Path> {
-        match self.cause() {
-            Error::NotFound { path }
-            | Error::Io { path, .. }
-            | Error::UnsupportedFormat { path, .. }
-            | Error::MalformedMesh { path, .. }
-            | Error::NoTriangles { path }
-            | Error::NonFiniteVertex { path, .. }
-            | Error::IndexOutOfRange { path, .. }
-            | Error::BadImage { path, .. }
-            | Error::BadJson { path, .. }
-            | Error::BadLine { path, .. }
-            | Error::Database { path, .. } => Some(path),
-            _ => None,
-        }
-    }
-
     /// Wraps an error creating or writing a file: "not found" there means a
     /// folder on the way cannot hold files (e.g. /proc), not a missing input.
     pub fn write(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
@@ -201,7 +183,6 @@ mod tests {
         assert_eq!(marked.to_string(), text);
         assert_eq!(marked.input(), Some(Input::Selection));
         assert!(matches!(marked.cause(), Error::BadJson { .. }));
-        assert_eq!(marked.path(), Some(std::path::Path::new("gt.json")));
         // The innermost mark stays; a stop is never marked.
         assert_eq!(marked.about(Input::Mask).input(), Some(Input::Selection));
         assert!(matches!(Error::Stopped.about(Input::Mask), Error::Stopped));
