@@ -257,9 +257,8 @@ fn gpu_lanes_kernel_agrees_on_small_odd_and_open_meshes() {
     if !lanes_available(&ctx) {
         return;
     }
-    let mut tetra = shapes::cuboid(DVec3::new(0.04, 0.03, 0.02));
-    tetra.vertices = vec![DVec3::new(0.04, 0.0, 0.0), DVec3::new(-0.03, 0.03, 0.0), DVec3::new(-0.02, -0.03, 0.01), DVec3::new(0.0, 0.0, 0.05)];
-    tetra.triangles = vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
+    let corners = vec![DVec3::new(0.04, 0.0, 0.0), DVec3::new(-0.03, 0.03, 0.0), DVec3::new(-0.02, -0.03, 0.01), DVec3::new(0.0, 0.0, 0.05)];
+    let (tetra, _) = Mesh::from_raw("tetrahedron", corners, vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]]).unwrap();
     let meshes = [
         ("tetrahedron", tetra),
         ("cuboid", shapes::cuboid(DVec3::new(0.04, 0.03, 0.02))),

@@ -107,7 +107,10 @@ pub fn run(a: EstimateArgs, verbose: u8) -> Result<()> {
         bail!("--yaw-steps {}: between 1 and 360", a.yaw_steps);
     }
     let (shard, masks) = a.run.shard_and_masks()?;
-    let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).context(if a.sensor.is_some() { "--sensor" } else { "--dataset" })?;
+    let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).map_err(|e| {
+        let flag = super::dataset_flag(&e, a.sensor.is_some());
+        anyhow::anyhow!(e).context(flag)
+    })?;
     let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--stable", a.stable.as_deref()), ("--targets", a.targets.as_deref())])?;
     let stable = a.stable.as_deref().map(read_stable).transpose()?;
     let (targets, source) = ds.targets(a.targets.as_deref()).map_err(|e| { let f = super::targets_flag(&e); anyhow::anyhow!(e).context(f) })?;

@@ -549,7 +549,10 @@ pub fn run(a: RefineArgs, verbose: u8) -> Result<()> {
     check_no_physics(a.no_physics, params.method)?;
     params.validate().context("check --steps, --budget, --icp-iterations, --exploration and --discount")?;
     let (shard, masks) = a.run.shard_and_masks()?;
-    let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).context(if a.sensor.is_some() { "--sensor" } else { "--dataset" })?;
+    let ds = Dataset::open_sensor(&a.dataset, &a.split, a.sensor.as_deref()).map_err(|e| {
+        let flag = super::dataset_flag(&e, a.sensor.is_some());
+        anyhow::anyhow!(e).context(flag)
+    })?;
     let _lock = a.run.prepare_outputs(&ds, &a.out, &[("--init", Some(&a.init))])?;
     let init = read_results(&a.init).context("--init")?;
     let mut jobs = shard_of(a.run.select_images(image_jobs(&init), |j| (j.scene_id, j.im_id), "estimates")?, shard);
