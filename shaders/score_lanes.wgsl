@@ -31,6 +31,10 @@
 // (key_texel).
 @group(0) @binding(14) var keys: texture_storage_2d<r32uint, read_write>;
 
+// Vectors of each wave handed out so far (the host empties them before
+// each chunk): workgroups take their vectors from here (lanes_wave).
+@group(0) @binding(15) var<storage, read_write> handed: array<atomic<u32>>;
+
 // Invocations per workgroup: the adapter's subgroup size (set by the host).
 override LANES: u32 = 8u;
 
@@ -212,9 +216,10 @@ fn lane_draw4(a: LaneTri, b: LaneTri, c: LaneTri, d: LaneTri, trips: u32, ks: Ke
     }
 }
 
-// What a lane drew: the tight rectangle of its drawn triangles, and
-// whether the vector ran out of params.draw_budget.
-struct LaneDrawn { rect: vec4<i32>, over: bool }
+// What a lane drew: the tight rectangle of its drawn triangles, whether
+// the vector ran out of params.draw_budget, and the loop iterations its
+// workgroup has spent (or reserved) so far.
+struct LaneDrawn { rect: vec4<i32>, over: bool, spent: u32 }
 
 fn grow(lo: ptr<function, vec2<i32>>, hi: ptr<function, vec2<i32>>, tri: LaneTri) {
     if (tri.trips > 0u) {
@@ -226,14 +231,15 @@ fn grow(lo: ptr<function, vec2<i32>>, hi: ptr<function, vec2<i32>>, tri: LaneTri
 // Rasterizes pose p (screen rectangle `rect`) into the slot at `corner`
 // (a lane that is not `live` draws nothing but takes part: the subgroup
 // operations need every lane).
-// `reserved` loop iterations are kept for the consumer.
+// `reserved` loop iterations are kept for the consumer, on top of the
+// `base` the workgroup spent on earlier vectors.
 //
 // Per meshlet some lane sees: the groups of four triangles that face some
 // lane (lane_facing_groups), then for each such group its four set-ups and
 // one pixel loop as long as the busiest lane's four triangles (one
 // subgroupMax per group: gallivm runs a subgroup operation as a loop over
 // the lanes, and one per triangle cost 12 %).
-fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u32>, reserved: u32) -> LaneDrawn {
+fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u32>, reserved: u32, base: u32) -> LaneDrawn {
     let ks = key_scale(p, du);
     let first = vec2<f32>(f32(rect.x), f32(rect.y));
     let last = vec2<f32>(f32(rect.z), f32(rect.w));
@@ -241,7 +247,7 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
     var lo_all = vec2<i32>(BIG);
     var hi_all = vec2<i32>(-1);
     // The meshlet loop, the consumer's and one for each loop's entry.
-    var spent = params.n_meshlets + reserved + 2u;
+    var spent = base + params.n_meshlets + reserved + 2u;
     var over = false;
     for (var m = 0u; m < params.n_meshlets; m++) {
         let ml = meshlet(m);
@@ -290,7 +296,7 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
             break;
         }
     }
-    return LaneDrawn(vec4<i32>(lo_all, hi_all), over);
+    return LaneDrawn(vec4<i32>(lo_all, hi_all), over, spent);
 }
 
 // A lane's walk over its rectangle: the next pixel (x, y) and how many are
@@ -339,8 +345,9 @@ fn lane_reduce(p: GpuPose, du: Dual, corner: vec2<u32>, rect: vec4<i32>, trips: 
 }
 
 // One hypothesis per invocation: draws it, then scores (or, for `bench`'s
-// render timing, only empties) its slot.
-fn lanes(slot: u32, score: bool) {
+// render timing, only empties) its slot. Returns the loop iterations the
+// workgroup has spent, `base` of them before.
+fn lanes(slot: u32, score: bool, base: u32) -> u32 {
     let h = params.first + slot;
     let live = h < params.n_hyp && slot < params.slots;
     let p = poses[min(h, params.n_hyp - 1u)];
@@ -352,7 +359,7 @@ fn lanes(slot: u32, score: bool) {
     if (live) {
         own = (rect_pixels(rect) + TAKE - 1u) / TAKE;
     }
-    let drawn = lane_raster(p, du, rect, live, corner, subgroupMax(own));
+    let drawn = lane_raster(p, du, rect, live, corner, subgroupMax(own), base);
     var tight = drawn.rect;
     if (!live || tight.z < 0) {
         tight = vec4<i32>(0, 0, -1, -1);
@@ -362,18 +369,59 @@ fn lanes(slot: u32, score: bool) {
     if (live && score) {
         records[h] = score_record(acc, drawn.over);
     }
+    return drawn.spent;
+}
+
+// Draws and scores vectors of the wave until none is left, each taken from
+// the wave's counter. Why not one vector per workgroup: lavapipe splits a
+// dispatch's workgroups among its threads in fixed shares (the first half
+// to one thread, the second to the other, Mesa 22.3's lp_cs_tpool), so a
+// dispatch lasted as long as its slower share: the costlier views of the
+// sorted wave, or a thread sharing its core with another program. Taken
+// from a counter, the work goes to whichever thread is free, as the CPU
+// twin's rayon steals it (README, "Where lavapipe's time goes").
+//
+// All vectors share the invocation's loop cap: a workgroup takes another
+// only while half the budget and twice its costliest vector so far are
+// left (a vector that still runs over is drawn again by the host, as
+// ever); the others then take what is left, and the host dispatches a
+// workgroup per vector, so every vector is taken.
+fn lanes_wave(score: bool) {
+    let wave = params.first / params.slots;
+    let vectors = (min(params.slots, params.n_hyp - params.first) + LANES - 1u) / LANES;
+    // This loop's entry.
+    var spent = 1u;
+    var most = 0u;
+    loop {
+        var v = 0u;
+        if (lane == 0u) {
+            v = atomicAdd(&handed[wave], 1u);
+        }
+        v = subgroupBroadcast(v, 0u);
+        if (v >= vectors) {
+            break;
+        }
+        // This iteration, then the vector.
+        let before = spent;
+        spent = lanes(v * LANES + lane, score, spent + 1u);
+        most = max(most, spent - before);
+        let keep = min(max(2u * most, params.draw_budget / 2u), params.draw_budget);
+        if (spent > params.draw_budget - keep) {
+            break;
+        }
+    }
 }
 
 @compute @workgroup_size(LANES)
-fn score_lanes_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(subgroup_invocation_id) sid: u32) {
+fn score_lanes_main(@builtin(subgroup_invocation_id) sid: u32) {
     lane = sid;
-    lanes(gid.x, true);
+    lanes_wave(true);
 }
 
 // Rasterization alone (the slot is emptied again), so `bench` can split
 // render from reduce.
 @compute @workgroup_size(LANES)
-fn raster_lanes_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(subgroup_invocation_id) sid: u32) {
+fn raster_lanes_main(@builtin(subgroup_invocation_id) sid: u32) {
     lane = sid;
-    lanes(gid.x, false);
+    lanes_wave(false);
 }

@@ -255,11 +255,14 @@ fn lanes_fit(mesh: &RenderMesh, pixels: usize) -> bool {
     pixels / 4 + mesh.meshlets.len() + 3 * mesh.triangles.len() <= super::raster::LANES_LOOP_BUDGET as usize / 2
 }
 
-/// `score_lanes.wgsl`'s pipelines and its keys texture (one slot of
-/// `width x height` texels per hypothesis of a wave).
+/// `score_lanes.wgsl`'s pipelines, its keys texture (one slot of
+/// `width x height` texels per hypothesis of a wave) and the counters its
+/// workgroups take the vectors of each wave from (`handed`, one per wave
+/// of a chunk, emptied before each chunk).
 struct LaneStage {
     lanes: u32,
     keys: wgpu::TextureView,
+    handed: wgpu::Buffer,
 }
 
 /// The lanes kernel's module: the rasterizer and score helpers, then its
@@ -274,9 +277,9 @@ pub const SCORE_LANES_WGSL: &str = concat!(
 );
 
 impl LaneStage {
-    /// The stage for `slots` slots of a `k`-sized region, or why it cannot
-    /// run on this adapter.
-    fn new(ctx: &Context, k: &crate::camera::Intrinsics, slots: u32) -> std::result::Result<Self, String> {
+    /// The stage for `slots` slots of a `k`-sized region and chunks of up
+    /// to `waves` waves, or why it cannot run on this adapter.
+    fn new(ctx: &Context, k: &crate::camera::Intrinsics, slots: u32, waves: usize) -> std::result::Result<Self, String> {
         let lanes = lane_count(ctx)?;
         let max = ctx.max_texture_dim;
         // A slot's block: the region in 4x4 tiles of 16 texels, four tile
@@ -297,7 +300,13 @@ impl LaneStage {
             usage: wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
         });
-        Ok(LaneStage { lanes, keys: keys.create_view(&Default::default()) })
+        let handed = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lane vectors handed out"),
+            size: 4 * waves.max(1) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(LaneStage { lanes, keys: keys.create_view(&Default::default()), handed })
     }
 
     /// The scoring pipeline, or with `raster_only` the one that only draws
@@ -591,7 +600,7 @@ impl GpuScorer {
         } else if kernel == ScoreKernel::Auto && !lanes_fit(&self.mesh, self.target_intrinsics.pixels()) {
             Err("the mesh and region would often exceed its loop budget".to_string())
         } else {
-            LaneStage::new(&self.ctx, &self.target_intrinsics, self.bufs.slots)
+            LaneStage::new(&self.ctx, &self.target_intrinsics, self.bufs.slots, self.bufs.chunk.div_ceil(self.bufs.slots as usize))
         };
         match (stage, kernel) {
             (Ok(stage), _) => self.lanes = Some(stage),
@@ -854,12 +863,19 @@ impl GpuScorer {
             wgpu::BindGroupEntry { binding: 5, resource: self.records.as_entire_binding() },
         ];
         let lane_keys = lanes.map(|l| {
-            (l, [wgpu::BindGroupEntry { binding: 14, resource: wgpu::BindingResource::TextureView(&l.keys) }])
+            (
+                l,
+                [
+                    wgpu::BindGroupEntry { binding: 14, resource: wgpu::BindingResource::TextureView(&l.keys) },
+                    wgpu::BindGroupEntry { binding: 15, resource: l.handed.as_entire_binding() },
+                ],
+            )
         });
         if let (Some((l, keys)), None) = (&lane_keys, traced) {
             // Both entry points bind the observation and records (the
             // raster one only empties its slots, but shares the code).
             let pipeline = l.pipeline(ctx, raster_only);
+            enc.clear_buffer(&l.handed, 0, None);
             let extra: Vec<wgpu::BindGroupEntry> = scored.iter().chain(keys).cloned().collect();
             self.bufs.dispatch_waves(ctx, &mut enc, (&pipeline, WaveLayout::Lanes(l.lanes)), &extra, params, chunk.len(), timestamp_writes);
         } else if raster_only {
