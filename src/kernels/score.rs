@@ -281,6 +281,11 @@ impl LaneStage {
     /// to `waves` waves, or why it cannot run on this adapter.
     fn new(ctx: &Context, k: &crate::camera::Intrinsics, slots: u32, waves: usize) -> std::result::Result<Self, String> {
         let lanes = lane_count(ctx)?;
+        // Whole vectors: the last vector of a wave that ends mid-vector has
+        // lanes past `slots`, which draw nothing but still load and store
+        // their slot's corner, so it must lie inside the texture (out of
+        // bounds, a store may land on any texel, another slot's included).
+        let slots = slots.next_multiple_of(lanes);
         let max = ctx.max_texture_dim;
         // A slot's block: the region in 4x4 tiles of 16 texels, four tile
         // rows to a texture row (`slot_size` in score_lanes.wgsl).
