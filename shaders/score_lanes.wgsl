@@ -20,11 +20,12 @@
 // host, which uses this kernel only where that size is fixed and at
 // least 8: lane_texel), so
 // subgroupMax of the lanes' trip counts bounds each loop's iterations, and
-// `spent` adds up those bounds, each loop's entry included: a vector that
-// would exceed params.draw_budget stops drawing, still empties what it
-// drew, and reports its hypotheses over budget (the host draws them with
-// the workgroup kernel, then the CPU twin). Never a silently truncated
-// image.
+// `spent` adds up those bounds, each loop's entry included, over every
+// vector of hypotheses the workgroup draws (lanes_wave): a vector that
+// would take the sum past params.draw_budget stops drawing, still empties
+// what it drew, and reports its hypotheses over budget (the host draws
+// them with the workgroup kernel, then the CPU twin). Never a silently
+// truncated image.
 
 // Visibility keys, one texel per pixel: slot s (hypothesis first + s of the
 // wave) is the block at slot_corner(s), its pixels in tiles of 4x4
