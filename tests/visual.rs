@@ -947,9 +947,18 @@ fn gpu_lanes_vectors_sharing_a_loop_budget_score_as_the_twin() {
     let cpu = score_cpu(&mesh, &target, &poses, &params);
     assert!(cpu.iter().filter(|r| r.rendered > 40).count() >= 90);
     for (i, (g, c)) in gpu.iter().zip(&cpu).enumerate() {
+        let what = format!("hypothesis {i}: gpu {g:?} cpu {c:?}");
         let counts = |r: &ScoreRecord| [r.valid, r.rendered, r.front, r.behind];
-        assert_eq!(counts(g), counts(c), "hypothesis {i}: gpu {g:?} cpu {c:?}");
-        assert!((g.score - c.score).abs() < 1e-4, "hypothesis {i}: gpu {g:?} cpu {c:?}");
+        if exact_twin(&ctx) {
+            assert_eq!(counts(g), counts(c), "{what}");
+            assert!((g.score - c.score).abs() < 1e-4, "{what}");
+        } else {
+            // Hardware: at most 1 % of the rendered pixels (or one) move.
+            for (a, b) in counts(g).into_iter().zip(counts(c)) {
+                assert!(a.abs_diff(b) as f64 <= (0.01 * c.rendered as f64).max(1.0), "{what}");
+            }
+            assert!((g.score - c.score).abs() < 1e-3, "{what}");
+        }
     }
 }
 
