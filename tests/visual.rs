@@ -156,6 +156,28 @@ fn assert_kernels_agree(what: &str, lanes: &[ScoreRecord], groups: &[ScoreRecord
     }
 }
 
+/// A GPU kernel's records against the twin's on the same poses: on an exact
+/// twin (lavapipe) equal counts and scores within 1e-5; on hardware counts
+/// within 1 % of the rendered pixels (and at least `slack`) and scores
+/// within 1e-3. Failures name `what` and the pose.
+fn assert_matches_twin(ctx: &Context, what: &str, gpu: &[ScoreRecord], cpu: &[ScoreRecord], slack: f64) {
+    assert_eq!(gpu.len(), cpu.len(), "{what}");
+    for (i, (g, c)) in gpu.iter().zip(cpu).enumerate() {
+        let what = format!("{what}pose {i}: gpu {g:?} cpu {c:?}");
+        let counts = |r: &ScoreRecord| [r.valid, r.rendered, r.front, r.behind];
+        if exact_twin(ctx) {
+            assert_eq!(counts(g), counts(c), "{what}");
+            assert!((g.score - c.score).abs() < 1e-5, "{what}");
+        } else {
+            // Hardware: at most 1 % of the rendered pixels move.
+            for (a, b) in counts(g).into_iter().zip(counts(c)) {
+                assert!(a.abs_diff(b) as f64 <= (0.01 * c.rendered as f64).max(slack), "{what}");
+            }
+            assert!((g.score - c.score).abs() < 1e-3, "{what}");
+        }
+    }
+}
+
 /// The two score kernels draw the same visibility keys, so their records
 /// agree: the counts exactly, the means up to the order of f32 sums (the
 /// workgroup kernel adds in a tree, the lanes kernel pixel by pixel).
@@ -297,20 +319,7 @@ fn gpu_big_triangles_draw_the_twins_pixels_with_either_kernel() {
             continue;
         }
         scorer.set_kernel(kernel).unwrap();
-        for (i, (g, c)) in scorer.score(&poses).unwrap().0.iter().zip(&cpu).enumerate() {
-            let what = format!("{kernel:?} pose {i}: gpu {g:?} cpu {c:?}");
-            let counts = |r: &ScoreRecord| [r.valid, r.rendered, r.front, r.behind];
-            if exact_twin(&ctx) {
-                assert_eq!(counts(g), counts(c), "{what}");
-                assert!((g.score - c.score).abs() < 1e-5, "{what}");
-            } else {
-                // Hardware: at most 1 % of the rendered pixels move.
-                for (a, b) in counts(g).into_iter().zip(counts(c)) {
-                    assert!(a.abs_diff(b) as f64 <= 0.01 * c.rendered as f64, "{what}");
-                }
-                assert!((g.score - c.score).abs() < 1e-3, "{what}");
-            }
-        }
+        assert_matches_twin(&ctx, &format!("{kernel:?} "), &scorer.score(&poses).unwrap().0, &cpu, 0.0);
     }
     let img = render_gpu(&ctx, &mesh, &poses, &target.intrinsics).unwrap();
     for (p, g) in poses.iter().zip(&img) {
@@ -946,20 +955,8 @@ fn gpu_lanes_vectors_sharing_a_loop_budget_score_as_the_twin() {
     let gpu = scorer.score(&poses).unwrap().0;
     let cpu = score_cpu(&mesh, &target, &poses, &params);
     assert!(cpu.iter().filter(|r| r.rendered > 40).count() >= 90);
-    for (i, (g, c)) in gpu.iter().zip(&cpu).enumerate() {
-        let what = format!("hypothesis {i}: gpu {g:?} cpu {c:?}");
-        let counts = |r: &ScoreRecord| [r.valid, r.rendered, r.front, r.behind];
-        if exact_twin(&ctx) {
-            assert_eq!(counts(g), counts(c), "{what}");
-            assert!((g.score - c.score).abs() < 1e-4, "{what}");
-        } else {
-            // Hardware: at most 1 % of the rendered pixels (or one) move.
-            for (a, b) in counts(g).into_iter().zip(counts(c)) {
-                assert!(a.abs_diff(b) as f64 <= (0.01 * c.rendered as f64).max(1.0), "{what}");
-            }
-            assert!((g.score - c.score).abs() < 1e-3, "{what}");
-        }
-    }
+    // A region of about 60 drawn pixels: on hardware one may move.
+    assert_matches_twin(&ctx, "", &gpu, &cpu, 1.0);
 }
 
 /// Triangles that overlap many times over (50,000 stacked in one plane)
