@@ -69,6 +69,27 @@ pub fn init(verbose: u8, trace: Option<&Path>) -> Result<()> {
     let traced = Targets::new().with_target("plausible", LevelFilter::TRACE);
     tracing_subscriber::registry().with(fmt).with(chrome.with_filter(traced)).init();
     *TRACE.lock().unwrap_or_else(|e| e.into_inner()) = Some(TraceFile { path: path.to_path_buf(), partial, guard, error });
+    flush_every_second()?;
+    Ok(())
+}
+
+/// Has the writer thread flush its buffer once a second until the trace
+/// is finished, so a run killed with SIGKILL (which no handler sees)
+/// leaves a partial file holding all but its last second: tracing-chrome
+/// writes through an 8 KiB buffer, and the stage spans of a long run fill
+/// it rarely (a killed run's file was empty). Each event is written whole
+/// after its separator, so a flushed file ends on a complete event.
+fn flush_every_second() -> Result<()> {
+    std::thread::Builder::new()
+        .name("trace flush".into())
+        .spawn(|| loop {
+            std::thread::sleep(std::time::Duration::from_secs(1));
+            match TRACE.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
+                Some(t) => t.guard.flush(),
+                None => return,
+            }
+        })
+        .map_err(|e| anyhow::anyhow!("--trace: cannot start the thread that flushes the trace: {e}"))?;
     Ok(())
 }
 
