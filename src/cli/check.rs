@@ -86,6 +86,7 @@ pub fn run(a: CheckArgs) -> Result<()> {
     if let Some(path) = &a.explain {
         let _span = tracing::trace_span!("explain").entered();
         plausible::io::save_png(path, &plausible::physical::explain::explain_image(&scene, &checks))?;
+        eprintln!("wrote {}", path.display());
     }
     let sim: Vec<Option<Vec<Displacement>>> = if a.sim {
         let settings = SimSettings {
