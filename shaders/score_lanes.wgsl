@@ -334,13 +334,15 @@ const TAKE: u32 = 4u;
 // `corner`, TAKE pixels per iteration, in `trips` iterations (the
 // subgroup's most).
 fn lane_reduce(p: GpuPose, du: Dual, corner: vec2<u32>, rect: vec4<i32>, trips: u32, score: bool) -> PixelSums {
-    var acc = PixelSums(vec2<f32>(0.0), vec4<u32>(0u), 0u);
+    var acc = pixel_sums();
     var w = LaneWalk(u32(max(rect.x, 0)), u32(max(rect.y, 0)), rect_pixels(rect));
     for (var q = 0u; q < trips; q++) {
         lane_take(&acc, &w, p, du, corner, rect, score);
         lane_take(&acc, &w, p, du, corner, rect, score);
         lane_take(&acc, &w, p, du, corner, rect, score);
         lane_take(&acc, &w, p, du, corner, rect, score);
+        // TAKE terms at most since the last carry (fixed_add).
+        carry_sums(&acc);
     }
     return acc;
 }

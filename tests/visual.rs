@@ -142,15 +142,19 @@ fn lanes_available(ctx: &Context) -> bool {
     ok
 }
 
-/// The lanes kernel's records against the workgroup kernel's (equal
-/// counts, means within the order of f32 sums) and the twin's scores, each
-/// failure naming `what` and the hypothesis.
-fn assert_kernels_agree(what: &str, lanes: &[ScoreRecord], groups: &[ScoreRecord], cpu: &[ScoreRecord]) {
+/// The lanes kernel's records against the workgroup kernel's and the
+/// twin's scores, each failure naming `what` and the hypothesis. The two
+/// kernels draw the same keys and sum in fixed point (score.wgsl), which
+/// no order of addition changes: equal counts, and equal means where the
+/// adapter computes each pixel's term alike in both (lavapipe; a hardware
+/// compiler may round a term apart by an ulp, 1e-6 then).
+fn assert_kernels_agree(ctx: &Context, what: &str, lanes: &[ScoreRecord], groups: &[ScoreRecord], cpu: &[ScoreRecord]) {
+    let tol = if exact_twin(ctx) { 0.0 } else { 1e-6 };
     for (i, ((l, g), c)) in lanes.iter().zip(groups).zip(cpu).enumerate() {
         let counts = |r: &ScoreRecord| (r.valid, r.rendered, r.observed, r.front, r.behind);
         assert_eq!(counts(l), counts(g), "{what}hypothesis {i}: lanes {l:?} workgroups {g:?}");
         for (a, b) in [(l.score, g.score), (l.mean_ad, g.mean_ad), (l.mean_an, g.mean_an)] {
-            assert!((a - b).abs() <= 1e-5, "{what}hypothesis {i}: lanes {l:?} workgroups {g:?}");
+            assert!((a - b).abs() <= tol, "{what}hypothesis {i}: lanes {l:?} workgroups {g:?}");
         }
         assert!((l.score - c.score).abs() < 1e-3, "{what}hypothesis {i}: lanes {l:?} cpu {c:?}");
     }
@@ -179,8 +183,9 @@ fn assert_matches_twin(ctx: &Context, what: &str, gpu: &[ScoreRecord], cpu: &[Sc
 }
 
 /// The two score kernels draw the same visibility keys, so their records
-/// agree: the counts exactly, the means up to the order of f32 sums (the
-/// workgroup kernel adds in a tree, the lanes kernel pixel by pixel).
+/// agree: the counts exactly, and the means too, though the workgroup
+/// kernel adds in a tree and the lanes kernel pixel by pixel (fixed-point
+/// sums, see assert_kernels_agree).
 /// Over several waves with a part-filled last vector, sheared poses, poses
 /// crossing the near plane, behind the camera or off the image, and other
 /// objects' depth in front; and both agree with the twin.
@@ -214,7 +219,7 @@ fn gpu_lanes_and_workgroup_score_kernels_agree() {
         let (lanes, groups) = (run(ScoreKernel::Lanes), run(ScoreKernel::Workgroups));
         let cpu = score_cpu(&mesh, target, &poses, &params);
         assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 400);
-        assert_kernels_agree("", &lanes, &groups, &cpu);
+        assert_kernels_agree(&ctx, "", &lanes, &groups, &cpu);
         // Chunks of 100 (waves that end mid-vector, view order per chunk),
         // one hypothesis, nine: the same records in input order.
         let mut small = GpuScorer::with_max_chunk(&ctx, &mesh, target, params, 100, 100).unwrap();
@@ -264,7 +269,7 @@ fn assert_kernels_agree_seen(ctx: &Context, what: &str, mesh: &RenderMesh, k: &I
     let groups = scorer.score(poses).unwrap().0;
     let cpu = score_cpu(mesh, &target, poses, &params);
     assert!(lanes.iter().filter(|r| r.rendered > 0).count() > 20, "{what}");
-    assert_kernels_agree(what, &lanes, &groups, &cpu);
+    assert_kernels_agree(ctx, what, &lanes, &groups, &cpu);
 }
 
 /// The lanes kernel fetches triangle texels for the whole subgroup at once,
@@ -957,6 +962,50 @@ fn gpu_lanes_vectors_sharing_a_loop_budget_score_as_the_twin() {
     assert!(cpu.iter().filter(|r| r.rendered > 40).count() >= 90);
     // A region of about 60 drawn pixels: on hardware one may move.
     assert_matches_twin(&ctx, "", &gpu, &cpu, 1.0);
+}
+
+/// Means over a large region hold to the twin's f64 sums. One triangle far
+/// bigger than the 350x350 region lies parallel to a flat observed surface
+/// 1 m away, `off` behind it, so every pixel has a_d = 1 - off / tau and
+/// a_n = 1. The kernels sum a_d and a_n in 64-bit fixed point
+/// (score.wgsl): the lanes kernel, which adds all 122,500 pixels of a
+/// hypothesis in one invocation, drifted to a_d 0.99790 instead of
+/// 0.99609 with an f32 running sum, and its records then depended on which
+/// kernel drew a hypothesis.
+#[test]
+fn gpu_means_over_a_large_region_match_the_twins_sums() {
+    let ctx = test_context();
+    let (mesh, _) = Mesh::from_raw("big triangle", vec![DVec3::new(-3.0, -3.0, 0.0), DVec3::new(3.0, -3.0, 0.0), DVec3::new(0.0, 3.0, 0.0)], vec![[0, 1, 2]]).unwrap();
+    let mesh = RenderMesh::new(&mesh).unwrap();
+    let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 175.0, cy: 175.0, width: 350, height: 350 };
+    let obs = plausible::observation::DepthImage { intrinsics: k, depth: vec![1.0; k.pixels()] };
+    let target = ScoreTarget::new(&obs, None, RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
+    let params = ScoreParams::default();
+    // Offsets of 0 to 20 mm in steps of 2^-16 m ≈ 0.015 mm, each exact in
+    // binary, as is 1 - off / tau for tau = 20 mm.
+    let offsets: Vec<f64> = (0..64).map(|i| (i * 20) as f64 / 65536.0).collect();
+    let poses: Vec<Pose> = offsets.iter().map(|o| Pose::new(glam::DMat3::IDENTITY, DVec3::new(0.0, 0.0, 1.0 + o))).collect();
+    let cpu = score_cpu(&mesh, &target, &poses, &params);
+    for (o, c) in offsets.iter().zip(&cpu) {
+        assert_eq!(c.rendered, k.pixels() as u32);
+        assert!((c.mean_ad as f64 - (1.0 - o / params.tau as f64)).abs() < 1e-5, "offset {o}: {c:?}");
+        assert_eq!(c.mean_an, 1.0, "offset {o}: {c:?}");
+    }
+    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
+        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
+        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
+            continue;
+        }
+        scorer.set_kernel(kernel).unwrap();
+        let gpu = scorer.score(&poses).unwrap().0;
+        assert_matches_twin(&ctx, &format!("{kernel:?} "), &gpu, &cpu, 0.0);
+        for ((o, g), c) in offsets.iter().zip(&gpu).zip(&cpu) {
+            // Each pixel's term in f32 on both sides (one ulp of a 1 m
+            // depth is 6e-6 of tau); the sums themselves agree to 2^-25.
+            let tol = if exact_twin(&ctx) { 1e-6 } else { 1e-4 };
+            assert!((g.mean_ad - c.mean_ad).abs() <= tol, "{kernel:?} offset {o}: gpu {g:?} cpu {c:?}");
+        }
+    }
 }
 
 /// Triangles that overlap many times over (50,000 stacked in one plane)
