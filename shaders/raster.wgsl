@@ -248,9 +248,15 @@ fn take_key(at: u32) -> u32 {
 
 // A triangle set up for rasterization: its clipped pixel bounds and the
 // barycentric weights' start value and steps (weights are affine in the
-// pixel position, and so is inverse depth).
+// pixel position, and so is inverse depth). `cut`: not set up because a
+// corner lies nearer than the near plane; the kernels then report the
+// hypothesis as over budget, and the host draws it with the CPU twin,
+// which clips the triangle at the plane (raster.rs near_clipped) where
+// skipping it would leave a wrong image (an object reaching behind the
+// camera drew none of its crossing triangles).
 struct Setup {
     ok: bool,
+    cut: bool,
     lo: vec2<f32>,
     hi: vec2<f32>,
     w0: vec3<f32>,
@@ -290,6 +296,7 @@ fn setup_vertices(p: GpuPose, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, first
     let b = transform(p, v1.xyz);
     let c = transform(p, v2.xyz);
     if (min(a.z, min(b.z, c.z)) < params.near) {
+        s.cut = true;
         return s;
     }
     let sa = project(a);
@@ -431,6 +438,9 @@ fn raster_slot(p: GpuPose, base: u32, lid: u32) -> Drawn {
             let t = span.x + lid;
             let s = setup_triangle(p, t, cam, first, last);
             if (!s.ok) {
+                if (s.cut) {
+                    atomicStore(&over_budget, 1u);
+                }
                 continue;
             }
             lo_all = min(lo_all, vec2<i32>(s.lo));

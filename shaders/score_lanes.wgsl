@@ -83,6 +83,8 @@ fn lane_setup(p: GpuPose, t: u32, tri: TriTexels, cam: vec3<f32>, first: vec2<f3
     if (plane_faces(tri.plane, cam)) {
         s = setup_vertices(p, tri.v0, tri.v1, tri.v2, first, last);
     }
+    // Cut by the near plane only where the lane draws the triangle.
+    s.cut = s.cut && draws;
     if (!draws || !s.ok) {
         return LaneTri(s, t, 1u, 1u, 0u);
     }
@@ -218,8 +220,9 @@ fn lane_draw4(a: LaneTri, b: LaneTri, c: LaneTri, d: LaneTri, trips: u32, ks: Ke
 }
 
 // What a lane drew: the tight rectangle of its drawn triangles, whether
-// the vector ran out of params.draw_budget, and the loop iterations its
-// workgroup has spent (or reserved) so far.
+// the vector ran out of params.draw_budget or the lane met a triangle
+// crossing the near plane (both: drawn again by the host), and the loop
+// iterations its workgroup has spent (or reserved) so far.
 struct LaneDrawn { rect: vec4<i32>, over: bool, spent: u32 }
 
 fn grow(lo: ptr<function, vec2<i32>>, hi: ptr<function, vec2<i32>>, tri: LaneTri) {
@@ -250,6 +253,8 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
     // The meshlet loop, the consumer's and one for each loop's entry.
     var spent = base + params.n_meshlets + reserved + 2u;
     var over = false;
+    // A triangle of this lane's crossing the near plane (Setup.cut).
+    var cut = false;
     for (var m = 0u; m < params.n_meshlets; m++) {
         let ml = meshlet(m);
         let visible = live && meshlet_visible(ml, p, cam, du.stretch, first, last);
@@ -280,6 +285,7 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
             let b = lane_setup(p, t + 1u, second_texels(ab), cam, first, last, visible && left > 1u);
             let c = lane_setup(p, t + 2u, first_texels(cd), cam, first, last, visible && left > 2u);
             let d = lane_setup(p, t + 3u, second_texels(cd), cam, first, last, visible && left > 3u);
+            cut = cut || a.s.cut || b.s.cut || c.s.cut || d.s.cut;
             // The pixel loop and its entry.
             let most = subgroupMax(a.trips + b.trips + c.trips + d.trips);
             if (spent + most + 1u > params.draw_budget) {
@@ -297,7 +303,7 @@ fn lane_raster(p: GpuPose, du: Dual, rect: vec4<i32>, live: bool, corner: vec2<u
             break;
         }
     }
-    return LaneDrawn(vec4<i32>(lo_all, hi_all), over, spent);
+    return LaneDrawn(vec4<i32>(lo_all, hi_all), over || cut, spent);
 }
 
 // A lane's walk over its rectangle: the next pixel (x, y) and how many are

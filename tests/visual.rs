@@ -1008,6 +1008,65 @@ fn gpu_means_over_a_large_region_match_the_twins_sums() {
     }
 }
 
+/// A mesh that reaches behind the camera is drawn where it lies beyond the
+/// near plane, by every renderer alike. A 4 m square tilted through the
+/// camera's plane (both its triangles cross it) covers the whole image at
+/// 0.17-0.95 m. The rasterizer twin clips the triangles at the near plane
+/// (`raster::near_clipped`) and draws what the ray caster sees; the GPU
+/// rasterizers hand such a hypothesis to the twin (score with either
+/// kernel, render, depth). Until 2026-12-05 the rasterizers drew nothing of
+/// it while the ray casters drew the part in front (a fuzz found GPU
+/// records of 0 pixels against the twin's 303).
+#[test]
+fn gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it() {
+    use plausible::kernels::depth::{depth_tiles_cpu, GpuDepth};
+    use plausible::kernels::RendererChoice;
+    let ctx = test_context();
+    let corners = [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)].map(|(x, y)| DVec3::new(x, y, 0.0));
+    let (square, _) = Mesh::from_raw("square", corners.to_vec(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    let mut raster = RenderMesh::new(&square).unwrap();
+    raster.renderer = RendererChoice::Raster;
+    let mut rays = raster.clone();
+    rays.renderer = RendererChoice::RayCast;
+    let k = Intrinsics { fx: 60.0, fy: 60.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
+    let tilted = |a: f64, t: DVec3| Pose::new(axis_angle(DVec3::X, a), t);
+    let seen = tilted(std::f64::consts::FRAC_PI_3, DVec3::new(0.0, 0.3, 0.8));
+    let crossing = [seen, tilted(1.0, DVec3::new(0.05, 0.25, 0.7)), tilted(1.1, DVec3::new(-0.1, 0.3, 0.9))];
+    // And one wholly beyond the plane, drawn on the GPU as ever.
+    let poses = [&crossing[..], &[tilted(0.3, DVec3::new(0.0, 0.0, 3.0))]].concat();
+    for p in &crossing {
+        let (r, c) = (render_cpu(&raster, p, &k), render_cpu(&rays, p, &k));
+        assert!(r.depth.iter().filter(|d| **d > 0.0).count() > k.pixels() * 9 / 10, "the square fills the image");
+        assert_renders_match(&r, &c);
+    }
+    for (p, g) in poses.iter().zip(render_gpu(&ctx, &raster, &poses, &k).unwrap()) {
+        let c = render_cpu(&raster, p, &k);
+        match exact_twin(&ctx) {
+            true => assert_eq!(g.depth, c.depth),
+            false => assert_renders_match(&c, &g),
+        }
+    }
+    let gpu_depth = GpuDepth::new(&ctx, &raster, &k).unwrap().render(&poses).unwrap();
+    for (g, c) in gpu_depth.iter().zip(depth_tiles_cpu(&raster, &poses, &k)) {
+        let (g, c) = (g.as_ref().unwrap(), c.unwrap());
+        assert_eq!(g.rect, c.rect);
+        assert!(g.depth.iter().zip(&c.depth).all(|(a, b)| (a - b).abs() <= 1e-4), "depth tiles differ");
+    }
+    let (obs, mask) = observe(&rays, &seen, &k, SensorNoise::default(), 4);
+    let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::FullFrame, DEFAULT_ROI_MARGIN).unwrap();
+    let params = ScoreParams::default();
+    let cpu = score_cpu(&raster, &target, &poses, &params);
+    assert!(cpu[0].rendered > 2000 && cpu[0].score > 0.7, "{:?}", cpu[0]);
+    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
+        let mut scorer = GpuScorer::new(&ctx, &raster, &target, params, poses.len()).unwrap();
+        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
+            continue;
+        }
+        scorer.set_kernel(kernel).unwrap();
+        assert_matches_twin(&ctx, &format!("{kernel:?} "), &scorer.score(&poses).unwrap().0, &cpu, 0.0);
+    }
+}
+
 /// Triangles that overlap many times over (50,000 stacked in one plane)
 /// would need far more loop iterations than lavapipe allows an invocation.
 /// The ray caster's rays give up (kernel and twin alike) and the scorer

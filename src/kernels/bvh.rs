@@ -11,8 +11,8 @@
 //! the pixel's camera ray), so one BVH serves every pose. With the camera
 //! ray's z set to 1, the hit distance is the pixel's depth. Like the
 //! rasterizer, closed meshes see front faces only, and nothing nearer than
-//! [`NEAR_M`] is drawn (the rasterizer drops a whole triangle that crosses
-//! the near plane; the ray caster keeps its part beyond it).
+//! [`NEAR_M`] is drawn (the ray caster keeps the part of a triangle beyond
+//! the near plane, as the rasterizer twin clips it there).
 
 use glam::Vec3A;
 use obvhs::cwbvh::CwBvh;

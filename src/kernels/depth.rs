@@ -261,7 +261,8 @@ impl<'a> GpuDepth<'a> {
             let n = rect_pixels(&rect);
             let at = t.offset as usize;
             // -1 first: the pose overdraws past the rasterizer's loop
-            // budget (`raster::draw_budget`); the twin renders it.
+            // budget (`raster::draw_budget`) or crosses the near plane;
+            // the twin renders it.
             if depths[at] < 0.0 {
                 over.push(i);
                 continue;
@@ -269,7 +270,7 @@ impl<'a> GpuDepth<'a> {
             out[i] = Some(DepthTile { rect, depth: depths[at..at + n].to_vec() });
         }
         if !over.is_empty() {
-            tracing::warn!("{} poses overdraw past the GPU rasterizer's loop budget: rendered on the CPU", over.len());
+            tracing::warn!("{} poses {}: rendered on the CPU", over.len(), super::NOT_DRAWN_ON_GPU);
             let cpu: Vec<Pose> = over.iter().map(|&i| poses[i]).collect();
             for (i, t) in over.into_iter().zip(depth_tiles_cpu(self.mesh, &cpu, &self.k)) {
                 out[i] = t;

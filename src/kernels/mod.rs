@@ -89,8 +89,16 @@ pub fn check_pixel_budget(pixels: usize) -> Result<()> {
     Ok(())
 }
 
-/// Triangles closer to the camera than this (m) are not drawn.
+/// Nothing nearer to the camera than this (m) is drawn: the rasterizer twin
+/// clips triangles at this plane (`raster::near_clipped`), the ray casters
+/// start their rays there, and the GPU rasterizers hand a hypothesis with a
+/// triangle crossing it to the twin.
 pub const NEAR_M: f32 = 1e-3;
+
+/// Why the GPU rasterizers hand a hypothesis to the CPU twin (warnings):
+/// its triangles overlap past the loop budget, or one crosses the near
+/// plane (the twin clips it there: `raster::near_clipped`).
+pub(crate) const NOT_DRAWN_ON_GPU: &str = "overdraw past the GPU rasterizer's loop budget or cross the camera's near plane";
 
 /// One triangle as the GPU sees it: model-space corners and its plane
 /// (`n · x = d`, unit outward normal).

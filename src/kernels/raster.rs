@@ -196,6 +196,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     // triangle's extremes.
     let mut snap = [Vec4::ZERO; 256];
     let clip = Vec4::new(first.0, first.1, -last.0, -last.1);
+    let project = |p: Vec3| Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy);
     for m in &mesh.meshlets {
         if !meshlet_visible(m, pose, cam, du.stretch, mesh.cull_back_faces, k, first, last) {
             continue;
@@ -206,59 +207,114 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
         let verts = &mesh.meshlet_vertices[m.first_vertex as usize..][..m.vertex_count as usize];
         for ((slot, rounded), &v) in proj.iter_mut().zip(snap.iter_mut()).zip(verts) {
             let p = pose.transform(mesh.vertices[v as usize]);
-            let s = Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy);
+            let s = project(p);
             *slot = (p, s);
             *rounded = Vec4::new(R::ceil(s.x), R::ceil(s.y), -R::floor(s.x), -R::floor(s.y));
         }
+        // Only where its bounding sphere reaches the near plane can a
+        // triangle cross it; its corners' projections are then no bounds.
+        let crosses = pose.transform(Vec3::from_slice(&m.sphere[..3])).z - m.sphere[3] * du.stretch <= NEAR_M;
         for t in m.first as usize..(m.first + m.count) as usize {
             let tri = &mesh.triangles[t];
             if mesh.cull_back_faces && Vec3::from_slice(&tri.plane[..3]).dot(cam) <= tri.plane[3] {
                 continue;
             }
             let [ia, ib, ic] = mesh.corners[t].map(|i| i as usize);
-            // Empty bounds first (most triangles of a full-size model): a
-            // triangle crossing the near plane is skipped either way.
+            let ((a, sa), (b, sb), (c, sc)) = (proj[ia], proj[ib], proj[ic]);
+            if crosses && a.z.min(b.z).min(c.z) < NEAR_M {
+                for part in near_clipped([a, b, c]) {
+                    let [pa, pb, pc] = part.map(|p| (p, project(p)));
+                    let (lo, hi) = (pa.1.min(pb.1).min(pc.1), pa.1.max(pb.1).max(pc.1));
+                    let lo = Vec2::new(R::ceil(lo.x), R::ceil(lo.y)).max(Vec2::new(first.0, first.1));
+                    let hi = Vec2::new(R::floor(hi.x), R::floor(hi.y)).min(Vec2::new(last.0, last.1));
+                    if lo.x <= hi.x && lo.y <= hi.y {
+                        drawn = union(drawn, fill_triangle([pa, pb, pc], lo, hi, t as u32, w, zbuf, ids));
+                    }
+                }
+                continue;
+            }
+            // Empty bounds first (most triangles of a full-size model).
             let bounds = snap[ia].min(snap[ib]).min(snap[ic]).max(clip);
             let (lo, hi) = (Vec2::new(bounds.x, bounds.y), Vec2::new(-bounds.z, -bounds.w));
             if lo.x > hi.x || lo.y > hi.y {
                 continue;
             }
-            let ((a, sa), (b, sb), (c, sc)) = (proj[ia], proj[ib], proj[ic]);
             if a.z.min(b.z).min(c.z) < NEAR_M {
-                continue;
+                continue; // only by rounding, outside a meshlet that crosses
             }
-            let area = (sb - sa).perp_dot(sc - sa);
-            if area.abs() < 1e-12 {
-                continue;
-            }
-            let (bx0, by0, bx1, by1) = (lo.x as usize, lo.y as usize, hi.x as usize, hi.y as usize);
-            drawn = Some(match drawn {
-                None => [bx0, by0, bx1, by1],
-                Some(d) => [d[0].min(bx0), d[1].min(by0), d[2].max(bx1), d[3].max(by1)],
-            });
-            // The start pixel's edge functions; their signs (with the
-            // area's) say whether it is covered.
-            let edges = Vec3A::new((sc - sb).perp_dot(lo - sb), (sa - sc).perp_dot(lo - sc), (sb - sa).perp_dot(lo - sa));
-            if bx0 == bx1 && by0 == by1 && (edges * area.signum()).min_element() < -1e-30 * area.abs() {
-                // The only pixel of the bounds (most triangles of a
-                // full-size model at 128x128) lies outside: no setup.
-                // Its weight edges / area is then below -1e-30, a normal
-                // f32 that stays negative, so fill_row would reject it too.
-                continue;
-            }
-            // The kernel's setup (setup_triangle in raster.wgsl).
-            let inv = 1.0 / area;
-            let iz = Vec3A::new(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
-            let dw_dx = Vec3A::new(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
-            let dw_dy = Vec3A::new(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
-            let w0 = edges * inv;
-            for (j, y) in (by0..=by1).enumerate() {
-                let row = y * w + bx0;
-                fill_row(w0 + dw_dy * j as f32, dw_dx, iz, &mut zbuf[row..=row + bx1 - bx0], &mut ids[row..=row + bx1 - bx0], t as u32);
-            }
+            drawn = union(drawn, fill_triangle([(a, sa), (b, sb), (c, sc)], lo, hi, t as u32, w, zbuf, ids));
         }
     }
     drawn
+}
+
+/// The union of two drawn rectangles `[x0, y0, x1, y1]`.
+#[inline(always)]
+fn union(a: Option<[usize; 4]>, b: Option<[usize; 4]>) -> Option<[usize; 4]> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some([a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])]),
+        (a, b) => a.or(b),
+    }
+}
+
+/// Sets up triangle `t` (corners in the camera frame with their pixel
+/// positions, pixel bounds `lo..=hi` within the rectangle) and draws it
+/// into the buffers (row width `w`) as the kernel's setup_vertices and
+/// shade do. Returns its bounds, `None` for a degenerate triangle.
+#[inline(always)]
+fn fill_triangle(corners: [(Vec3, Vec2); 3], lo: Vec2, hi: Vec2, t: u32, w: usize, zbuf: &mut [f32], ids: &mut [u32]) -> Option<[usize; 4]> {
+    let [(a, sa), (b, sb), (c, sc)] = corners;
+    let area = (sb - sa).perp_dot(sc - sa);
+    if area.abs() < 1e-12 {
+        return None;
+    }
+    let (bx0, by0, bx1, by1) = (lo.x as usize, lo.y as usize, hi.x as usize, hi.y as usize);
+    // The start pixel's edge functions; their signs (with the area's) say
+    // whether it is covered.
+    let edges = Vec3A::new((sc - sb).perp_dot(lo - sb), (sa - sc).perp_dot(lo - sc), (sb - sa).perp_dot(lo - sa));
+    if bx0 == bx1 && by0 == by1 && (edges * area.signum()).min_element() < -1e-30 * area.abs() {
+        // The only pixel of the bounds (most triangles of a full-size
+        // model at 128x128) lies outside: no setup. Its weight edges / area
+        // is then below -1e-30, a normal f32 that stays negative, so
+        // fill_row would reject it too.
+        return Some([bx0, by0, bx1, by1]);
+    }
+    // The kernel's setup (setup_triangle in raster.wgsl).
+    let inv = 1.0 / area;
+    let iz = Vec3A::new(1.0 / a.z, 1.0 / b.z, 1.0 / c.z);
+    let dw_dx = Vec3A::new(sb.y - sc.y, sc.y - sa.y, sa.y - sb.y) * inv;
+    let dw_dy = Vec3A::new(sc.x - sb.x, sa.x - sc.x, sb.x - sa.x) * inv;
+    let w0 = edges * inv;
+    for (j, y) in (by0..=by1).enumerate() {
+        let row = y * w + bx0;
+        fill_row(w0 + dw_dy * j as f32, dw_dx, iz, &mut zbuf[row..=row + bx1 - bx0], &mut ids[row..=row + bx1 - bx0], t);
+    }
+    Some([bx0, by0, bx1, by1])
+}
+
+/// The part of triangle `[a, b, c]` (camera frame) at or beyond the near
+/// plane `z = NEAR_M`, as at most two triangles of the same winding (the
+/// polygon of three or four corners cut by the plane, as a fan). The GPU
+/// rasterizers hand a hypothesis with such a triangle to this twin
+/// (`setup_vertices` in raster.wgsl marks it), so a pose that puts part of
+/// the mesh behind the camera is drawn as the ray casters draw it, not
+/// without its crossing triangles.
+fn near_clipped(corners: [Vec3; 3]) -> impl Iterator<Item = [Vec3; 3]> {
+    let mut poly = [Vec3::ZERO; 4];
+    let mut n = 0;
+    for i in 0..3 {
+        let (p, q) = (corners[i], corners[(i + 1) % 3]);
+        if p.z >= NEAR_M {
+            poly[n] = p;
+            n += 1;
+        }
+        if (p.z >= NEAR_M) != (q.z >= NEAR_M) {
+            let s = (NEAR_M - p.z) / (q.z - p.z);
+            poly[n] = Vec3::new(p.x + (q.x - p.x) * s, p.y + (q.y - p.y) * s, NEAR_M);
+            n += 1;
+        }
+    }
+    (1..n.saturating_sub(1)).map(move |i| [poly[0], poly[i], poly[i + 1]])
 }
 
 /// One row of a triangle's bounds: pixel `i` is covered when every

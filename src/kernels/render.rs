@@ -75,9 +75,10 @@ pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsi
         for h in 0..chunk.len() {
             let img = &px[h * pix..(h + 1) * pix];
             // Marked over the rasterizer's loop budget (raster.wgsl's
-            // draw_budget): rendered by the twin instead.
+            // draw_budget) or cut by the near plane (Setup.cut): rendered
+            // by the twin instead.
             if img[0][3] < 0.0 {
-                tracing::warn!("a hypothesis overdraws past the GPU rasterizer's loop budget: rendered on the CPU");
+                tracing::warn!("a hypothesis whose triangles {}: rendered on the CPU", super::NOT_DRAWN_ON_GPU);
                 out.push(render_cpu(mesh, &chunk[h], k));
                 continue;
             }

@@ -809,7 +809,7 @@ impl GpuScorer {
         // rest to the twin.
         let mut over: Vec<usize> = (0..out.0.len()).filter(|&i| out.0[i].valid == OVER_BUDGET).collect();
         if !over.is_empty() && self.lanes.is_some() && self.traced.is_none() {
-            tracing::debug!("{} hypotheses past the lanes kernel's loop budget: drawn by the workgroup kernel", over.len());
+            tracing::debug!("{} hypotheses past the lanes kernel's loop budget or crossing the near plane: drawn by the workgroup kernel", over.len());
             let poses: Vec<Pose> = over.iter().map(|&i| chunk[i]).collect();
             let (records, _, t) = self.run_chunk_with(&poses, raster_only, (None, None), timestamps)?.expect("only the ray caster overflows");
             for (&i, rec) in over.iter().zip(records) {
@@ -819,7 +819,7 @@ impl GpuScorer {
             over.retain(|&i| out.0[i].valid == OVER_BUDGET);
         }
         if !over.is_empty() {
-            tracing::warn!("{} hypotheses overdraw past the GPU rasterizer's loop budget: scored on the CPU", over.len());
+            tracing::warn!("{} hypotheses {}: scored on the CPU", over.len(), super::NOT_DRAWN_ON_GPU);
             let poses: Vec<Pose> = over.iter().map(|&i| chunk[i]).collect();
             for (i, rec) in over.into_iter().zip(score_cpu(&self.mesh, &self.target, &poses, &self.params)) {
                 out.0[i] = rec;
