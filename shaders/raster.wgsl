@@ -251,7 +251,7 @@ fn take_key(at: u32) -> u32 {
 // pixel position, and so is inverse depth). `cut`: not set up because a
 // corner lies nearer than the near plane; the kernels then report the
 // hypothesis as over budget, and the host draws it with the CPU twin,
-// which clips the triangle at the plane (raster.rs near_clipped) where
+// which clips the triangle at the plane (raster.rs `clipped`) where
 // skipping it would leave a wrong image (an object reaching behind the
 // camera drew none of its crossing triangles).
 struct Setup {

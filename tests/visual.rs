@@ -1012,7 +1012,7 @@ fn gpu_means_over_a_large_region_match_the_twins_sums() {
 /// near plane, by every renderer alike. A 4 m square tilted through the
 /// camera's plane (both its triangles cross it) covers the whole image at
 /// 0.17-0.95 m. The rasterizer twin clips the triangles at the near plane
-/// (`raster::near_clipped`) and draws what the ray caster sees; the GPU
+/// (`raster::clipped`) and draws what the ray caster sees; the GPU
 /// rasterizers hand such a hypothesis to the twin (score with either
 /// kernel, render, depth). Until 2026-12-05 the rasterizers drew nothing of
 /// it while the ray casters drew the part in front (a fuzz found GPU
@@ -1039,6 +1039,25 @@ fn gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it() {
         assert!(r.depth.iter().filter(|d| **d > 0.0).count() > k.pixels() * 9 / 10, "the square fills the image");
         assert_renders_match(&r, &c);
     }
+    // Any tilt, the plane 0-4 cm from the camera, its corner or edge in view:
+    // the rasterizer twin still draws what the ray caster sees.
+    let (tile, _) = Mesh::from_raw("tile", corners.map(|c| c * 0.1).to_vec(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    let mut tile_raster = RenderMesh::new(&tile).unwrap();
+    tile_raster.renderer = RendererChoice::Raster;
+    let mut tile_rays = tile_raster.clone();
+    tile_rays.renderer = RendererChoice::RayCast;
+    let mut checked = 0;
+    for (i, p) in around_and_random(&seen, 40, 7).into_iter().enumerate() {
+        let shift = DVec3::new(((i % 5) as f64 - 2.0) * 0.1, ((i % 3) as f64 - 1.0) * 0.1, 0.0);
+        let p = Pose::new(p.r, p.r * shift + DVec3::new(0.0, 0.0, 0.01 * (i % 5) as f64));
+        let (r, c) = (render_cpu(&tile_raster, &p, &k), render_cpu(&tile_rays, &p, &k));
+        let n = c.depth.iter().filter(|d| **d > 0.0).count();
+        if n > 100 && n < k.pixels() {
+            assert_renders_match(&r, &c);
+            checked += 1;
+        }
+    }
+    assert!(checked > 10, "{checked} poses see the square");
     for (p, g) in poses.iter().zip(render_gpu(&ctx, &raster, &poses, &k).unwrap()) {
         let c = render_cpu(&raster, p, &k);
         match exact_twin(&ctx) {

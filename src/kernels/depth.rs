@@ -270,7 +270,7 @@ impl<'a> GpuDepth<'a> {
             out[i] = Some(DepthTile { rect, depth: depths[at..at + n].to_vec() });
         }
         if !over.is_empty() {
-            tracing::warn!("{} poses {}: rendered on the CPU", over.len(), super::NOT_DRAWN_ON_GPU);
+            tracing::warn!("{} {}: rendered on the CPU", super::hypotheses(over.len()), super::NOT_DRAWN_ON_GPU);
             let cpu: Vec<Pose> = over.iter().map(|&i| poses[i]).collect();
             for (i, t) in over.into_iter().zip(depth_tiles_cpu(self.mesh, &cpu, &self.k)) {
                 out[i] = t;

@@ -90,15 +90,21 @@ pub fn check_pixel_budget(pixels: usize) -> Result<()> {
 }
 
 /// Nothing nearer to the camera than this (m) is drawn: the rasterizer twin
-/// clips triangles at this plane (`raster::near_clipped`), the ray casters
+/// clips triangles at this plane (`raster::clipped`), the ray casters
 /// start their rays there, and the GPU rasterizers hand a hypothesis with a
 /// triangle crossing it to the twin.
 pub const NEAR_M: f32 = 1e-3;
 
 /// Why the GPU rasterizers hand a hypothesis to the CPU twin (warnings):
 /// its triangles overlap past the loop budget, or one crosses the near
-/// plane (the twin clips it there: `raster::near_clipped`).
-pub(crate) const NOT_DRAWN_ON_GPU: &str = "overdraw past the GPU rasterizer's loop budget or cross the camera's near plane";
+/// plane (the twin clips it there: `raster::clipped`). The kernels report
+/// both the same way.
+pub(crate) const NOT_DRAWN_ON_GPU: &str = "not drawn by the GPU rasterizer (triangles overlapping past its loop budget, or one crossing the camera's near plane)";
+
+/// "1 hypothesis", "2 hypotheses": counts in warnings.
+pub(crate) fn hypotheses(n: usize) -> String {
+    format!("{n} {}", if n == 1 { "hypothesis" } else { "hypotheses" })
+}
 
 /// One triangle as the GPU sees it: model-space corners and its plane
 /// (`n · x = d`, unit outward normal).

@@ -197,6 +197,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     let mut snap = [Vec4::ZERO; 256];
     let clip = Vec4::new(first.0, first.1, -last.0, -last.1);
     let project = |p: Vec3| Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy);
+    let frustum = near_frustum(k, first, last);
     for m in &mesh.meshlets {
         if !meshlet_visible(m, pose, cam, du.stretch, mesh.cull_back_faces, k, first, last) {
             continue;
@@ -222,7 +223,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
             let [ia, ib, ic] = mesh.corners[t].map(|i| i as usize);
             let ((a, sa), (b, sb), (c, sc)) = (proj[ia], proj[ib], proj[ic]);
             if crosses && a.z.min(b.z).min(c.z) < NEAR_M {
-                for part in near_clipped([a, b, c]) {
+                for part in clipped([a, b, c], &frustum) {
                     let [pa, pb, pc] = part.map(|p| (p, project(p)));
                     let (lo, hi) = (pa.1.min(pb.1).min(pc.1), pa.1.max(pb.1).max(pc.1));
                     let lo = Vec2::new(R::ceil(lo.x), R::ceil(lo.y)).max(Vec2::new(first.0, first.1));
@@ -292,27 +293,60 @@ fn fill_triangle(corners: [(Vec3, Vec2); 3], lo: Vec2, hi: Vec2, t: u32, w: usiz
     Some([bx0, by0, bx1, by1])
 }
 
-/// The part of triangle `[a, b, c]` (camera frame) at or beyond the near
-/// plane `z = NEAR_M`, as at most two triangles of the same winding (the
-/// polygon of three or four corners cut by the plane, as a fan). The GPU
-/// rasterizers hand a hypothesis with such a triangle to this twin
-/// (`setup_vertices` in raster.wgsl marks it), so a pose that puts part of
-/// the mesh behind the camera is drawn as the ray casters draw it, not
-/// without its crossing triangles.
-fn near_clipped(corners: [Vec3; 3]) -> impl Iterator<Item = [Vec3; 3]> {
-    let mut poly = [Vec3::ZERO; 4];
-    let mut n = 0;
-    for i in 0..3 {
-        let (p, q) = (corners[i], corners[(i + 1) % 3]);
-        if p.z >= NEAR_M {
-            poly[n] = p;
-            n += 1;
+/// Where a triangle crossing the near plane is drawn: the camera-frame
+/// half-spaces (`n·p ≥ d`) of the near plane and of the four planes through
+/// the camera centre and the rectangle's sides, a pixel beyond them.
+/// Clipped at the near plane alone, a corner 1 mm from the camera projects
+/// a thousand times farther out than at 1 m (600,000 pixels for 1 m aside
+/// at fx = 600), and the edge functions' f32 rounding grows with it to a
+/// fraction of a pixel; clipped to the frustum every corner stays within a
+/// pixel of the rectangle, and the pixels inside it are the same. (On the
+/// test's tilted tiles, 0-4 cm from the camera, either gave exactly the ray
+/// caster's pixels.)
+fn near_frustum(k: &Intrinsics, first: (f32, f32), last: (f32, f32)) -> [(Vec3, f32); 5] {
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let (x0, x1) = ((first.0 - 1.0 - cx) / fx, (last.0 + 1.0 - cx) / fx);
+    let (y0, y1) = ((first.1 - 1.0 - cy) / fy, (last.1 + 1.0 - cy) / fy);
+    [
+        (Vec3::Z, NEAR_M),
+        (Vec3::new(1.0, 0.0, -x0), 0.0),
+        (Vec3::new(-1.0, 0.0, x1), 0.0),
+        (Vec3::new(0.0, 1.0, -y0), 0.0),
+        (Vec3::new(0.0, -1.0, y1), 0.0),
+    ]
+}
+
+/// The part of triangle `corners` (camera frame) inside every half-space
+/// of `planes` (Sutherland-Hodgman), as a fan of triangles of the same
+/// winding. The GPU rasterizers hand a hypothesis with a triangle crossing
+/// the near plane to this twin (`setup_vertices` in raster.wgsl marks it),
+/// which draws the part beyond the plane ([`near_frustum`]) as the ray
+/// casters do, where the triangle used to be left out.
+fn clipped(corners: [Vec3; 3], planes: &[(Vec3, f32)]) -> impl Iterator<Item = [Vec3; 3]> {
+    // Each plane adds at most one corner: 3 + 5.
+    let mut poly = [Vec3::ZERO; 8];
+    poly[..3].copy_from_slice(&corners);
+    let mut n = 3;
+    for &(normal, d) in planes {
+        let mut out = [Vec3::ZERO; 8];
+        let mut m = 0;
+        for i in 0..n {
+            let (p, q) = (poly[i], poly[(i + 1) % n]);
+            let (dp, dq) = (normal.dot(p) - d, normal.dot(q) - d);
+            if dp >= 0.0 && m < out.len() {
+                out[m] = p;
+                m += 1;
+            }
+            if (dp >= 0.0) != (dq >= 0.0) && m < out.len() {
+                // From the inside corner, whichever way the edge runs: the
+                // neighbour sharing the edge walks it the other way and
+                // must get the same point, or a crack opens between them.
+                let ((i, di), (o, dout)) = if dp >= 0.0 { ((p, dp), (q, dq)) } else { ((q, dq), (p, dp)) };
+                out[m] = i + (o - i) * (di / (di - dout));
+                m += 1;
+            }
         }
-        if (p.z >= NEAR_M) != (q.z >= NEAR_M) {
-            let s = (NEAR_M - p.z) / (q.z - p.z);
-            poly[n] = Vec3::new(p.x + (q.x - p.x) * s, p.y + (q.y - p.y) * s, NEAR_M);
-            n += 1;
-        }
+        (poly, n) = (out, m);
     }
     (1..n.saturating_sub(1)).map(move |i| [poly[0], poly[i], poly[i + 1]])
 }

@@ -78,7 +78,7 @@ pub fn render_gpu(ctx: &Context, mesh: &RenderMesh, poses: &[Pose], k: &Intrinsi
             // draw_budget) or cut by the near plane (Setup.cut): rendered
             // by the twin instead.
             if img[0][3] < 0.0 {
-                tracing::warn!("a hypothesis whose triangles {}: rendered on the CPU", super::NOT_DRAWN_ON_GPU);
+                tracing::warn!("1 hypothesis {}: rendered on the CPU", super::NOT_DRAWN_ON_GPU);
                 out.push(render_cpu(mesh, &chunk[h], k));
                 continue;
             }

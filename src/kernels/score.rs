@@ -819,7 +819,7 @@ impl GpuScorer {
             over.retain(|&i| out.0[i].valid == OVER_BUDGET);
         }
         if !over.is_empty() {
-            tracing::warn!("{} hypotheses {}: scored on the CPU", over.len(), super::NOT_DRAWN_ON_GPU);
+            tracing::warn!("{} {}: scored on the CPU", super::hypotheses(over.len()), super::NOT_DRAWN_ON_GPU);
             let poses: Vec<Pose> = over.iter().map(|&i| chunk[i]).collect();
             for (i, rec) in over.into_iter().zip(score_cpu(&self.mesh, &self.target, &poses, &self.params)) {
                 out.0[i] = rec;
