@@ -1058,6 +1058,19 @@ fn gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it() {
         }
     }
     assert!(checked > 10, "{checked} poses see the square");
+    // A 20 m square 5 cm from the camera, its diagonal across the image: the
+    // two clipped triangles meet without a crack (every pixel's ray hits the
+    // square beyond the near plane, by an exact float64 count). Clipped at
+    // the near plane alone, two pixels on the diagonal were lost: corners
+    // 1 mm from the camera project thousands of pixels out (raster.rs
+    // near_frustum).
+    let (big, _) = Mesh::from_raw("big square", corners.map(|c| c * 5.0).to_vec(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    let mut big = RenderMesh::new(&big).unwrap();
+    big.renderer = RendererChoice::Raster;
+    let r = [0.5633777055929099, 0.0, 0.8261994679500033, 0.5357641552508874, 0.7612416688041095, -0.36533257673609876, -0.6289374617473279, 0.6484682888748952, 0.428866584772577];
+    let p = Pose::new(glam::DMat3::from_cols_array(&r).transpose(), DVec3::new(-0.0018623100565173848, -0.0022596789111481792, 0.04990904340458038));
+    let k = Intrinsics { fx: 134.02179746791018, fy: 129.43667560296316, cx: 33.10121428368295, cy: 20.846825837082598, width: 64, height: 48 };
+    assert_eq!(render_cpu(&big, &p, &k).depth.iter().filter(|d| **d > 0.0).count(), k.pixels());
     for (p, g) in poses.iter().zip(render_gpu(&ctx, &raster, &poses, &k).unwrap()) {
         let c = render_cpu(&raster, p, &k);
         match exact_twin(&ctx) {

@@ -298,11 +298,11 @@ fn fill_triangle(corners: [(Vec3, Vec2); 3], lo: Vec2, hi: Vec2, t: u32, w: usiz
 /// the camera centre and the rectangle's sides, a pixel beyond them.
 /// Clipped at the near plane alone, a corner 1 mm from the camera projects
 /// a thousand times farther out than at 1 m (600,000 pixels for 1 m aside
-/// at fx = 600), and the edge functions' f32 rounding grows with it to a
-/// fraction of a pixel; clipped to the frustum every corner stays within a
-/// pixel of the rectangle, and the pixels inside it are the same. (On the
-/// test's tilted tiles, 0-4 cm from the camera, either gave exactly the ray
-/// caster's pixels.)
+/// at fx = 600), and the edge functions' f32 rounding grows with it: a 20 m
+/// square 5 cm from the camera lost two pixels along its diagonal (a fuzz
+/// found it; `gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it`
+/// holds it). Clipped to the frustum every corner stays within a pixel of
+/// the rectangle, and the pixels inside it are the same.
 fn near_frustum(k: &Intrinsics, first: (f32, f32), last: (f32, f32)) -> [(Vec3, f32); 5] {
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     let (x0, x1) = ((first.0 - 1.0 - cx) / fx, (last.0 + 1.0 - cx) / fx);
@@ -339,8 +339,8 @@ fn clipped(corners: [Vec3; 3], planes: &[(Vec3, f32)]) -> impl Iterator<Item = [
             }
             if (dp >= 0.0) != (dq >= 0.0) && m < out.len() {
                 // From the inside corner, whichever way the edge runs: the
-                // neighbour sharing the edge walks it the other way and
-                // must get the same point, or a crack opens between them.
+                // neighbour sharing the edge walks it the other way and gets
+                // the same point, bit for bit.
                 let ((i, di), (o, dout)) = if dp >= 0.0 { ((p, dp), (q, dq)) } else { ((q, dq), (p, dp)) };
                 out[m] = i + (o - i) * (di / (di - dout));
                 m += 1;
