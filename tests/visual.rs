@@ -182,6 +182,21 @@ fn assert_matches_twin(ctx: &Context, what: &str, gpu: &[ScoreRecord], cpu: &[Sc
     }
 }
 
+/// `poses` scored by each score kernel the adapter runs: the workgroup
+/// kernel, then the lanes kernel where it is available.
+fn score_with_each_kernel(ctx: &Context, mesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, poses: &[Pose]) -> Vec<(ScoreKernel, Vec<ScoreRecord>)> {
+    let mut out = Vec::new();
+    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
+        if kernel == ScoreKernel::Lanes && !lanes_available(ctx) {
+            continue;
+        }
+        let mut scorer = GpuScorer::new(ctx, mesh, target, params, poses.len()).unwrap();
+        scorer.set_kernel(kernel).unwrap();
+        out.push((kernel, scorer.score(poses).unwrap().0));
+    }
+    out
+}
+
 /// The two score kernels draw the same visibility keys, so their records
 /// agree: the counts exactly, and the means too, though the workgroup
 /// kernel adds in a tree and the lanes kernel pixel by pixel (fixed-point
@@ -318,13 +333,8 @@ fn gpu_big_triangles_draw_the_twins_pixels_with_either_kernel() {
     let poses = [Pose::new(glam::DMat3::IDENTITY, DVec3::new(0.0, 0.0, 0.21556337721897109)), seen];
     let params = ScoreParams::default();
     let cpu = score_cpu(&mesh, &target, &poses, &params);
-    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
-        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
-        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
-            continue;
-        }
-        scorer.set_kernel(kernel).unwrap();
-        assert_matches_twin(&ctx, &format!("{kernel:?} "), &scorer.score(&poses).unwrap().0, &cpu, 0.0);
+    for (kernel, gpu) in score_with_each_kernel(&ctx, &mesh, &target, params, &poses) {
+        assert_matches_twin(&ctx, &format!("{kernel:?} "), &gpu, &cpu, 0.0);
     }
     let img = render_gpu(&ctx, &mesh, &poses, &target.intrinsics).unwrap();
     for (p, g) in poses.iter().zip(&img) {
@@ -991,13 +1001,7 @@ fn gpu_means_over_a_large_region_match_the_twins_sums() {
         assert!((c.mean_ad as f64 - (1.0 - o / params.tau as f64)).abs() < 1e-5, "offset {o}: {c:?}");
         assert_eq!(c.mean_an, 1.0, "offset {o}: {c:?}");
     }
-    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
-        let mut scorer = GpuScorer::new(&ctx, &mesh, &target, params, poses.len()).unwrap();
-        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
-            continue;
-        }
-        scorer.set_kernel(kernel).unwrap();
-        let gpu = scorer.score(&poses).unwrap().0;
+    for (kernel, gpu) in score_with_each_kernel(&ctx, &mesh, &target, params, &poses) {
         assert_matches_twin(&ctx, &format!("{kernel:?} "), &gpu, &cpu, 0.0);
         for ((o, g), c) in offsets.iter().zip(&gpu).zip(&cpu) {
             // Each pixel's term in f32 on both sides (one ulp of a 1 m
@@ -1089,13 +1093,8 @@ fn gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it() {
     let params = ScoreParams::default();
     let cpu = score_cpu(&raster, &target, &poses, &params);
     assert!(cpu[0].rendered > 2000 && cpu[0].score > 0.7, "{:?}", cpu[0]);
-    for kernel in [ScoreKernel::Workgroups, ScoreKernel::Lanes] {
-        let mut scorer = GpuScorer::new(&ctx, &raster, &target, params, poses.len()).unwrap();
-        if kernel == ScoreKernel::Lanes && !lanes_available(&ctx) {
-            continue;
-        }
-        scorer.set_kernel(kernel).unwrap();
-        assert_matches_twin(&ctx, &format!("{kernel:?} "), &scorer.score(&poses).unwrap().0, &cpu, 0.0);
+    for (kernel, gpu) in score_with_each_kernel(&ctx, &raster, &target, params, &poses) {
+        assert_matches_twin(&ctx, &format!("{kernel:?} "), &gpu, &cpu, 0.0);
     }
 }
 
