@@ -119,13 +119,14 @@ impl Scorer {
     /// Prepares scoring of `mesh` against `target` on `device`; `n_hint`
     /// sizes the GPU buffers (larger batches are split). On the GPU the
     /// mesh and observation are uploaded and the score kernel compiled
-    /// (or a [`precompile`](Self::precompile) of it waited for) here, so
-    /// [`score`](Self::score) only scores.
+    /// (or a [`precompile`](Self::precompile) of it waited for) here, on
+    /// lavapipe with one hypothesis scored to make its machine code
+    /// ([`GpuScorer::compile`]), so [`score`](Self::score) only scores.
     pub fn new(device: &Device, mesh: &RenderMesh, target: &ScoreTarget, params: ScoreParams, n_hint: usize) -> Result<Scorer> {
         let inner = match device {
             Device::Gpu(ctx) => {
                 let scorer = GpuScorer::new(ctx, mesh, target, params, n_hint)?;
-                scorer.compile();
+                scorer.compile()?;
                 ScorerImpl::Gpu(Box::new(scorer))
             }
             Device::Cpu => ScorerImpl::Cpu { mesh: mesh.clone(), target: target.clone(), params },

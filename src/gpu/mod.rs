@@ -203,6 +203,19 @@ mod cache_tests {
         assert!(Arc::ptr_eq(&got[0], &ctx.pipeline("test/empty", EMPTY, "main")));
     }
 
+    /// A pipeline's first dispatch with textures of given sizes is noted
+    /// once per device, for every context on it: the scorer's warm-up
+    /// dispatch (`GpuScorer::compile`) runs once, not per scorer.
+    #[test]
+    fn gpu_first_dispatch_is_noted_once_per_pipeline_and_texture_sizes() {
+        let (a, b) = (super::test_context(), super::test_context());
+        assert!(a.first_dispatch("test/first", vec![[64, 8], [128, 128]]));
+        assert!(!b.first_dispatch("test/first", vec![[64, 8], [128, 128]]));
+        assert!(b.first_dispatch("test/first", vec![[64, 16], [128, 128]]));
+        assert!(a.first_dispatch("test/other", vec![[64, 8], [128, 128]]));
+        assert!(!a.first_dispatch("test/first", vec![[64, 16], [128, 128]]));
+    }
+
     /// Contexts opened and dropped on many threads at once, clones and
     /// background compiles among them, share one device and its pipelines
     /// (NVIDIA's driver crashed on this while each context opened its own
@@ -299,6 +312,9 @@ pub struct Context {
     /// ([`compile_in_background`](Self::compile_in_background)) waits for
     /// that compile instead of starting its own.
     pub(crate) cache: PipelineCache,
+    /// What [`first_dispatch`](Self::first_dispatch) has been asked, shared
+    /// like the pipelines.
+    pub(crate) dispatched: Dispatched,
 }
 
 /// A pipeline compiling on a thread of its own
@@ -332,6 +348,10 @@ pub(crate) type PipelineCell = Arc<std::sync::OnceLock<Arc<wgpu::ComputePipeline
 
 /// A device's compiled pipelines by key, shared by its contexts.
 pub(crate) type PipelineCache = Arc<std::sync::Mutex<std::collections::HashMap<&'static str, PipelineCell>>>;
+
+/// The pipelines a device has dispatched, each with the sizes of the
+/// textures bound to it ([`Context::first_dispatch`]).
+pub(crate) type Dispatched = Arc<std::sync::Mutex<std::collections::HashSet<(&'static str, Vec<[u32; 2]>)>>>;
 
 impl std::fmt::Debug for Context {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -372,6 +392,7 @@ impl Context {
             timestamps: open.features.contains(wgpu::Features::TIMESTAMP_QUERY),
             subgroup_lanes,
             cache: open.cache.clone(),
+            dispatched: open.dispatched.clone(),
         })
     }
 
@@ -398,6 +419,16 @@ impl Context {
     /// bits); 16 (512 bits) when the name does not say.
     pub fn simd_lanes(&self) -> u32 {
         simd_lanes(&self.info.name)
+    }
+
+    /// Whether pipeline `key` is dispatched on this device for the first
+    /// time with textures of these `sizes` bound (and notes that it now
+    /// is). llvmpipe (lavapipe) translates a pipeline to machine code on
+    /// its first dispatch, not when the pipeline is made: one machine-code
+    /// variant per kind of bound textures (format, and whether each side
+    /// is a power of two), so the sizes stand in for that kind.
+    pub(crate) fn first_dispatch(&self, key: &'static str, sizes: Vec<[u32; 2]>) -> bool {
+        self.dispatched.lock().unwrap_or_else(|e| e.into_inner()).insert((key, sizes))
     }
 
     /// Compiles (once) the compute pipeline `entry` of `source`.

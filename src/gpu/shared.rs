@@ -27,7 +27,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use super::PipelineCache;
+use super::{Dispatched, PipelineCache};
 use crate::error::Result;
 
 /// An open device and what the contexts on it share.
@@ -39,6 +39,7 @@ pub(crate) struct SharedDevice {
     pub required: wgpu::Limits,
     pub features: wgpu::Features,
     pub cache: PipelineCache,
+    pub dispatched: Dispatched,
     /// Set by the device-lost callback.
     lost: Arc<AtomicBool>,
     /// The process that opened it.
@@ -52,7 +53,7 @@ impl SharedDevice {
         // Only a flag: the callback may run on any thread, with any lock
         // held, so it takes none.
         device.set_device_lost_callback(move |_, _| flag.store(true, Ordering::Relaxed));
-        SharedDevice { device, queue, info, required, features, cache: Default::default(), lost, pid: std::process::id() }
+        SharedDevice { device, queue, info, required, features, cache: Default::default(), dispatched: Default::default(), lost, pid: std::process::id() }
     }
 
     fn lost(&self) -> bool {

@@ -102,6 +102,6 @@ pub(crate) fn plane_stage(ctx: &Context, params: &PlaneParams, samples: &[[f32; 
         samples: super::raster::texel_table(ctx, "surface sample", samples, super::contacts::SAMPLE_ROW, wgpu::TextureFormat::Rgba32Float)?,
         records: output("plane records", (chunk * std::mem::size_of::<ContactRecord>()) as u64),
         bits: output("plane bits", bits_bytes),
-        pipeline: ctx.pipeline("score+plane", SCORE_PHYSICS_WGSL, "score_physics_main"),
+        pipeline: ctx.pipeline(super::score::PLANE_SCORE, SCORE_PHYSICS_WGSL, "score_physics_main"),
     })
 }

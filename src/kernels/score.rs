@@ -339,6 +339,11 @@ fn lanes_pipeline(lanes: u32, raster_only: bool) -> (&'static str, &'static str,
 /// The workgroup kernel's scoring pipeline without a plane stage.
 const WORKGROUP_SCORE: (&str, &str) = ("score", "score_main");
 
+/// The cache keys of the ray caster's scoring pipeline and of the
+/// workgroup kernel fused with the plane stage.
+const TRACED_SCORE: &str = "score/traced";
+pub(crate) const PLANE_SCORE: &str = "score+plane";
+
 /// Fewest lanes the lanes kernel runs with: its subgroup fetches two
 /// triangles' four texels, or eight triangles' planes, in one go
 /// (`lane_texel` in score_lanes.wgsl).
@@ -387,7 +392,7 @@ impl TracedStage {
             prims: init("bvh primitives", &bvh.prims, read),
             overflow: init("ray overflow", &[0], read | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC),
             raycast: ctx.pipeline("raycast", super::raycast::RAYCAST_WGSL, "raycast_main"),
-            reduce: ctx.pipeline("score/traced", SCORE_WGSL, "score_traced_main"),
+            reduce: ctx.pipeline(TRACED_SCORE, SCORE_WGSL, "score_traced_main"),
         })
     }
 }
@@ -634,12 +639,59 @@ impl GpuScorer {
     /// wait for no compile and a caller timing its scoring times the
     /// kernel. The ray caster's and the plane stage's pipelines were
     /// compiled with their stages.
-    pub fn compile(&self) {
+    ///
+    /// On a software adapter it then scores one hypothesis, the first time
+    /// the device runs this pipeline with textures of these sizes
+    /// (`Context::first_dispatch`): lavapipe makes the machine code on
+    /// that first dispatch. Where Mesa's shader cache does not hold it (a
+    /// fresh machine, a read-only home), that took 0.26 s of the first
+    /// scoring call for the lanes kernel on the duck, as long as scoring
+    /// the demo's 4,096 poses on two threads. The dispatch also has wgpu
+    /// clear the new textures (done on their first use): with the cache
+    /// warm, `score` on the demo scored 4-18 % faster (README, "Where
+    /// lavapipe's time goes").
+    pub fn compile(&self) -> Result<()> {
         if let (Some(l), None) = (&self.lanes, &self.traced) {
             l.pipeline(&self.ctx, false);
         } else if self.traced.is_none() && self.plane.is_none() {
             self.ctx.pipeline(WORKGROUP_SCORE.0, SCORE_WGSL, WORKGROUP_SCORE.1);
         }
+        if self.ctx.is_software() && self.ctx.first_dispatch(self.pipeline_key(), self.texture_sizes()) {
+            let _span = tracing::trace_span!("first_dispatch").entered();
+            self.run_chunk(&[self.centred_pose()], false, None)?;
+        }
+        Ok(())
+    }
+
+    /// The cache key of the pipeline that scores (the ray caster's reduce
+    /// for a scorer that ray-casts).
+    fn pipeline_key(&self) -> &'static str {
+        match (&self.traced, &self.plane, &self.lanes) {
+            (Some(_), _, _) => TRACED_SCORE,
+            (None, Some(_), _) => PLANE_SCORE,
+            (None, None, Some(l)) => lanes_pipeline(l.lanes, false).0,
+            (None, None, None) => WORKGROUP_SCORE.0,
+        }
+    }
+
+    /// The sizes of the textures the scoring dispatches bind.
+    fn texture_sizes(&self) -> Vec<[u32; 2]> {
+        let views = [Some(&self.bufs.tris), Some(&self.bufs.meshlets), Some(&self.observed.1)];
+        let extra = [self.lanes.as_ref().map(|l| &l.keys), self.traced.as_ref().map(|t| &t.nodes), self.plane.as_ref().map(|p| &p.samples)];
+        views.into_iter().chain(extra).flatten().map(|v| [v.texture().width(), v.texture().height()]).collect()
+    }
+
+    /// A pose that shows the mesh whole in the middle of the region, half
+    /// as wide as the region (for [`compile`](Self::compile)'s first
+    /// dispatch: any pose would do, one that draws runs all of the code).
+    fn centred_pose(&self) -> Pose {
+        let k = &self.target_intrinsics;
+        let r = f64::from(self.mesh.radius).max(1e-6);
+        let across = (f64::from(k.width.min(k.height)) / 2.0).max(1.0);
+        let z = (k.fx.max(k.fy) * 2.0 * r / across).max(4.0 * r);
+        let x = (f64::from(k.width) / 2.0 - k.cx) / k.fx * z;
+        let y = (f64::from(k.height) / 2.0 - k.cy) / k.fy * z;
+        Pose { r: glam::DMat3::IDENTITY, t: glam::DVec3::new(x, y, z) }
     }
 
     /// Records GPU timestamps around each compute pass (when the adapter
