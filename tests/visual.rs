@@ -735,6 +735,16 @@ fn open_box() -> Mesh {
     open
 }
 
+/// `mesh` prepared for the rasterizer and, a copy, for the BVH ray caster.
+fn raster_and_rays(mesh: &Mesh) -> (RenderMesh, RenderMesh) {
+    use plausible::kernels::RendererChoice;
+    let mut raster = RenderMesh::new(mesh).unwrap();
+    raster.renderer = RendererChoice::Raster;
+    let mut rays = raster.clone();
+    rays.renderer = RendererChoice::RayCast;
+    (raster, rays)
+}
+
 /// A 128x128 crop of the LineMOD camera, and the full frame.
 fn crop_and_full() -> [Intrinsics; 2] {
     let full = linemod_camera();
@@ -904,12 +914,8 @@ fn an_inside_out_mesh_renders_like_the_mesh() {
 /// model, the duck and an open mesh, at 128x128 and at full frame.
 #[test]
 fn ray_caster_renders_like_the_rasterizer() {
-    use plausible::kernels::RendererChoice;
     for mesh in renderer_meshes() {
-        let mut raster = RenderMesh::new(&mesh).unwrap();
-        raster.renderer = RendererChoice::Raster;
-        let mut rays = raster.clone();
-        rays.renderer = RendererChoice::RayCast;
+        let (raster, rays) = raster_and_rays(&mesh);
         assert!(rays.ray_caster().is_some());
         for k in crop_and_full() {
             for p in around_and_random(&true_pose(), 12, 23) {
@@ -1028,10 +1034,7 @@ fn gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it() {
     let ctx = test_context();
     let corners = [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)].map(|(x, y)| DVec3::new(x, y, 0.0));
     let (square, _) = Mesh::from_raw("square", corners.to_vec(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
-    let mut raster = RenderMesh::new(&square).unwrap();
-    raster.renderer = RendererChoice::Raster;
-    let mut rays = raster.clone();
-    rays.renderer = RendererChoice::RayCast;
+    let (raster, rays) = raster_and_rays(&square);
     let k = Intrinsics { fx: 60.0, fy: 60.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
     let tilted = |a: f64, t: DVec3| Pose::new(axis_angle(DVec3::X, a), t);
     let seen = tilted(std::f64::consts::FRAC_PI_3, DVec3::new(0.0, 0.3, 0.8));
@@ -1046,10 +1049,7 @@ fn gpu_meshes_crossing_the_near_plane_draw_their_part_beyond_it() {
     // Any tilt, the plane 0-4 cm from the camera, its corner or edge in view:
     // the rasterizer twin still draws what the ray caster sees.
     let (tile, _) = Mesh::from_raw("tile", corners.map(|c| c * 0.1).to_vec(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
-    let mut tile_raster = RenderMesh::new(&tile).unwrap();
-    tile_raster.renderer = RendererChoice::Raster;
-    let mut tile_rays = tile_raster.clone();
-    tile_rays.renderer = RendererChoice::RayCast;
+    let (tile_raster, tile_rays) = raster_and_rays(&tile);
     let mut checked = 0;
     for (i, p) in around_and_random(&seen, 40, 7).into_iter().enumerate() {
         let shift = DVec3::new(((i % 5) as f64 - 2.0) * 0.1, ((i % 3) as f64 - 1.0) * 0.1, 0.0);
@@ -1113,10 +1113,7 @@ fn gpu_kernels_over_their_loop_budget_hand_over_to_the_twin() {
     let stack = stack_of(50_000);
     let truth = Pose::new(axis_angle(DVec3::X, 0.0), DVec3::new(0.0, 0.0, 0.5));
     let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 31.5, cy: 23.5, width: 64, height: 48 };
-    let mut rays = RenderMesh::new(&stack).unwrap();
-    rays.renderer = RendererChoice::RayCast;
-    let mut raster = rays.clone();
-    raster.renderer = RendererChoice::Raster;
+    let (raster, rays) = raster_and_rays(&stack);
     let (obs, mask) = observe(&raster, &truth, &k, SensorNoise::default(), 3);
     let target = ScoreTarget::new(&obs, Some(&mask), RoiSampling::Square(16), DEFAULT_ROI_MARGIN).unwrap();
     let poses = around_and_random(&truth, 4, 5);
