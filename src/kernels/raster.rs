@@ -197,6 +197,12 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
     let mut snap = [Vec4::ZERO; 256];
     let clip = Vec4::new(first.0, first.1, -last.0, -last.1);
     let project = |p: Vec3| Vec2::new(fx * p.x / p.z + cx, fy * p.y / p.z + cy);
+    let rounded = |s: Vec2| Vec4::new(R::ceil(s.x), R::ceil(s.y), -R::floor(s.x), -R::floor(s.y));
+    // A triangle's pixel bounds (lo, hi) from its corners' rounded minimum.
+    let bounds = |corners: Vec4| {
+        let b = corners.max(clip);
+        (Vec2::new(b.x, b.y), Vec2::new(-b.z, -b.w))
+    };
     let frustum = near_frustum(k, first, last);
     for m in &mesh.meshlets {
         if !meshlet_visible(m, pose, cam, du.stretch, mesh.cull_back_faces, k, first, last) {
@@ -206,11 +212,11 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
         // f32 operations the kernel does per corner, so the values are
         // identical).
         let verts = &mesh.meshlet_vertices[m.first_vertex as usize..][..m.vertex_count as usize];
-        for ((slot, rounded), &v) in proj.iter_mut().zip(snap.iter_mut()).zip(verts) {
+        for ((slot, snapped), &v) in proj.iter_mut().zip(snap.iter_mut()).zip(verts) {
             let p = pose.transform(mesh.vertices[v as usize]);
             let s = project(p);
             *slot = (p, s);
-            *rounded = Vec4::new(R::ceil(s.x), R::ceil(s.y), -R::floor(s.x), -R::floor(s.y));
+            *snapped = rounded(s);
         }
         // Only where its bounding sphere reaches the near plane can a
         // triangle cross it; its corners' projections are then no bounds.
@@ -225,9 +231,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
             if crosses && a.z.min(b.z).min(c.z) < NEAR_M {
                 for part in clipped([a, b, c], &frustum) {
                     let [pa, pb, pc] = part.map(|p| (p, project(p)));
-                    let (lo, hi) = (pa.1.min(pb.1).min(pc.1), pa.1.max(pb.1).max(pc.1));
-                    let lo = Vec2::new(R::ceil(lo.x), R::ceil(lo.y)).max(Vec2::new(first.0, first.1));
-                    let hi = Vec2::new(R::floor(hi.x), R::floor(hi.y)).min(Vec2::new(last.0, last.1));
+                    let (lo, hi) = bounds(rounded(pa.1).min(rounded(pb.1)).min(rounded(pc.1)));
                     if lo.x <= hi.x && lo.y <= hi.y {
                         drawn = union(drawn, fill_triangle([pa, pb, pc], lo, hi, t as u32, w, zbuf, ids));
                     }
@@ -235,8 +239,7 @@ fn raster_ids_body<R: Rounding>(mesh: &RenderMesh, pose: &GpuPose, k: &Intrinsic
                 continue;
             }
             // Empty bounds first (most triangles of a full-size model).
-            let bounds = snap[ia].min(snap[ib]).min(snap[ic]).max(clip);
-            let (lo, hi) = (Vec2::new(bounds.x, bounds.y), Vec2::new(-bounds.z, -bounds.w));
+            let (lo, hi) = bounds(snap[ia].min(snap[ib]).min(snap[ic]));
             if lo.x > hi.x || lo.y > hi.y {
                 continue;
             }
